@@ -1,0 +1,37 @@
+# evperc — make targets. Every target creates .venv if it is missing.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+OUT ?= evperc-out
+
+.PHONY: run test test-all bench lint golden sample-data clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/evperc run sample_data/drive.mcap --map sample_data/map.geojson --out $(OUT)/sample --overwrite
+	$(BIN)/evperc render $(OUT)/sample --gif $(OUT)/sample.gif --dest $(OUT)/sample-png
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+test-all: $(STAMP)
+	$(BIN)/python -m pytest -q -m ''
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/run.py
+
+lint: $(STAMP)
+	$(BIN)/ruff check evperc tests benchmarks
+
+clean:
+	rm -rf $(VENV) $(OUT) .pytest_cache

@@ -1,0 +1,18 @@
+"""evperc: map-aided evidential occupancy grids from logged drives.
+
+Implements Kurdej, Moras, Cherfaoui, Bonnifait, "Enhancing Mobile Object Classification Using
+Geo-referenced Maps and Evidential Grids" (2013), as specified in docs/method.md.
+"""
+
+from __future__ import annotations
+
+__version__ = "0.1.0"
+
+__all__ = ["__version__", "load"]
+
+
+def load(out_dir):  # noqa: ANN001, ANN201 - thin re-export, documented in evperc.io.run_reader
+    """Open an `evperc run` output directory; see :func:`evperc.io.run_reader.load`."""
+    from evperc.io.run_reader import load as _load
+
+    return _load(out_dir)

@@ -1,0 +1,3 @@
+from evperc.cli import main
+
+main()

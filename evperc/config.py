@@ -1,0 +1,199 @@
+"""Configuration: defaults from ``configs/default.toml``, a user file on top, validation.
+
+The default file is the schema: a user key must exist there (except in open tables such as
+``map.road_width_m``) and have the same type. Ranges and choices are declared in
+:data:`RULES`. Every failing key is reported at once, each with the bound it broke.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+
+from evperc.errors import ConfigError
+
+DEFAULT_PATH = Path(__file__).with_name("default.toml")
+
+#: Tables whose keys are free (a user may add classes); values must be numbers.
+OPEN_TABLES = {"map.road_width_m"}
+
+_UNIT_INTERVAL = (0.0, 1.0)
+
+#: key -> ("range", lo, hi, lo_open, hi_open) or ("choice", values...)
+RULES: dict[str, tuple] = {
+    "grid.cell_size_m": ("range", 0.01, 100.0, False, False),
+    "grid.window_size_m": ("range", 1.0, 10_000.0, False, False),
+    "sensor.mu_free": ("range", *_UNIT_INTERVAL, False, False),
+    "sensor.mu_occupied": ("range", *_UNIT_INTERVAL, False, False),
+    "sensor.min_range_m": ("range", 0.0, 1e4, False, False),
+    "sensor.max_range_m": ("range", 0.0, 1e4, True, False),
+    "sensor.azimuth_resolution_deg": ("range", 0.01, 45.0, False, False),
+    "sensor.ground_threshold_m": ("range", 0.0, 10.0, False, False),
+    "sensor.max_obstacle_height_m": ("range", 0.0, 100.0, True, False),
+    "sensor.sensor_height_m": ("range", 0.0, 100.0, False, False),
+    "map.beta_building": ("range", *_UNIT_INTERVAL, False, False),
+    "map.beta_road": ("range", *_UNIT_INTERVAL, False, False),
+    "map.beta_other": ("range", *_UNIT_INTERVAL, False, False),
+    "map.tile_size_cells": ("range", 8, 8192, False, False),
+    "map.default_road_width_m": ("range", 0.0, 200.0, False, False),
+    "fusion.prior_where": ("choice", "observed", "everywhere"),
+    "fusion.discount": ("choice", "contextual", "classical"),
+    "fusion.discount_period_s": ("range", 0.0, 3600.0, True, False),
+    "fusion.discount_free": ("range", *_UNIT_INTERVAL, False, False),
+    "fusion.discount_infrastructure": ("range", *_UNIT_INTERVAL, False, False),
+    "fusion.discount_unmapped": ("range", *_UNIT_INTERVAL, False, False),
+    "fusion.discount_stopped": ("range", *_UNIT_INTERVAL, False, False),
+    "fusion.discount_moving": ("range", *_UNIT_INTERVAL, False, False),
+    "fusion.discount_classical": ("range", *_UNIT_INTERVAL, False, False),
+    "fusion.residual_conflict": ("choice", "omega", "empty", "normalise"),
+    "fusion.stopped_target": ("choice", "stopped", "empty"),
+    "fusion.zeta_increment": ("range", *_UNIT_INTERVAL, False, False),
+    "fusion.zeta_decrement": ("range", *_UNIT_INTERVAL, False, False),
+    "fusion.gamma_occupied": ("range", *_UNIT_INTERVAL, False, False),
+    "fusion.gamma_conflict": ("range", *_UNIT_INTERVAL, False, False),
+    "decision.min_betp": ("range", *_UNIT_INTERVAL, False, False),
+    "decision.max_ignorance": ("range", *_UNIT_INTERVAL, False, False),
+    "input.max_pose_gap_s": ("range", 0.0, 1e6, True, False),
+    "input.origin_lat_deg": ("range", -90.0, 90.0, False, False),
+    "input.origin_lon_deg": ("range", -180.0, 180.0, False, False),
+    "input.origin_heading_deg": ("range", -360.0, 360.0, False, False),
+    "output.chunk_frames": ("range", 1, 100_000, False, False),
+}
+
+#: keys whose value may be NaN, meaning "not set"
+NULLABLE = {"input.origin_lat_deg", "input.origin_lon_deg"}
+
+
+def default_config() -> dict[str, Any]:
+    """The defaults as a nested dict (a fresh copy)."""
+    with DEFAULT_PATH.open("rb") as f:
+        return tomllib.load(f)
+
+
+def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None
+                ) -> dict[str, Any]:
+    """Defaults, updated by the TOML file at ``path`` and by dotted-key ``overrides``; validated.
+
+    Raises :class:`ConfigError` naming the file and every bad key.
+    """
+    config = default_config()
+    source = "the defaults"
+    if path is not None:
+        path = Path(path)
+        source = str(path)
+        try:
+            with path.open("rb") as f:
+                user = tomllib.load(f)
+        except FileNotFoundError as err:
+            raise ConfigError(f"{path}: config file not found") from err
+        except tomllib.TOMLDecodeError as err:
+            raise ConfigError(f"{path}: not valid TOML ({err})") from err
+        except OSError as err:
+            raise ConfigError(f"{path}: cannot read config ({err.strerror})") from err
+        problems = _merge(config, user, prefix="")
+        if problems:
+            raise ConfigError(f"{path}: " + "; ".join(problems))
+    for dotted, value in (overrides or {}).items():
+        *tables, key = dotted.split(".")
+        node = config
+        for t in tables:
+            node = node[t]
+        node[key] = value
+    problems = validate(config)
+    if problems:
+        raise ConfigError(f"{source}: " + "; ".join(problems))
+    return config
+
+
+def _merge(base: dict[str, Any], user: Mapping[str, Any], prefix: str) -> list[str]:
+    """Update ``base`` in place from ``user``; return the unknown keys and type errors."""
+    problems = []
+    for key, value in user.items():
+        dotted = f"{prefix}{key}"
+        if prefix.rstrip(".") in OPEN_TABLES:
+            if not isinstance(value, int | float) or isinstance(value, bool):
+                problems.append(f"{dotted} must be a number, got {value!r}")
+            else:
+                base[key] = float(value)
+            continue
+        if key not in base:
+            close = [k for k in base if k.split("_")[0] == key.split("_")[0]]
+            hint = f" (did you mean {', '.join(close)}?)" if close else ""
+            problems.append(f"unknown key {dotted}{hint}")
+            continue
+        default = base[key]
+        if isinstance(default, dict):
+            if not isinstance(value, dict):
+                problems.append(f"{dotted} must be a table")
+            else:
+                problems.extend(_merge(default, value, prefix=f"{dotted}."))
+            continue
+        coerced = _coerce(default, value)
+        if coerced is None:
+            problems.append(
+                f"{dotted} must be {type(default).__name__}, got {type(value).__name__} {value!r}")
+        else:
+            base[key] = coerced
+    return problems
+
+
+def _coerce(default: Any, value: Any) -> Any:
+    if isinstance(default, bool):
+        return value if isinstance(value, bool) else None
+    if isinstance(default, float):
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+        return None
+    if isinstance(default, int):
+        return value if isinstance(value, int) and not isinstance(value, bool) else None
+    if isinstance(default, str):
+        return value if isinstance(value, str) else None
+    return value
+
+
+def validate(config: Mapping[str, Any]) -> list[str]:
+    """Every broken range or choice in ``config``, as messages naming the dotted key."""
+    problems = []
+    for dotted, rule in RULES.items():
+        value = get(config, dotted)
+        if rule[0] == "choice":
+            if value not in rule[1:]:
+                problems.append(f"{dotted} = {value!r} is not one of {', '.join(rule[1:])}")
+            continue
+        _, lo, hi, lo_open, hi_open = rule
+        if isinstance(value, float) and math.isnan(value):
+            if dotted not in NULLABLE:
+                problems.append(f"{dotted} must be a number, got nan")
+            continue
+        if (value < lo or (lo_open and value == lo)) or (value > hi or (hi_open and value == hi)):
+            lb = "(" if lo_open else "["
+            rb = ")" if hi_open else "]"
+            problems.append(f"{dotted} = {value!r} is outside {lb}{lo}, {hi}{rb}")
+    sensor = config["sensor"]
+    if sensor["min_range_m"] >= sensor["max_range_m"]:
+        problems.append("sensor.min_range_m must be below sensor.max_range_m")
+    if config["grid"]["window_size_m"] < 2 * config["grid"]["cell_size_m"]:
+        problems.append("grid.window_size_m must hold at least two cells")
+    for cls, width in config["map"]["road_width_m"].items():
+        if not 0.0 <= width <= 200.0:
+            problems.append(f"map.road_width_m.{cls} = {width!r} is outside [0.0, 200.0]")
+    return problems
+
+
+def get(config: Mapping[str, Any], dotted: str) -> Any:
+    """``get(cfg, "fusion.zeta_increment")`` — a value by its dotted key."""
+    node: Any = config
+    for part in dotted.split("."):
+        node = node[part]
+    return node
+
+
+def dumps(config: Mapping[str, Any]) -> str:
+    """The config as TOML text (NaN written as ``nan``), to store beside a result."""
+    return tomli_w.dumps(copy.deepcopy(dict(config)))

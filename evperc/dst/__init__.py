@@ -1,0 +1,1 @@
+"""Belief functions over grids: dense (..., 2**n) mass arrays, subsets as bitmasks."""

@@ -1,0 +1,1 @@
+"""Metrics of evperc outputs against ground truth."""

@@ -1,0 +1,1 @@
+"""Geometry: the working CRS, geo-referencing, the map prior grid, the scrolling window."""

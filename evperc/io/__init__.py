@@ -1,0 +1,1 @@
+"""Readers (MCAP logs, map files) and writers (NPZ chunks, manifest)."""

@@ -1,0 +1,1 @@
+"""Pictures of evperc outputs: pignistic colour, decision maps, traces."""

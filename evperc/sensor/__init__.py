@@ -1,0 +1,1 @@
+"""Lidar sensor models producing {F, O} mass grids (SPEC §3)."""

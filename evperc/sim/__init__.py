@@ -1,0 +1,1 @@
+"""Synthetic drives with per-cell ground truth."""
