@@ -40,3 +40,7 @@ class GeoreferenceError(EvpercError):
 
 class OutputError(EvpercError):
     """The output directory exists, is not writable, or is not an evperc output."""
+
+
+class UsageError(EvpercError):
+    """Command-line options that contradict each other or miss a required companion."""

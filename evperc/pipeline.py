@@ -1,0 +1,168 @@
+"""One fusion step per scan (SPEC §5) and the decision (SPEC §6), as pure functions over grids.
+
+State of the perception grid PG: dense masses ``(rows, cols, 32)`` over Ω = {F, I, U, S, M}
+(bit0 F … bit4 M) and the accumulator ζ ``(rows, cols)``. No I/O here; the driver that reads a
+log and writes the output is :mod:`evperc.runner`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from evperc import dst
+
+F, I, U, S, M = 1, 2, 4, 8, 16
+OMEGA = 31
+OCCUPIED = I | U | S | M  # O = {I, U, S, M}: the refinement of the sensor's O (SPEC §5.1)
+N_CLASSES = 5
+CLASSES = ("F", "I", "U", "S", "M")
+
+#: decision codes of the output (docs/output-format.md)
+DECISION_CODES = {"unknown": 0, "free": 1, "moving": 2, "static": 3, "stopped": 4,
+                  "infrastructure": 5, "unmapped": 6}
+
+_MASKS = np.arange(32)
+#: subsets A with ∅ ≠ A ⊆ O, whose masses sum to Bel(O)
+_OCCUPIED_SUBSETS = _MASKS[(_MASKS != 0) & ((_MASKS & F) == 0)]
+
+
+@dataclass(frozen=True)
+class FusionParams:
+    """The ``[fusion]`` and ``[decision]`` keys of the config (SPEC §5, §6)."""
+
+    prior_where: str = "observed"
+    discount: str = "contextual"
+    discount_period_s: float = 0.1
+    discount_rates: tuple[float, float, float, float, float] = (0.1, 0.0, 0.01, 0.02, 0.1)
+    discount_classical: float = 0.1
+    residual_conflict: str = "omega"
+    stopped_target: str = "stopped"
+    zeta_increment: float = 0.1
+    zeta_decrement: float = 0.5
+    gamma_occupied: float = 0.6
+    gamma_conflict: float = 0.2
+    decision_min_betp: float = 0.5
+    decision_max_ignorance: float = 0.5
+
+    @staticmethod
+    def from_config(config: dict[str, Any]) -> FusionParams:
+        fu, de = config["fusion"], config["decision"]
+        return FusionParams(
+            prior_where=fu["prior_where"], discount=fu["discount"],
+            discount_period_s=fu["discount_period_s"],
+            discount_rates=(fu["discount_free"], fu["discount_infrastructure"],
+                            fu["discount_unmapped"], fu["discount_stopped"],
+                            fu["discount_moving"]),
+            discount_classical=fu["discount_classical"],
+            residual_conflict=fu["residual_conflict"], stopped_target=fu["stopped_target"],
+            zeta_increment=fu["zeta_increment"], zeta_decrement=fu["zeta_decrement"],
+            gamma_occupied=fu["gamma_occupied"], gamma_conflict=fu["gamma_conflict"],
+            decision_min_betp=de["min_betp"], decision_max_ignorance=de["max_ignorance"])
+
+
+def scaled_rate(rate: float | np.ndarray, dt_s: float, period_s: float) -> np.ndarray:
+    """α(dt) = 1 − (1 − α)^(dt / period): a rate per ``period_s`` applied over ``dt_s``."""
+    rate = np.asarray(rate, dtype=np.float64)
+    return 1.0 - (1.0 - rate) ** (max(dt_s, 0.0) / period_s)
+
+
+def vacuous(shape: tuple[int, ...], dtype: np.dtype | type = np.float32) -> np.ndarray:
+    """Mass grid with m(Ω) = 1 in every cell."""
+    m = np.zeros((*shape, 32), dtype=dtype)
+    m[..., OMEGA] = 1
+    return m
+
+
+def sensor_masses(free: np.ndarray, occupied: np.ndarray) -> np.ndarray:
+    """SG refined to Ω (SPEC §5.1): {F}→{F}, {O}→{I,U,S,M}, Ω_SG→Ω."""
+    m = np.zeros((*free.shape, 32), dtype=np.float32)
+    m[..., F] = free
+    m[..., OCCUPIED] = occupied
+    m[..., OMEGA] = 1.0 - free - occupied
+    return m
+
+
+def belief_occupied(m: np.ndarray) -> np.ndarray:
+    """Bel(O) = Σ_{∅≠A⊆{I,U,S,M}} m(A) (SPEC §5.4)."""
+    return m[..., _OCCUPIED_SUBSETS].sum(axis=-1)
+
+
+def fusion_step(pg: np.ndarray, zeta: np.ndarray, sg: np.ndarray, prior: np.ndarray,
+                observed: np.ndarray, dt_s: float, params: FusionParams
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One step PG_{t−1}, ζ_{t−1} → PG_t, ζ_t (SPEC §5, steps 2–8).
+
+    ``sg``: the refined sensor grid (SPEC §5.1); ``prior``: the GIS grid GG; ``observed``:
+    cells the scan touched. Returns ``(pg, zeta, conflict)`` with ``conflict[..., k]`` =
+    ∅_FO, ∅_OF, ∅_other of this step.
+    """
+    # 2. SG' = SG ⊕ GG (Dempster), on observed cells only unless prior_where = everywhere
+    sg_prior, _ = dst.dempster(sg, prior)
+    if params.prior_where == "observed":
+        sg_prior = np.where(observed[..., None], sg_prior, sg)
+    # 3. discount PG_{t-1}
+    if params.discount == "contextual":
+        alphas = scaled_rate(params.discount_rates, dt_s, params.discount_period_s)
+        pg_disc = dst.contextual_discount(pg, alphas.astype(pg.dtype))
+    else:
+        alpha = scaled_rate(params.discount_classical, dt_s, params.discount_period_s)
+        pg_disc = dst.discount(pg, float(alpha))
+    # 4. conjunctive combination and its conflict parts
+    fused = dst.conjunctive(pg_disc, sg_prior)
+    conflict_of = belief_occupied(pg_disc) * sg_prior[..., F]
+    conflict_fo = pg_disc[..., F] * belief_occupied(sg_prior)
+    conflict_other = np.maximum(fused[..., 0] - conflict_fo - conflict_of, 0)
+    # 5. modified rule ⊛: ∅_FO → {M}, ∅_OF → Ω, ∅_other per option
+    fused[..., 0] = 0
+    fused[..., M] += conflict_fo
+    fused[..., OMEGA] += conflict_of
+    if params.residual_conflict == "omega":
+        fused[..., OMEGA] += conflict_other
+    elif params.residual_conflict == "empty":
+        fused[..., 0] = conflict_other
+    else:  # normalise
+        fused /= np.maximum(1.0 - conflict_other, np.finfo(fused.dtype).tiny)[..., None]
+    # 6. accumulator ζ
+    dynamic = conflict_fo + conflict_of
+    grow = (belief_occupied(fused) >= params.gamma_occupied) & (dynamic <= params.gamma_conflict)
+    shrink = dynamic > params.gamma_conflict
+    zeta = np.where(grow, np.minimum(1.0, zeta + params.zeta_increment),
+                    np.where(shrink, np.maximum(0.0, zeta - params.zeta_decrement), zeta))
+    zeta = zeta.astype(pg.dtype)
+    # 7. specialise by ζ
+    pg_new = dst.specialise_by_zeta(fused, zeta, dst.FRAME, stopped_target=params.stopped_target)
+    conflict = np.stack([conflict_fo, conflict_of, conflict_other], axis=-1).astype(pg.dtype)
+    return pg_new, zeta, conflict
+
+
+def decide(pg: np.ndarray, params: FusionParams) -> tuple[np.ndarray, np.ndarray]:
+    """betP per class and the fine decision code per cell (SPEC §6).
+
+    Coarse: free = betP(F), moving = betP(M), static = betP(I)+betP(U)+betP(S); the largest
+    wins unless it is below ``decision_min_betp`` or m(Ω) > ``decision_max_ignorance``
+    (then unknown). Fine: a static cell becomes infrastructure / unmapped / stopped when the
+    largest of betP(I), betP(U), betP(S) is ≥ 0.5 and at least half the static score.
+    """
+    betp = dst.pignistic(pg)
+    free, infra, unmapped, stopped, moving = (betp[..., k] for k in range(N_CLASSES))
+    static = infra + unmapped + stopped
+    scores = np.stack([free, moving, static], axis=-1)
+    winner = np.argmax(scores, axis=-1)
+    best = np.take_along_axis(scores, winner[..., None], axis=-1)[..., 0]
+    codes = np.array([DECISION_CODES["free"], DECISION_CODES["moving"],
+                      DECISION_CODES["static"]], dtype=np.uint8)
+    decision = codes[winner]
+    fine = np.stack([infra, unmapped, stopped], axis=-1)
+    fine_winner = np.argmax(fine, axis=-1)
+    fine_best = np.take_along_axis(fine, fine_winner[..., None], axis=-1)[..., 0]
+    fine_codes = np.array([DECISION_CODES["infrastructure"], DECISION_CODES["unmapped"],
+                           DECISION_CODES["stopped"]], dtype=np.uint8)
+    refine = (decision == DECISION_CODES["static"]) & (fine_best >= 0.5) & (
+        fine_best >= 0.5 * static)
+    decision = np.where(refine, fine_codes[fine_winner], decision)
+    unknown = (best < params.decision_min_betp) | (pg[..., OMEGA] > params.decision_max_ignorance)
+    decision = np.where(unknown, np.uint8(DECISION_CODES["unknown"]), decision).astype(np.uint8)
+    return betp.astype(np.float32), decision

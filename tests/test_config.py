@@ -1,0 +1,99 @@
+"""Configuration loading and validation."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from evperc.config import DEFAULT_PATH, RULES, default_config, dumps, load_config
+from evperc.errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "user.toml"
+    path.write_text(text)
+    return path
+
+
+def test_packaged_default_is_the_repo_file() -> None:
+    assert DEFAULT_PATH.resolve() == (REPO / "configs" / "default.toml").resolve()
+
+
+def test_defaults_are_valid_and_carry_the_paper_values() -> None:
+    config = load_config()
+    assert config["grid"]["cell_size_m"] == 0.5
+    assert config["sensor"]["mu_free"] == 0.7
+    assert config["sensor"]["mu_occupied"] == 0.8
+    assert math.isnan(config["input"]["origin_lat_deg"])
+
+
+def test_every_rule_names_an_existing_key() -> None:
+    config = default_config()
+    for dotted in RULES:
+        node = config
+        for part in dotted.split("."):
+            assert part in node, dotted
+            node = node[part]
+
+
+def test_every_default_key_has_a_comment() -> None:
+    for line in DEFAULT_PATH.read_text().splitlines():
+        if "=" in line and not line.lstrip().startswith("#"):
+            assert "#" in line or line.split("=")[0].strip() in {
+                "x_m", "y_m", "z_m", "roll_deg", "pitch_deg", "yaw_deg"} or \
+                line.split("=")[0].strip() in default_config()["map"]["road_width_m"], line
+
+
+def test_user_file_overrides(tmp_path: Path) -> None:
+    path = write(tmp_path, "[fusion]\nzeta_increment = 0.2\n[grid]\nwindow_size_m = 50\n")
+    config = load_config(path)
+    assert config["fusion"]["zeta_increment"] == 0.2
+    assert config["grid"]["window_size_m"] == 50.0
+    assert isinstance(config["grid"]["window_size_m"], float)
+    assert config["fusion"]["zeta_decrement"] == 0.5
+
+
+def test_unknown_key_is_named(tmp_path: Path) -> None:
+    path = write(tmp_path, "[fusion]\nzeta_incremnt = 0.2\n")
+    with pytest.raises(ConfigError, match=r"user.toml: unknown key fusion.zeta_incremnt"):
+        load_config(path)
+
+
+def test_every_failing_key_is_listed(tmp_path: Path) -> None:
+    path = write(tmp_path, '[sensor]\nmu_free = 1.5\n[fusion]\ndiscount = "fancy"\n'
+                           '[grid]\ncell_size_m = "big"\n')
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert "grid.cell_size_m must be float" in message
+    assert "\n" not in message
+    path = write(tmp_path, '[sensor]\nmu_free = 1.5\n[fusion]\ndiscount = "fancy"\n')
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert "sensor.mu_free = 1.5 is outside [0.0, 1.0]" in message
+    assert "fusion.discount = 'fancy' is not one of contextual, classical" in message
+
+
+def test_open_table_accepts_new_classes(tmp_path: Path) -> None:
+    path = write(tmp_path, "[map.road_width_m]\nbusway = 5\n")
+    assert load_config(path)["map"]["road_width_m"]["busway"] == 5.0
+
+
+def test_bad_toml_and_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(write(tmp_path, "[fusion\n"))
+    with pytest.raises(ConfigError, match="config file not found"):
+        load_config(tmp_path / "nope.toml")
+
+
+def test_dump_round_trips() -> None:
+    config = load_config()
+    again = tomllib.loads(dumps(config))
+    assert again["fusion"] == config["fusion"]
+    assert math.isnan(again["input"]["origin_lat_deg"])

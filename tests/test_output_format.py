@@ -1,0 +1,98 @@
+"""The output directory: writer → evperc.load round trip, atomicity, refusal to overwrite."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import evperc
+from evperc.config import load_config
+from evperc.errors import OutputError
+from evperc.io.writer import RunWriter
+from evperc.pipeline import DECISION_CODES
+
+ROWS, COLS = 4, 5
+
+
+def frame_arrays(rng: np.random.Generator):
+    masses = np.zeros((ROWS, COLS, 32), np.float32)
+    masses[..., 31] = rng.uniform(0, 1, (ROWS, COLS))
+    masses[..., 1] = 1 - masses[..., 31]
+    betp = rng.uniform(0, 1, (ROWS, COLS, 5)).astype(np.float32)
+    decision = rng.integers(0, 7, (ROWS, COLS)).astype(np.uint8)
+    zeta = rng.uniform(0, 1, (ROWS, COLS)).astype(np.float32)
+    conflict = rng.uniform(0, 0.3, (ROWS, COLS, 3)).astype(np.float32)
+    return masses, betp, decision, zeta, conflict
+
+
+def make_writer(out: Path, chunk_frames: int = 2, overwrite: bool = False) -> RunWriter:
+    config = load_config()
+    config["output"]["chunk_frames"] = chunk_frames
+    meta = {"decision_codes": DECISION_CODES, "classes": list("FIUSM"), "crs": "EPSG:32635",
+            "resolution_m": 0.5, "rows": ROWS, "cols": COLS}
+    return RunWriter(out, config, meta, overwrite=overwrite)
+
+
+def test_round_trip(tmp_path: Path) -> None:
+    rng = np.random.default_rng(1)
+    writer = make_writer(tmp_path / "out")
+    written = []
+    for k in range(5):
+        arrays = frame_arrays(rng)
+        writer.add(1000 + k, np.array([k, 2.0 * k, 0.1]), (10 + k, -3), *arrays)
+        written.append(arrays)
+    writer.close({"frames": 5})
+    run = evperc.load(tmp_path / "out")
+    assert len(run) == 5
+    assert run.decision_codes == DECISION_CODES
+    frames = list(run.frames)
+    assert [f.stamp_ns for f in frames] == [1000, 1001, 1002, 1003, 1004]
+    assert len(list((tmp_path / "out" / "frames").glob("chunk_*.npz"))) == 3
+    for k, (frame, (masses, betp, decision, zeta, conflict)) in enumerate(
+            zip(frames, written, strict=True)):
+        assert frame.origin == (10 + k, -3)
+        assert frame.window.row0 == 10 + k
+        np.testing.assert_array_equal(frame.decision, decision)
+        np.testing.assert_allclose(frame.masses, masses, atol=1e-3)
+        np.testing.assert_allclose(frame.betp, betp, atol=1e-3)
+        np.testing.assert_allclose(frame.zeta, zeta, atol=1e-3)
+        np.testing.assert_allclose(frame.conflict, conflict, atol=1e-3)
+    assert run.frame(3).stamp_ns == 1003
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert manifest["complete"] is True
+    assert manifest["frame_count"] == 5
+    assert (tmp_path / "out" / "config.toml").is_file()
+
+
+def test_unfinished_run_is_not_complete(tmp_path: Path) -> None:
+    writer = make_writer(tmp_path / "out")
+    rng = np.random.default_rng(2)
+    for k in range(3):
+        writer.add(k, np.zeros(3), (0, 0), *frame_arrays(rng))
+    # no close(): as if the process died
+    with pytest.raises(OutputError, match="incomplete"):
+        evperc.load(tmp_path / "out")
+    partial = evperc.io.run_reader.load(tmp_path / "out", allow_incomplete=True)
+    assert len(partial) == 2  # only the chunk already on disk
+    assert not list((tmp_path / "out" / "frames").glob(".*tmp"))
+
+
+def test_existing_output_is_refused_without_overwrite(tmp_path: Path) -> None:
+    make_writer(tmp_path / "out").close({})
+    with pytest.raises(OutputError, match="--overwrite"):
+        make_writer(tmp_path / "out")
+    make_writer(tmp_path / "out", overwrite=True).close({})
+    other = tmp_path / "precious"
+    other.mkdir()
+    (other / "thesis.tex").write_text("x")
+    with pytest.raises(OutputError, match="not an evperc output"):
+        make_writer(other, overwrite=True)
+    assert (other / "thesis.tex").exists()
+
+
+def test_load_rejects_non_outputs(tmp_path: Path) -> None:
+    with pytest.raises(OutputError, match="no manifest.json"):
+        evperc.load(tmp_path)
