@@ -8,8 +8,8 @@ from __future__ import annotations
 import functools
 import logging
 import sys
-from pathlib import Path
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import click
@@ -97,6 +97,172 @@ def run_command(log_path: Path, map_path: Path | None, roads_path: Path | None, 
     log.info("%d frames in %.1f s (%.1f frames/s) -> %s", summary["frames"],
              summary["wall_time_s"], summary["frames_per_s"] or 0.0, out_dir)
     log.info("cells: %s", shares)
+
+
+@cli.command("info")
+@click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path))
+@click.option("--lidar-topic", help="Lidar topic, if the log has several.")
+@click.option("--pose-topic", help="Pose topic, if the log has several.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@user_errors
+def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None,
+                 as_json: bool) -> None:
+    """Summarise LOG.mcap: topics, message counts, time span, detected lidar/pose/GNSS."""
+    import json
+
+    from evperc.io.log import open_log
+
+    info = open_log(log_path, lidar_topic=lidar_topic, pose_topic=pose_topic,
+                    strict=False).info()
+    if as_json:
+        click.echo(json.dumps(info, indent=2))
+        return
+    span = "empty" if info["duration_s"] is None else f"{info['duration_s']:.3f} s"
+    click.echo(f"{info['path']}  ({'indexed' if info['indexed'] else 'no index'}"
+               f"{'' if info['complete'] else ', TRUNCATED: ' + info['stopped']})")
+    click.echo(f"time span: {span}")
+    width = max([len(t["topic"]) for t in info["topics"]] + [5])
+    click.echo(f"{'topic':<{width}}  {'messages':>8}  schema [encoding]")
+    for t in info["topics"]:
+        click.echo(f"{t['topic']:<{width}}  {t['messages']:>8}  {t['schema']} [{t['encoding']}]")
+    for key, value in info["detected"].items():
+        click.echo(f"{key.replace('_', ' ')}: {value if value not in (None, []) else '-'}")
+    if info.get("mean_points_per_scan") is not None:
+        click.echo(f"lidar frame: {info['lidar_frame']}; mean points per scan "
+                   f"{info['mean_points_per_scan']:.1f} (first {info['points_sample_scans']} "
+                   "scans)")
+
+
+@cli.command("render")
+@click.argument("out_dir", metavar="OUT", type=click.Path(path_type=Path))
+@click.option("--dest", type=click.Path(path_type=Path),
+              help="Folder for DIR/frame_NNNNN.png (required unless only --gif).")
+@click.option("--frames", "frames_text", metavar="A:B:STEP",
+              help="Frames to draw, Python slice rules (e.g. 0:300:5)  [default: all]")
+@click.option("--layers", "layers_text", default="betp,decision,trace", show_default=True,
+              help="Panels: betp, decision, decision6, trace, zeta, conflict.")
+@click.option("--gif", "gif_path", type=click.Path(path_type=Path),
+              help="Also write an animated GIF.")
+@click.option("--fps", type=float, default=10.0, show_default=True, help="GIF frame rate.")
+@click.option("--compare", "compare_dir", type=click.Path(path_type=Path),
+              help="Second output folder drawn beside OUT (frames matched by stamp).")
+@click.option("--map", "map_path", type=click.Path(path_type=Path),
+              help="Draw these map polygons as outlines.")
+@click.option("--roads", "roads_path", type=click.Path(path_type=Path),
+              help="Road file for --map, if separate.")
+@click.option("--cell-px", type=click.IntRange(min=1), help="Pixels per cell  [default: auto]")
+@click.option("--overwrite", is_flag=True, help="Replace existing frame PNGs / GIF.")
+@user_errors
+def render_command(out_dir: Path, dest: Path | None, frames_text: str | None, layers_text: str,
+                   gif_path: Path | None, fps: float, compare_dir: Path | None,
+                   map_path: Path | None, roads_path: Path | None, cell_px: int | None,
+                   overwrite: bool) -> None:
+    """Draw the grids of OUT (an `evperc run` folder) as PNG frames and/or a GIF."""
+    from evperc.io.run_reader import load
+    from evperc.render.frame import parse_layers
+    from evperc.render.run_render import RenderRequest, outlines_for, parse_frames, render_run
+
+    if dest is None and gif_path is None:
+        raise UsageError("give --dest DIR for PNG frames and/or --gif FILE")
+    if roads_path is not None and map_path is None:
+        raise UsageError("--roads needs --map")
+    layers, frames = parse_layers(layers_text), parse_frames(frames_text)
+    run = load(out_dir)
+    compare = load(compare_dir) if compare_dir is not None else None
+    outlines = outlines_for(run, map_path, roads_path) if map_path is not None else None
+    result = render_run(RenderRequest(run=run, dest=dest, gif=gif_path, frames=frames,
+                                      layers=layers, fps=fps, compare=compare,
+                                      outlines=outlines, cell_px=cell_px, overwrite=overwrite))
+    where = " and ".join(str(p) for p in (dest, result["gif"]) if p is not None)
+    log.info("%d frames rendered -> %s", result["frames"], where)
+
+
+@cli.command("export")
+@click.argument("out_dir", metavar="OUT", type=click.Path(path_type=Path))
+@click.option("--mcap", "mcap_path", required=True, type=click.Path(path_type=Path),
+              help="MCAP file to write (foxglove.Grid + foxglove.FrameTransform).")
+@click.option("--frames", "frames_text", metavar="A:B:STEP",
+              help="Frames to export, Python slice rules  [default: all]")
+@click.option("--frame-id", default="map", show_default=True,
+              help="Frame of the grids and parent of the ego transform (the run's CRS).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing MCAP file.")
+@user_errors
+def export_command(out_dir: Path, mcap_path: Path, frames_text: str | None, frame_id: str,
+                   overwrite: bool) -> None:
+    """Export the grids of OUT to MCAP for Foxglove."""
+    from evperc.io.foxglove_export import export_mcap
+    from evperc.io.run_reader import load
+    from evperc.render.run_render import parse_frames
+
+    frames = parse_frames(frames_text)
+    result = export_mcap(load(out_dir), mcap_path, frames=frames, frame_id=frame_id,
+                         overwrite=overwrite)
+    log.info("%d frames exported -> %s", result["frames"], result["path"])
+
+
+@cli.command("simulate")
+@click.option("--map", "map_path", required=True, type=click.Path(path_type=Path),
+              help="OSM-style map: buildings, and highway lines unless --roads gives them.")
+@click.option("--roads", "roads_path", type=click.Path(path_type=Path),
+              help="Highway centre lines, if not in --map.")
+@click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
+              help="Output folder: drive.mcap, map.geojson, truth/.")
+@click.option("--profile", type=click.Choice(["ibeo4", "hdl64", "scan2d"]), default="ibeo4",
+              show_default=True, help="Lidar model.")
+@click.option("--seconds", type=click.FloatRange(min=0.1), default=10.0, show_default=True,
+              help="Drive duration (10 scans per second).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option("--config", "config_path", type=click.Path(path_type=Path),
+              help="TOML file overriding configs/default.toml ([grid], [map], [sim]).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
+@user_errors
+def simulate_command(map_path: Path, roads_path: Path | None, out_dir: Path, profile: str,
+                     seconds: float, seed: int, config_path: Path | None,
+                     overwrite: bool) -> None:
+    """Simulate a drive on a real map: MCAP log, map file and per-cell ground truth."""
+    from evperc.config import load_config
+    from evperc.sim.drive import SimRequest, simulate
+
+    config = load_config(config_path)
+    summary = simulate(SimRequest(map_path=map_path, out_dir=out_dir, config=config,
+                                  roads_path=roads_path, profile=profile, seconds=seconds,
+                                  seed=seed, overwrite=overwrite))
+    log.info("%d scans, %.0f points/scan, %d agents, %d unmapped objects -> %s",
+             summary["frames"], summary["points_per_scan"], summary["agents"],
+             summary["unmapped_objects"], out_dir)
+
+
+@cli.command("evaluate")
+@click.argument("out_dir", metavar="OUT", type=click.Path(path_type=Path))
+@click.option("--truth", "truth_dir", required=True, type=click.Path(path_type=Path),
+              help="truth/ folder written by `evperc simulate`.")
+@click.option("--compare", "compare_dir", type=click.Path(path_type=Path),
+              help="Second run scored beside OUT (e.g. the --no-map baseline).")
+@click.option("--json", "json_path", type=click.Path(path_type=Path),
+              help="Also write the metrics as JSON.")
+@user_errors
+def evaluate_command(out_dir: Path, truth_dir: Path, compare_dir: Path | None,
+                     json_path: Path | None) -> None:
+    """Score OUT (an `evperc run` folder) against simulated ground truth."""
+    import json
+
+    from evperc.eval.metrics import evaluate, format_report
+    from evperc.io.run_reader import load
+    from evperc.sim.truth import load_truth
+
+    truth = load_truth(truth_dir)
+    metrics = evaluate(load(out_dir), truth)
+    other = evaluate(load(compare_dir), truth) if compare_dir is not None else None
+    names = (out_dir.name or str(out_dir), compare_dir.name if compare_dir else "")
+    click.echo(format_report(metrics, other, names), nl=False)
+    if json_path is not None:
+        doc = dict(metrics, run=str(out_dir))
+        if other is not None:
+            doc["compare"] = dict(other, run=str(compare_dir))
+        try:
+            json_path.write_text(json.dumps(doc, indent=1))
+        except OSError as err:
+            raise UsageError(f"{json_path}: cannot write JSON ({err.strerror})") from err
 
 
 def main() -> None:

@@ -24,9 +24,9 @@ CLASSES = ("F", "I", "U", "S", "M")
 DECISION_CODES = {"unknown": 0, "free": 1, "moving": 2, "static": 3, "stopped": 4,
                   "infrastructure": 5, "unmapped": 6}
 
-_MASKS = np.arange(32)
-#: subsets A with ∅ ≠ A ⊆ O, whose masses sum to Bel(O)
-_OCCUPIED_SUBSETS = _MASKS[(_MASKS != 0) & ((_MASKS & F) == 0)]
+#: betP differences below this are ties (float32 round-off)
+_TIE = 1e-4
+
 
 
 @dataclass(frozen=True)
@@ -87,7 +87,7 @@ def sensor_masses(free: np.ndarray, occupied: np.ndarray) -> np.ndarray:
 
 def belief_occupied(m: np.ndarray) -> np.ndarray:
     """Bel(O) = Σ_{∅≠A⊆{I,U,S,M}} m(A) (SPEC §5.4)."""
-    return m[..., _OCCUPIED_SUBSETS].sum(axis=-1)
+    return dst.belief_of(m, OCCUPIED)
 
 
 def fusion_step(pg: np.ndarray, zeta: np.ndarray, sg: np.ndarray, prior: np.ndarray,
@@ -100,9 +100,12 @@ def fusion_step(pg: np.ndarray, zeta: np.ndarray, sg: np.ndarray, prior: np.ndar
     ∅_FO, ∅_OF, ∅_other of this step.
     """
     # 2. SG' = SG ⊕ GG (Dempster), on observed cells only unless prior_where = everywhere
-    sg_prior, _ = dst.dempster(sg, prior)
+    sg_prior, conflict_k = dst.dempster(sg, prior)
+    # total conflict (only possible with mu = 1 and beta = 1): the sources cancel, keep SG
+    use_prior = conflict_k < 1
     if params.prior_where == "observed":
-        sg_prior = np.where(observed[..., None], sg_prior, sg)
+        use_prior &= np.asarray(observed, dtype=bool)
+    sg_prior = np.where(use_prior[..., None], sg_prior, sg)
     # 3. discount PG_{t-1}
     if params.discount == "contextual":
         alphas = scaled_rate(params.discount_rates, dt_s, params.discount_period_s)
@@ -112,9 +115,8 @@ def fusion_step(pg: np.ndarray, zeta: np.ndarray, sg: np.ndarray, prior: np.ndar
         pg_disc = dst.discount(pg, float(alpha))
     # 4. conjunctive combination and its conflict parts
     fused = dst.conjunctive(pg_disc, sg_prior)
-    conflict_of = belief_occupied(pg_disc) * sg_prior[..., F]
-    conflict_fo = pg_disc[..., F] * belief_occupied(sg_prior)
-    conflict_other = np.maximum(fused[..., 0] - conflict_fo - conflict_of, 0)
+    conflict_fo, conflict_of, conflict_other = dst.conflict_parts(
+        pg_disc, sg_prior, dst.FRAME, empty_mass=fused[..., 0])
     # 5. modified rule ⊛: ∅_FO → {M}, ∅_OF → Ω, ∅_other per option
     fused[..., 0] = 0
     fused[..., M] += conflict_fo
@@ -144,7 +146,8 @@ def decide(pg: np.ndarray, params: FusionParams) -> tuple[np.ndarray, np.ndarray
     Coarse: free = betP(F), moving = betP(M), static = betP(I)+betP(U)+betP(S); the largest
     wins unless it is below ``decision_min_betp`` or m(Ω) > ``decision_max_ignorance``
     (then unknown). Fine: a static cell becomes infrastructure / unmapped / stopped when the
-    largest of betP(I), betP(U), betP(S) is ≥ 0.5 and at least half the static score.
+    largest of betP(I), betP(U), betP(S) is ≥ 0.5 and at least half the static score, and
+    strictly the largest (a U/S tie, e.g. an obstacle on a pavement, stays ``static``).
     """
     betp = dst.pignistic(pg)
     free, infra, unmapped, stopped, moving = (betp[..., k] for k in range(N_CLASSES))
@@ -160,8 +163,9 @@ def decide(pg: np.ndarray, params: FusionParams) -> tuple[np.ndarray, np.ndarray
     fine_best = np.take_along_axis(fine, fine_winner[..., None], axis=-1)[..., 0]
     fine_codes = np.array([DECISION_CODES["infrastructure"], DECISION_CODES["unmapped"],
                            DECISION_CODES["stopped"]], dtype=np.uint8)
-    refine = (decision == DECISION_CODES["static"]) & (fine_best >= 0.5) & (
-        fine_best >= 0.5 * static)
+    fine_second = static - fine_best - fine.min(axis=-1)
+    refine = ((decision == DECISION_CODES["static"]) & (fine_best >= 0.5)
+              & (fine_best >= 0.5 * static) & (fine_best - fine_second > _TIE))
     decision = np.where(refine, fine_codes[fine_winner], decision)
     unknown = (best < params.decision_min_betp) | (pg[..., OMEGA] > params.decision_max_ignorance)
     decision = np.where(unknown, np.uint8(DECISION_CODES["unknown"]), decision).astype(np.uint8)
