@@ -13,6 +13,7 @@ import numpy as np
 
 from evperc.geo.window import Window
 from evperc.render.frame import DEFAULT_LAYERS, FrameRenderer
+from evperc.render.run_render import PNG_COMPRESS_LEVEL
 
 CASES = (
     (200, DEFAULT_LAYERS),
@@ -62,7 +63,7 @@ def _png_row(image: np.ndarray, repeats: int = 5) -> dict:
 
     start = time.perf_counter()
     for _ in range(repeats):
-        iio.imwrite(io.BytesIO(), image, extension=".png")
+        iio.imwrite(io.BytesIO(), image, extension=".png", compress_level=PNG_COMPRESS_LEVEL)
     ms = (time.perf_counter() - start) * 1000.0 / repeats
     return {"window": "PNG encode", "layers": "", "image": f"{image.shape[1]}x{image.shape[0]}",
             "ms_per_frame": ms}

@@ -53,7 +53,7 @@ def cli(verbose: int, quiet: int) -> None:
 
 
 @cli.command("run")
-@click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path))
+@click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path), required=False)
 @click.option("--map", "map_path", type=click.Path(path_type=Path),
               help="Buildings (or one OSM-style file with buildings and highways).")
 @click.option("--roads", "roads_path", type=click.Path(path_type=Path),
@@ -64,34 +64,64 @@ def cli(verbose: int, quiet: int) -> None:
 @click.option("--out", "out_dir", type=click.Path(path_type=Path),
               help="Output directory  [default: ./evperc-out/<log stem>/]")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output directory.")
+@click.option("--resume", "resume_dir", type=click.Path(path_type=Path),
+              help="Continue the interrupted run in this directory (no other option needed).")
 @click.option("--start", "start_s", type=float, help="Start, seconds from the log's start.")
 @click.option("--end", "end_s", type=float, help="End, seconds from the log's start.")
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True,
               help="Use every N-th scan.")
 @click.option("--lidar-topic", help="Lidar topic, if the log has several.")
 @click.option("--pose-topic", help="Pose topic, if the log has several.")
+@click.option("--render", "render_dir", type=click.Path(path_type=Path),
+              help="Also render each frame to PNG in this directory as the run goes.")
 @user_errors
-def run_command(log_path: Path, map_path: Path | None, roads_path: Path | None, no_map: bool,
-                config_path: Path | None, out_dir: Path | None, overwrite: bool,
-                start_s: float | None, end_s: float | None, every: int,
-                lidar_topic: str | None, pose_topic: str | None) -> None:
-    """Fuse LOG.mcap with the map into evidential grids, frame by frame."""
-    from evperc.config import load_config
-    from evperc.runner import RunRequest, run
+def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path | None,
+                no_map: bool, config_path: Path | None, out_dir: Path | None, overwrite: bool,
+                resume_dir: Path | None, start_s: float | None, end_s: float | None, every: int,
+                lidar_topic: str | None, pose_topic: str | None,
+                render_dir: Path | None) -> None:
+    """Fuse LOG.mcap with the map into evidential grids, frame by frame.
 
-    if map_path is None and not no_map:
-        raise UsageError("give --map MAP, or --no-map for the map-less baseline")
-    if map_path is not None and no_map:
-        raise UsageError("--map and --no-map exclude each other")
-    if roads_path is not None and map_path is None:
-        raise UsageError("--roads needs --map")
-    config = load_config(config_path)
-    out_dir = out_dir or Path("evperc-out") / log_path.stem
-    request = RunRequest(log_path=log_path, out_dir=out_dir, config=config, map_path=map_path,
-                         roads_path=roads_path, overwrite=overwrite, start_s=start_s,
-                         end_s=end_s, every=every, lidar_topic=lidar_topic,
-                         pose_topic=pose_topic)
-    summary = run(request)
+    \b
+    evperc run drive.mcap --map buildings.geojson [--roads roads.geojson]
+    evperc run drive.mcap --no-map
+    evperc run --resume evperc-out/drive
+    """
+    from evperc.config import load_config
+    from evperc.runner import RunRequest, request_from_manifest, run
+
+    if resume_dir is not None:
+        if log_path is not None or map_path is not None or config_path is not None:
+            raise UsageError("--resume takes the log, map and config of the interrupted run; "
+                             "give no LOG, --map or --config with it")
+        request = request_from_manifest(resume_dir)
+        out_dir = resume_dir
+    else:
+        if log_path is None:
+            raise UsageError("give LOG.mcap (or --resume DIR)")
+        if map_path is None and not no_map:
+            raise UsageError("give --map MAP, or --no-map for the map-less baseline")
+        if map_path is not None and no_map:
+            raise UsageError("--map and --no-map exclude each other")
+        if roads_path is not None and map_path is None:
+            raise UsageError("--roads needs --map")
+        config = load_config(config_path)
+        out_dir = out_dir or Path("evperc-out") / log_path.stem
+        request = RunRequest(log_path=log_path, out_dir=out_dir, config=config,
+                             map_path=map_path, roads_path=roads_path, overwrite=overwrite,
+                             start_s=start_s, end_s=end_s, every=every,
+                             lidar_topic=lidar_topic, pose_topic=pose_topic)
+    on_frame = None
+    if render_dir is not None:
+        from evperc.render.live import LiveRenderer
+
+        on_frame = LiveRenderer(render_dir, request)
+    try:
+        summary = run(request, resume=resume_dir is not None, on_frame=on_frame)
+    except KeyboardInterrupt:
+        click.echo(f"evperc: interrupted; the frames written so far are kept, continue with "
+                   f"`evperc run --resume {out_dir}`", err=True)
+        sys.exit(130)
     shares = ", ".join(f"{name} {100 * share:.1f}%"
                        for name, share in summary["decision_share"].items() if share > 0)
     log.info("%d frames in %.1f s (%.1f frames/s) -> %s", summary["frames"],

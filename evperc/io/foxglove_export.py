@@ -1,0 +1,162 @@
+"""Export a run as an MCAP file for Foxglove (``evperc export OUT --mcap FILE``).
+
+Per frame, on ``/evperc/grid``, one ``foxglove.Grid`` (protobuf) in frame ``map`` (the run's
+working CRS, x east, y north, metres): its ``pose`` is the window's south-west corner
+``(col0·r, row0·r)`` with identity orientation, so data row 0 is the southern row, exactly
+the row order of the run (docs/conventions.md). Each cell holds, little-endian::
+
+    offset  0..19  betp_F, betp_I, betp_U, betp_S, betp_M   float32
+    offset 20      zeta                                     float32
+    offset 24      decision                                 uint8 (run.decision_codes)
+    offset 28..31  red, green, blue, alpha                  uint8: pignistic colour (SPEC §6)
+
+``cell_stride`` = 32 bytes, ``row_stride`` = 32 · cols. On ``/evperc/ego`` a
+``foxglove.FrameTransform`` ``map`` → ``ego`` carries the vehicle pose (x, y, yaw). A
+metadata record ``evperc`` names the CRS, resolution and decision codes. Messages are
+encoded with the foxglove-sdk's schemas and written with the ``mcap`` writer, at log time
+= the frame's ``stamp_ns``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from evperc.errors import OutputError
+from evperc.render.colours import pignistic_colour
+
+log = logging.getLogger(__name__)
+
+GRID_TOPIC = "/evperc/grid"
+EGO_TOPIC = "/evperc/ego"
+CLASSES = ("F", "I", "U", "S", "M")
+CELL_STRIDE = 32
+#: (name, numpy type, byte offset, foxglove NumericType name) of each cell field
+CELL_FIELDS: tuple[tuple[str, str, int, str], ...] = (
+    *((f"betp_{k}", "<f4", 4 * i, "Float32") for i, k in enumerate(CLASSES)),
+    ("zeta", "<f4", 20, "Float32"),
+    ("decision", "u1", 24, "Uint8"),
+    ("red", "u1", 28, "Uint8"), ("green", "u1", 29, "Uint8"), ("blue", "u1", 30, "Uint8"),
+    ("alpha", "u1", 31, "Uint8"),
+)
+CELL_DTYPE = np.dtype({"names": [f[0] for f in CELL_FIELDS],
+                       "formats": [f[1] for f in CELL_FIELDS],
+                       "offsets": [f[2] for f in CELL_FIELDS], "itemsize": CELL_STRIDE})
+
+
+def pack_cells(frame: Any) -> bytes:
+    """The Grid ``data`` of a frame: rows south → north, columns west → east."""
+    rows, cols = frame.window.shape
+    cells = np.zeros((rows, cols), dtype=CELL_DTYPE)
+    betp = np.asarray(frame.betp, dtype=np.float32)
+    for i, k in enumerate(CLASSES):
+        cells[f"betp_{k}"] = betp[..., i]
+    cells["zeta"] = frame.zeta
+    cells["decision"] = frame.decision
+    rgb = pignistic_colour(betp)
+    cells["red"], cells["green"], cells["blue"] = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    cells["alpha"] = 255
+    return cells.tobytes()
+
+
+def _timestamp(stamp_ns: int) -> Any:
+    from foxglove.messages import Timestamp
+
+    sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+    return Timestamp(sec, nsec)
+
+
+def grid_message(frame: Any, frame_id: str = "map") -> bytes:
+    """The encoded ``foxglove.Grid`` of one frame."""
+    from foxglove.messages import (
+        Grid,
+        PackedElementField,
+        PackedElementFieldNumericType,
+        Pose,
+        Quaternion,
+        Vector2,
+        Vector3,
+    )
+
+    w = frame.window
+    fields = [PackedElementField(name=name, offset=offset,
+                                 type=getattr(PackedElementFieldNumericType, kind))
+              for name, _, offset, kind in CELL_FIELDS]
+    corner = Pose(position=Vector3(x=w.col0 * w.resolution_m, y=w.row0 * w.resolution_m, z=0.0),
+                  orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
+    grid = Grid(timestamp=_timestamp(frame.stamp_ns), frame_id=frame_id, pose=corner,
+                column_count=w.cols, cell_size=Vector2(x=w.resolution_m, y=w.resolution_m),
+                row_stride=CELL_STRIDE * w.cols, cell_stride=CELL_STRIDE, fields=fields,
+                data=pack_cells(frame))
+    return grid.encode()
+
+
+def ego_message(frame: Any, frame_id: str = "map", ego_frame_id: str = "ego") -> bytes:
+    """The encoded ``foxglove.FrameTransform`` ``frame_id`` → ``ego_frame_id`` (pose x, y, yaw)."""
+    from foxglove.messages import FrameTransform, Quaternion, Vector3
+
+    x, y, yaw = (float(v) for v in np.asarray(frame.pose)[:3])
+    return FrameTransform(
+        timestamp=_timestamp(frame.stamp_ns), parent_frame_id=frame_id,
+        child_frame_id=ego_frame_id, translation=Vector3(x=x, y=y, z=0.0),
+        rotation=Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))).encode()
+
+
+def export_mcap(run: Any, mcap_path: str | Path, *, frames: slice = slice(None),
+                frame_id: str = "map", ego_frame_id: str = "ego",
+                overwrite: bool = False) -> dict[str, Any]:
+    """Write the selected frames of ``run`` to ``mcap_path`` (see the module docstring).
+
+    The file appears only when complete (written under a temporary name, then renamed).
+    Returns ``{"frames", "path"}``."""
+    from foxglove.messages import FrameTransform, Grid
+    from mcap.writer import Writer
+
+    from evperc.render.run_render import select_frames
+
+    path = Path(mcap_path)
+    if path.exists() and not overwrite:
+        raise OutputError(f"{path}: exists; pass --overwrite or choose another --mcap")
+    if not path.parent.is_dir():
+        raise OutputError(f"{path}: folder {path.parent} does not exist")
+    tmp = path.with_name(f".{path.name}.tmp")
+    count = 0
+    try:
+        with tmp.open("wb") as stream:
+            writer = Writer(stream)
+            writer.start(profile="", library="evperc")
+            channels = {}
+            for topic, message in ((GRID_TOPIC, Grid), (EGO_TOPIC, FrameTransform)):
+                schema = message.get_schema()
+                schema_id = writer.register_schema(schema.name, schema.encoding, schema.data)
+                channels[topic] = writer.register_channel(topic, "protobuf", schema_id)
+            writer.add_metadata("evperc", {
+                "crs": str(run.manifest.get("crs", "local")),
+                "resolution_m": repr(float(run.manifest.get("resolution_m", 0.0))),
+                "frame_id": frame_id, "ego_frame_id": ego_frame_id,
+                "decision_codes": json.dumps(dict(run.decision_codes), sort_keys=True),
+                "source": str(getattr(run, "out_dir", ""))})
+            for frame in select_frames(run, frames):
+                stamp = int(frame.stamp_ns)
+                writer.add_message(channels[GRID_TOPIC], stamp, grid_message(frame, frame_id),
+                                   stamp, sequence=count)
+                writer.add_message(channels[EGO_TOPIC], stamp,
+                                   ego_message(frame, frame_id, ego_frame_id), stamp,
+                                   sequence=count)
+                count += 1
+            writer.finish()
+        os.replace(tmp, path)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"{path}: cannot write ({err.strerror})") from err
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    log.info("%d frames -> %s (%s, %s)", count, path, GRID_TOPIC, EGO_TOPIC)
+    return {"frames": count, "path": path}
