@@ -156,7 +156,8 @@ def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None
     for t in info["topics"]:
         click.echo(f"{t['topic']:<{width}}  {t['messages']:>8}  {t['schema']} [{t['encoding']}]")
     for key, value in info["detected"].items():
-        click.echo(f"{key.replace('_', ' ')}: {value if value not in (None, []) else '-'}")
+        text = ", ".join(value) if isinstance(value, list) else value
+        click.echo(f"{key.replace('_', ' ')}: {text or '-'}")
     if info.get("mean_points_per_scan") is not None:
         click.echo(f"lidar frame: {info['lidar_frame']}; mean points per scan "
                    f"{info['mean_points_per_scan']:.1f} (first {info['points_sample_scans']} "

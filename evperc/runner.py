@@ -4,27 +4,37 @@ decision → write. The maths lives in :mod:`evperc.pipeline` and the modules it
 
 from __future__ import annotations
 
+import io
 import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
-from evperc.errors import GeoreferenceError
+from evperc.errors import GeoreferenceError, OutputError
 from evperc.geo import georef as georef_mod
 from evperc.geo.crs import working_crs
 from evperc.geo.prior import PriorRasteriser, prior_masses
 from evperc.geo.window import Window, scroll
 from evperc.io.log import PosedScan, open_log
 from evperc.io.maps import MapData, check_overlap, load_map
-from evperc.io.writer import RunWriter
+from evperc.io.run_reader import read_manifest
+from evperc.io.writer import RunWriter, atomic_write_bytes
 from evperc.pipeline import (
-    CLASSES, DECISION_CODES, OMEGA, FusionParams, decide, fusion_step, sensor_masses, vacuous)
+    CLASSES,
+    DECISION_CODES,
+    OMEGA,
+    FusionParams,
+    decide,
+    fusion_step,
+    sensor_masses,
+    vacuous,
+)
 from evperc.sensor import SensorParams, sensor_grid
 
 log = logging.getLogger(__name__)
@@ -68,7 +78,7 @@ def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
     references the log."""
     inp = config["input"]
     if inp["poses_crs"]:
-        return georef_mod.identity(working_crs(config["map"]["crs"] or inp["poses_crs"], None))
+        return georef_mod.identity(working_crs(inp["poses_crs"], None, key="input.poses_crs"))
     if not (math.isnan(inp["origin_lat_deg"]) or math.isnan(inp["origin_lon_deg"])):
         lonlat = (inp["origin_lon_deg"], inp["origin_lat_deg"])
         crs = working_crs(config["map"]["crs"], lonlat)
@@ -92,90 +102,205 @@ def pose_xy_yaw(t_crs_sensor: np.ndarray) -> np.ndarray:
                      math.atan2(t_crs_sensor[1, 0], t_crs_sensor[0, 0])])
 
 
-def run(request: RunRequest, on_frame: Callable[[Any], None] | None = None) -> dict[str, Any]:
-    """Run the whole pipeline; returns the summary written into the manifest."""
-    config = request.config
-    ext = extrinsic_matrix(config["input"]["extrinsic"])
-    reader = open_log(request.log_path, lidar_topic=request.lidar_topic or
-                      config["input"]["lidar_topic"] or None,
-                      pose_topic=request.pose_topic or config["input"]["pose_topic"] or None,
-                      gnss_topic=config["input"]["gnss_topic"] or None,
-                      world_frame=config["input"]["world_frame"] or None, extrinsic=ext,
-                      max_pose_gap_s=config["input"]["max_pose_gap_s"])
-    georef = geo_reference(reader, config, need_crs=request.map_path is not None)
-    crs_name = georef.crs.to_string() if georef is not None else "local"
+CHECKPOINT_GLOB = "checkpoint_*.npz"
 
-    resolution = config["grid"]["cell_size_m"]
-    rasteriser = None
-    map_data: MapData | None = None
-    if request.map_path is not None:
-        map_data = load_map(request.map_path, request.roads_path, config_map=config["map"])
-        map_data = map_data.to_crs(georef.crs)
-        rasteriser = PriorRasteriser(map_data, resolution, config["map"]["tile_size_cells"])
-    betas = (config["map"]["beta_building"], config["map"]["beta_road"],
-             config["map"]["beta_other"])
-    params = FusionParams.from_config(config)
-    sensor_params = SensorParams.from_config(config["sensor"], resolution)
-    size = config["grid"]["window_size_m"]
-    probe = Window.centred_on(0.0, 0.0, size, resolution)
-    meta = {"decision_codes": DECISION_CODES, "classes": list(CLASSES), "crs": crs_name,
-            "resolution_m": resolution, "rows": probe.rows, "cols": probe.cols,
-            "log": str(request.log_path),
-            "map": str(request.map_path) if request.map_path else None,
-            "roads": str(request.roads_path) if request.roads_path else None}
-    writer = RunWriter(request.out_dir, config, meta, overwrite=request.overwrite)
 
-    start_ns = None if request.start_s is None else reader.start_ns + int(request.start_s * 1e9)
-    end_ns = None if request.end_s is None else reader.start_ns + int(request.end_s * 1e9)
-    omega_vec = np.zeros(32, dtype=np.float32)
-    omega_vec[OMEGA] = 1
+def checkpoint_path(out_dir: Path, frames: int) -> Path:
+    """The state after ``frames`` frames; the one matching the manifest is used on resume."""
+    return out_dir / f"checkpoint_{frames:09d}.npz"
+
+
+@dataclass
+class FusionState:
+    """Everything the loop carries from one scan to the next; saved with every chunk so an
+    interrupted run resumes bit-identically (``evperc run --resume``)."""
+
     window: Window | None = None
-    pg = zeta = None
+    pg: np.ndarray | None = None
+    zeta: np.ndarray | None = None
     prev_ns: int | None = None
-    decision_counts = np.zeros(len(DECISION_CODES), dtype=np.int64)
-    checked_overlap = False
-    t0 = time.perf_counter()
-    frames = 0
-    scans = reader.scans(start_ns=start_ns, end_ns=end_ns)
-    bar = tqdm(scans, unit="frame", desc=request.log_path.name, disable=None, leave=False)
-    for i, scan in enumerate(bar):
-        if i % request.every:
-            continue
-        scan: PosedScan
-        t_crs = georef.apply(scan.T_world_sensor) if georef is not None else scan.T_world_sensor
+    scan_index: int = -1          # position in the log's scan stream of the last frame
+    frames: int = 0
+    decision_counts: np.ndarray = field(
+        default_factory=lambda: np.zeros(len(DECISION_CODES), dtype=np.int64))
+
+    def save(self, path: Path) -> None:
+        w = self.window
+        arrays = {"pg": self.pg, "zeta": self.zeta,
+                  "window": np.array([w.rows, w.cols, w.row0, w.col0], dtype=np.int64),
+                  "resolution_m": np.float64(w.resolution_m),
+                  "prev_ns": np.int64(self.prev_ns), "scan_index": np.int64(self.scan_index),
+                  "frames": np.int64(self.frames), "decision_counts": self.decision_counts}
+        buffer = io.BytesIO()
+        np.savez(buffer, **arrays)
+        atomic_write_bytes(path, buffer.getvalue())
+
+    @staticmethod
+    def load(path: Path) -> FusionState:
+        try:
+            with np.load(path) as npz:
+                rows, cols, row0, col0 = (int(v) for v in npz["window"])
+                return FusionState(
+                    window=Window(float(npz["resolution_m"]), rows, cols, row0, col0),
+                    pg=npz["pg"], zeta=npz["zeta"], prev_ns=int(npz["prev_ns"]),
+                    scan_index=int(npz["scan_index"]), frames=int(npz["frames"]),
+                    decision_counts=npz["decision_counts"])
+        except (OSError, ValueError, KeyError) as err:
+            raise OutputError(f"{path}: missing or unreadable checkpoint ({err}); rerun "
+                              "without --resume and with --overwrite") from err
+
+
+class Pipeline:
+    """Inputs opened and checked once; :meth:`step` turns one posed scan into one frame."""
+
+    def __init__(self, request: RunRequest) -> None:
+        config = request.config
+        self.request = request
+        self.reader = open_log(
+            request.log_path,
+            lidar_topic=request.lidar_topic or config["input"]["lidar_topic"] or None,
+            pose_topic=request.pose_topic or config["input"]["pose_topic"] or None,
+            gnss_topic=config["input"]["gnss_topic"] or None,
+            world_frame=config["input"]["world_frame"] or None,
+            extrinsic=extrinsic_matrix(config["input"]["extrinsic"]),
+            max_pose_gap_s=config["input"]["max_pose_gap_s"])
+        self.georef = geo_reference(self.reader, config, need_crs=request.map_path is not None)
+        self.crs_name = self.georef.crs.to_string() if self.georef is not None else "local"
+        self.resolution = config["grid"]["cell_size_m"]
+        self.window_size = config["grid"]["window_size_m"]
+        self.map_data: MapData | None = None
+        self.rasteriser: PriorRasteriser | None = None
+        if request.map_path is not None:
+            map_data = load_map(request.map_path, request.roads_path, config_map=config["map"])
+            self.map_data = map_data.to_crs(self.georef.crs)
+            self.rasteriser = PriorRasteriser(self.map_data, self.resolution,
+                                              config["map"]["tile_size_cells"])
+        self.betas = (config["map"]["beta_building"], config["map"]["beta_road"],
+                      config["map"]["beta_other"])
+        self.params = FusionParams.from_config(config)
+        self.sensor_params = SensorParams.from_config(config["sensor"], self.resolution)
+        self._overlap_checked = False
+        self._vacuous_vector = np.zeros(32, dtype=np.float32)
+        self._vacuous_vector[OMEGA] = 1
+
+    def meta(self) -> dict[str, Any]:
+        """Manifest entries that describe the run (docs/output-format.md)."""
+        probe = Window.centred_on(0.0, 0.0, self.window_size, self.resolution)
+        request = asdict(self.request)
+        request.pop("config")
+        request.pop("overwrite")
+        return {"decision_codes": DECISION_CODES, "classes": list(CLASSES),
+                "crs": self.crs_name, "resolution_m": self.resolution, "rows": probe.rows,
+                "cols": probe.cols, "log": str(self.request.log_path),
+                "map": str(self.request.map_path) if self.request.map_path else None,
+                "roads": str(self.request.roads_path) if self.request.roads_path else None,
+                "request": {k: (str(v) if isinstance(v, Path) else v)
+                            for k, v in request.items()}}
+
+    def scans(self, after_index: int) -> Any:
+        """``(index, scan)`` of the scans to fuse: the requested time span, every N-th,
+        after ``after_index`` (resume)."""
+        r = self.request
+        start = self.reader.start_ns
+        start_ns = None if r.start_s is None else start + int(r.start_s * 1e9)
+        end_ns = None if r.end_s is None else start + int(r.end_s * 1e9)
+        for index, scan in enumerate(self.reader.scans(start_ns=start_ns, end_ns=end_ns)):
+            if index > after_index and index % r.every == 0:
+                yield index, scan
+
+    def step(self, state: FusionState, scan: PosedScan) -> dict[str, Any]:
+        """Fuse one scan into ``state`` (updated in place); returns the frame's arrays."""
+        t_crs = (self.georef.apply(scan.T_world_sensor) if self.georef is not None
+                 else scan.T_world_sensor)
         pose = pose_xy_yaw(t_crs)
-        new_window = Window.centred_on(pose[0], pose[1], size, resolution)
-        if map_data is not None and not checked_overlap:
-            check_overlap(map_data, new_window.bounds)
-            checked_overlap = True
-        if window is None:
-            pg, zeta = vacuous(new_window.shape), np.zeros(new_window.shape, np.float32)
-        elif new_window != window:
-            pg = scroll(pg, window, new_window, omega_vec)
-            zeta = scroll(zeta, window, new_window, 0.0)
-        window = new_window
-        free, occupied = sensor_grid(scan.points, scan.planar, t_crs, window, sensor_params)
-        prior = (prior_masses(rasteriser.labels(window), *betas) if rasteriser is not None
-                 else vacuous(window.shape))
-        dt_s = 0.0 if prev_ns is None else (scan.stamp_ns - prev_ns) * 1e-9
-        prev_ns = scan.stamp_ns
-        pg, zeta, conflict = fusion_step(pg, zeta, sensor_masses(free, occupied), prior,
-                                         (free > 0) | (occupied > 0), dt_s, params)
-        betp, decision = decide(pg, params)
-        writer.add(scan.stamp_ns, pose, (window.row0, window.col0), pg, betp, decision, zeta,
-                   conflict)
+        window = Window.centred_on(pose[0], pose[1], self.window_size, self.resolution)
+        if self.map_data is not None and not self._overlap_checked:
+            check_overlap(self.map_data, window.bounds)
+            self._overlap_checked = True
+        if state.window is None:
+            state.pg, state.zeta = vacuous(window.shape), np.zeros(window.shape, np.float32)
+        elif window != state.window:
+            state.pg = scroll(state.pg, state.window, window, self._vacuous_vector)
+            state.zeta = scroll(state.zeta, state.window, window, 0.0)
+        state.window = window
+        free, occupied = sensor_grid(scan.points, scan.planar, t_crs, window,
+                                     self.sensor_params)
+        prior = (prior_masses(self.rasteriser.labels(window), *self.betas)
+                 if self.rasteriser is not None else vacuous(window.shape))
+        dt_s = 0.0 if state.prev_ns is None else (scan.stamp_ns - state.prev_ns) * 1e-9
+        state.prev_ns = scan.stamp_ns
+        state.pg, state.zeta, conflict = fusion_step(
+            state.pg, state.zeta, sensor_masses(free, occupied), prior,
+            (free > 0) | (occupied > 0), dt_s, self.params)
+        betp, decision = decide(state.pg, self.params)
+        state.frames += 1
+        state.decision_counts += np.bincount(decision.ravel(),
+                                             minlength=len(state.decision_counts))
+        return {"stamp_ns": scan.stamp_ns, "pose": pose, "origin": (window.row0, window.col0),
+                "masses": state.pg, "betp": betp, "decision": decision, "zeta": state.zeta,
+                "conflict": conflict}
+
+
+def run(request: RunRequest, resume: bool = False,
+        on_frame: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+    """Run the whole pipeline (or continue an interrupted run); returns the summary written
+    into the manifest. ``on_frame`` sees every frame's arrays (e.g. to render as it goes)."""
+    pipeline = Pipeline(request)
+    state = FusionState()
+    out_dir = request.out_dir
+    if resume:
+        writer = RunWriter.resume(out_dir)
+        done = writer.manifest["frame_count"]
+        if done:
+            state = FusionState.load(checkpoint_path(out_dir, done))
+    else:
+        writer = RunWriter(out_dir, request.config, pipeline.meta(), overwrite=request.overwrite)
+    # chunk written -> checkpoint of the state -> manifest: a crash anywhere leaves a
+    # checkpoint that matches the manifest
+    writer.on_chunk = lambda frames: state.save(checkpoint_path(out_dir, frames))
+    t0 = time.perf_counter()
+    new_frames = 0
+    bar = tqdm(pipeline.scans(state.scan_index), unit="frame", desc=request.log_path.name,
+               disable=None, leave=False, initial=state.frames)
+    for index, scan in bar:
+        frame = pipeline.step(state, scan)
+        state.scan_index = index
+        new_frames += 1
+        if writer.add(**frame):
+            _remove_checkpoints(out_dir, keep=checkpoint_path(out_dir, state.frames))
         if on_frame is not None:
-            on_frame(writer.manifest["frame_count"])
-        decision_counts += np.bincount(decision.ravel(), minlength=len(decision_counts))
-        frames += 1
+            on_frame(frame)
     bar.close()
     wall = time.perf_counter() - t0
-    total = max(int(decision_counts.sum()), 1)
+    counts = state.decision_counts
+    total = max(int(counts.sum()), 1)
     names = sorted(DECISION_CODES, key=DECISION_CODES.get)
-    summary = {"frames": frames, "wall_time_s": round(wall, 3),
-               "frames_per_s": round(frames / wall, 2) if wall > 0 else None,
-               "decision_share": {n: round(float(decision_counts[DECISION_CODES[n]]) / total, 6)
+    summary = {"frames": state.frames, "wall_time_s": round(wall, 3),
+               "frames_per_s": round(new_frames / wall, 2) if wall > 0 else None,
+               "decision_share": {n: round(float(counts[DECISION_CODES[n]]) / total, 6)
                                   for n in names},
-               "skipped_scans": dict(reader.stats)}
+               "skipped_scans": dict(pipeline.reader.stats),
+               "resumed": resume}
     writer.close(summary)
+    _remove_checkpoints(out_dir, keep=None)
     return summary
+
+
+def _remove_checkpoints(out_dir: Path, keep: Path | None) -> None:
+    for path in out_dir.glob(CHECKPOINT_GLOB):
+        if path != keep:
+            path.unlink(missing_ok=True)
+
+
+def request_from_manifest(out_dir: Path) -> RunRequest:
+    """The request of an interrupted run, from its manifest (``evperc run --resume``)."""
+    manifest = read_manifest(out_dir)
+    if manifest.get("complete"):
+        raise OutputError(f"{out_dir}: run is already complete; nothing to resume")
+    saved = manifest.get("request")
+    if saved is None:
+        raise OutputError(f"{out_dir}: manifest has no request to resume from")
+    paths = {k: (Path(v) if v is not None else None)
+             for k, v in saved.items() if k in ("log_path", "map_path", "roads_path")}
+    rest = {k: v for k, v in saved.items() if k not in paths and k != "out_dir"}
+    return RunRequest(out_dir=out_dir, config=manifest["config"], **paths, **rest)

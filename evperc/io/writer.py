@@ -11,6 +11,7 @@ import json
 import logging
 import os
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -104,11 +105,34 @@ class RunWriter:
         except OSError as err:
             raise OutputError(f"{self.out_dir}: cannot write ({err.strerror})") from err
         self._chunk = _Chunk()
+        #: called with the frame count after a chunk file is written, before the manifest
+        self.on_chunk: Callable[[int], None] | None = None
+
+    @classmethod
+    def resume(cls, out_dir: str | Path) -> RunWriter:
+        """Reopen an interrupted run: keep the chunks the manifest lists, drop the rest."""
+        from evperc.io.run_reader import read_manifest
+
+        out_dir = Path(out_dir)
+        manifest = read_manifest(out_dir)
+        writer = cls.__new__(cls)
+        writer.out_dir = out_dir
+        writer.manifest = manifest
+        writer.chunk_frames = int(manifest["chunk_frames"])
+        writer.compress = bool(manifest["config"]["output"]["compress"])
+        manifest["frames"] = manifest["frames"][:manifest["frame_count"]]
+        listed = {c["file"] for c in manifest["chunks"]}
+        for path in (out_dir / FRAMES_DIR).iterdir():
+            if f"{FRAMES_DIR}/{path.name}" not in listed:
+                path.unlink()
+        writer._chunk = _Chunk()
+        writer.on_chunk = None
+        return writer
 
     def add(self, stamp_ns: int, pose: np.ndarray, origin: tuple[int, int], masses: np.ndarray,
             betp: np.ndarray, decision: np.ndarray, zeta: np.ndarray, conflict: np.ndarray
-            ) -> None:
-        """Queue one frame; a full chunk is written at once."""
+            ) -> bool:
+        """Queue one frame; a full chunk is written at once (then returns True)."""
         c = self._chunk
         c.stamp_ns.append(int(stamp_ns))
         c.pose.append(np.asarray(pose, dtype=np.float64))
@@ -123,6 +147,8 @@ class RunWriter:
                                         "origin": [int(origin[0]), int(origin[1])]})
         if len(c.stamp_ns) >= self.chunk_frames:
             self._flush()
+            return True
+        return False
 
     def _flush(self) -> None:
         c = self._chunk
@@ -150,6 +176,8 @@ class RunWriter:
         self.manifest["chunks"].append({"file": f"{FRAMES_DIR}/{name}", "first_frame": first,
                                         "frame_count": len(c.stamp_ns)})
         self.manifest["frame_count"] = first + len(c.stamp_ns)
+        if self.on_chunk is not None:
+            self.on_chunk(self.manifest["frame_count"])
         write_json(self.out_dir / MANIFEST, self.manifest)
         self._chunk = _Chunk()
 
