@@ -44,11 +44,12 @@ def rows_for(dtype: type, rng: np.random.Generator, repeats: int) -> list[dict]:
     naive_s = best_of(lambda: ref.conjunctive(m1[sub], m2[sub]), 2) * NAIVE_FRACTION
     per_cell_rates = rng.uniform(0, 0.2, size=(*SHAPE, FRAME.n)).astype(dtype)
     cases = [
-        ("conjunctive", "auto (matrix)", lambda: conjunctive(m1, m2)),
-        ("conjunctive", "butterfly", lambda: conjunctive(m1, m2, kernel="butterfly")),
-        ("dempster", "auto (matrix)", lambda: dempster(m1, m2)),
-        ("disjunctive", "auto (matrix)", lambda: disjunctive(m1, m2)),
-        ("disjunctive", "butterfly", lambda: disjunctive(m1, m2, kernel="butterfly")),
+        ("conjunctive", "matrix (BLAS)", lambda: conjunctive(m1, m2, kernel="matrix")),
+        ("conjunctive", "butterfly (default)", lambda: conjunctive(m1, m2, kernel="butterfly")),
+        ("dempster", "butterfly (default)", lambda: dempster(m1, m2)),
+        ("disjunctive", "matrix (BLAS)", lambda: disjunctive(m1, m2, kernel="matrix")),
+        ("disjunctive", "butterfly (default)",
+         lambda: disjunctive(m1, m2, kernel="butterfly")),
         ("contextual_discount", "rates (5,)", lambda: contextual_discount(m1, RATES)),
         ("contextual_discount", "(5,) butterfly",
          lambda: contextual_discount(m1, RATES, kernel="butterfly")),

@@ -29,7 +29,11 @@ from evperc.dst.frame import MAX_CLASSES
 Kernel = Literal["auto", "butterfly", "matrix"]
 
 #: Frames up to this many classes use the dense-matrix kernel under ``kernel="auto"``.
-MATRIX_MAX_N = 7
+#: 0: ``auto`` always takes the butterflies. The matrix kernel is ~1.5× faster on an idle
+#: machine, but multi-threaded BLAS made it 5–14× slower whenever the other core was busy
+#: (measured: 6,400 cells, 0.8 ms single-threaded vs 11 ms with 2 BLAS threads under load),
+#: which is the normal state of a batch run. Pass ``kernel="matrix"`` to force it.
+MATRIX_MAX_N = 0
 
 # A transform: (which pair member receives, sign): "up" sums over supersets (q),
 # "down" over subsets (b).

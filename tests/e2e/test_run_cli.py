@@ -1,0 +1,162 @@
+"""`evperc run` end to end on a synthetic street drive: output, loading, resume, errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import evperc
+from evperc.cli import cli
+from evperc.config import load_config
+from evperc.pipeline import DECISION_CODES
+from evperc.runner import RunRequest, run
+
+from .scenes import write_street_drive
+
+SMALL = "[grid]\nwindow_size_m = 40.0\n[output]\nchunk_frames = 10\n"
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_street_drive(tmp_path_factory.mktemp("drive") / "street.mcap", n_scans=40)
+
+
+@pytest.fixture()
+def small_config(tmp_path: Path) -> Path:
+    path = tmp_path / "small.toml"
+    path.write_text(SMALL)
+    return path
+
+
+def invoke(*args: str) -> object:
+    return CliRunner().invoke(cli, list(args))
+
+
+def test_run_writes_a_complete_loadable_output(drive: Path, small_config: Path,
+                                               tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    result = invoke("run", str(drive), "--no-map", "--config", str(small_config),
+                    "--out", str(out))
+    assert result.exit_code == 0, result.output
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["complete"] is True
+    assert manifest["frame_count"] == 40
+    assert manifest["decision_codes"]["moving"] == 2
+    assert (out / "config.toml").read_text().count("window_size_m = 40.0") == 1
+    run_ = evperc.load(out)
+    frames = list(run_.frames)
+    assert len(frames) == 40
+    # the walls at y = ±6 m are static, the street between them free
+    last = frames[-1]
+    x, y = last.window.cell_centres()
+    wall_row = int(np.argmin(np.abs(y - 6.25)))
+    near = np.abs(x - last.pose[0]) < 8
+    assert np.mean(last.decision[wall_row, near] == DECISION_CODES["static"]) > 0.7
+    street_row = int(np.argmin(np.abs(y - 0.25)))
+    ahead = (x > last.pose[0] + 2) & (x < last.pose[0] + 10)
+    assert np.mean(last.decision[street_row, ahead] == DECISION_CODES["free"]) > 0.9
+    # the crossing car was decided moving somewhere at some frame
+    assert any((f.decision == DECISION_CODES["moving"]).sum() >= 2 for f in frames)
+    assert np.all(np.abs(last.masses.sum(axis=-1) - 1) < 0.02)
+
+
+def test_default_out_dir_and_refusal_to_overwrite(drive: Path, small_config: Path,
+                                                  tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    args = ["run", str(drive), "--no-map", "--config", str(small_config), "--end", "0.5"]
+    assert invoke(*args).exit_code == 0
+    assert (tmp_path / "evperc-out" / "street" / "manifest.json").is_file()
+    again = invoke(*args)
+    assert again.exit_code == 2
+    assert "--overwrite" in again.output
+    assert again.output.count("\n") == 1
+    assert invoke(*args, "--overwrite").exit_code == 0
+
+
+def test_usage_errors_are_one_line(drive: Path, tmp_path: Path) -> None:
+    for args, needle in [
+        (["run", str(drive)], "--no-map"),
+        (["run", str(drive), "--no-map", "--map", "x.geojson"], "exclude"),
+        (["run", str(tmp_path / "missing.mcap"), "--no-map", "--out", str(tmp_path / "o")],
+         "missing.mcap"),
+        (["run", "--resume", str(tmp_path)], "manifest"),
+    ]:
+        result = invoke(*args)
+        assert result.exit_code == 2, (args, result.output)
+        assert needle in result.output
+        assert result.output.startswith("evperc: error: ")
+        assert result.output.count("\n") == 1
+        assert "Traceback" not in result.output
+
+
+def _all_frames(out: Path) -> list:
+    return list(evperc.load(out).frames)
+
+
+def test_interrupted_run_resumes_identically(drive: Path, tmp_path: Path) -> None:
+    config = load_config(overrides={"grid.window_size_m": 40.0, "output.chunk_frames": 10})
+    full = tmp_path / "full"
+    run(RunRequest(log_path=drive, out_dir=full, config=config, map_path=None))
+
+    part = tmp_path / "part"
+    seen = []
+
+    def stop_after_25(frame: dict) -> None:
+        seen.append(frame["stamp_ns"])
+        if len(seen) == 25:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run(RunRequest(log_path=drive, out_dir=part, config=config, map_path=None),
+            on_frame=stop_after_25)
+    manifest = json.loads((part / "manifest.json").read_text())
+    assert manifest["complete"] is False
+    assert manifest["frame_count"] == 20
+    result = invoke("run", "--resume", str(part))
+    assert result.exit_code == 0, result.output
+    a, b = _all_frames(full), _all_frames(part)
+    assert [f.stamp_ns for f in a] == [f.stamp_ns for f in b]
+    for fa, fb in zip(a, b, strict=True):
+        np.testing.assert_array_equal(fa.decision, fb.decision)
+        np.testing.assert_array_equal(fa.masses, fb.masses)
+        np.testing.assert_array_equal(fa.zeta, fb.zeta)
+    assert not list(part.glob("checkpoint_*.npz"))
+
+
+def test_killed_process_resumes_identically(tmp_path: Path) -> None:
+    """SIGKILL a real `evperc run` process part-way, then `--resume` it."""
+    drive = write_street_drive(tmp_path / "long.mcap", n_scans=150, beams=360)
+    config = tmp_path / "c.toml"
+    config.write_text(SMALL)
+    full, part = tmp_path / "full", tmp_path / "part"
+    base = [sys.executable, "-m", "evperc", "-q", "run", str(drive), "--no-map", "--config",
+            str(config), "--out"]
+    subprocess.run([*base, str(full)], check=True, timeout=300)
+    proc = subprocess.Popen([*base, str(part)], stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    manifest = part / "manifest.json"
+    while time.monotonic() < deadline:
+        if manifest.exists() and json.loads(manifest.read_text() or "{}").get(
+                "frame_count", 0) >= 30:
+            break
+        time.sleep(0.005)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    state = json.loads(manifest.read_text())
+    assert state["complete"] is False, "the run finished before it could be killed"
+    subprocess.run([sys.executable, "-m", "evperc", "-q", "run", "--resume", str(part)],
+                   check=True, timeout=300)
+    a, b = _all_frames(full), _all_frames(part)
+    assert len(a) == len(b) == 150
+    for fa, fb in zip(a, b, strict=True):
+        np.testing.assert_array_equal(fa.decision, fb.decision)
+        np.testing.assert_array_equal(fa.masses, fb.masses)
