@@ -296,6 +296,71 @@ def evaluate_command(out_dir: Path, truth_dir: Path, compare_dir: Path | None,
             raise UsageError(f"{json_path}: cannot write JSON ({err.strerror})") from err
 
 
+@cli.command("batch")
+@click.argument("logs", metavar="LOGS...", nargs=-1, type=click.Path(path_type=Path))
+@click.option("--list", "list_path", type=click.Path(path_type=Path),
+              help="File with one log path per line (# comments; relative to the file).")
+@click.option("--map", "map_path", type=click.Path(path_type=Path),
+              help="Buildings (or one OSM-style file with buildings and highways).")
+@click.option("--roads", "roads_path", type=click.Path(path_type=Path),
+              help="Road surfaces or highway lines, if not in --map.")
+@click.option("--no-map", is_flag=True, help="Run without a map (vacuous prior).")
+@click.option("--out", "out_root", required=True, type=click.Path(path_type=Path),
+              help="Root folder: each log's output goes to ROOT/<log stem>/.")
+@click.option("--config", "config_path", type=click.Path(path_type=Path),
+              help="TOML file overriding configs/default.toml (same for every log).")
+@click.option("--workers", type=click.IntRange(min=1),
+              help="Worker processes of the local cluster  [default: number of cores]")
+@click.option("--scheduler", metavar="ADDR",
+              help="Use the running Dask cluster at ADDR (tcp://host:8786) instead.")
+@click.option("--json", "json_path", type=click.Path(path_type=Path),
+              help="Also write the result rows as JSON.")
+@user_errors
+def batch_command(logs: tuple[Path, ...], list_path: Path | None, map_path: Path | None,
+                  roads_path: Path | None, no_map: bool, out_root: Path,
+                  config_path: Path | None, workers: int | None, scheduler: str | None,
+                  json_path: Path | None) -> None:
+    """Run `evperc run` on many logs as tasks on a Dask cluster; skip finished outputs,
+    resume interrupted ones. Exit code 1 if any log failed.
+
+    \b
+    evperc batch logs/*.mcap --map city.geojson --out runs/
+    evperc batch --list logs.txt --no-map --out runs/ --scheduler tcp://head:8786
+    """
+    import json
+    import os
+    import time
+
+    from evperc.batch import BatchRequest, format_table, read_log_list, run_batch, summary_line
+    from evperc.config import load_config
+
+    if map_path is None and not no_map:
+        raise UsageError("give --map MAP, or --no-map for the map-less baseline")
+    if map_path is not None and no_map:
+        raise UsageError("--map and --no-map exclude each other")
+    if roads_path is not None and map_path is None:
+        raise UsageError("--roads needs --map")
+    if workers is not None and scheduler is not None:
+        raise UsageError("--workers sizes the local cluster; the cluster at --scheduler has "
+                         "its own workers, give one of the two")
+    all_logs = list(logs) + (read_log_list(list_path) if list_path is not None else [])
+    request = BatchRequest(logs=tuple(all_logs), out_root=out_root,
+                           config=load_config(config_path), map_path=map_path,
+                           roads_path=roads_path, workers=workers or os.cpu_count() or 1,
+                           scheduler=scheduler)
+    t0 = time.perf_counter()
+    rows = run_batch(request)
+    click.echo(format_table(rows))
+    click.echo(summary_line(rows, time.perf_counter() - t0))
+    if json_path is not None:
+        try:
+            json_path.write_text(json.dumps(rows, indent=1))
+        except OSError as err:
+            raise UsageError(f"{json_path}: cannot write JSON ({err.strerror})") from err
+    if any(row["status"] in ("failed", "error") for row in rows):
+        sys.exit(1)
+
+
 def main() -> None:
     """Console-script entry point."""
     cli(prog_name="evperc")

@@ -24,6 +24,7 @@ from evperc.geo.window import Window, scroll
 from evperc.io.log import PosedScan, open_log
 from evperc.io.maps import MapData, check_overlap, load_map
 from evperc.io.run_reader import read_manifest
+from evperc.io.transforms import extrinsic_matrix
 from evperc.io.writer import RunWriter, atomic_write_bytes
 from evperc.pipeline import (
     CLASSES,
@@ -55,19 +56,6 @@ class RunRequest:
     every: int = 1
     lidar_topic: str | None = None
     pose_topic: str | None = None
-
-
-def extrinsic_matrix(ext: dict[str, float]) -> np.ndarray:
-    """4×4 sensor pose in the vehicle frame from the config's ``input.extrinsic`` (ZYX Euler)."""
-    r, p, y = (math.radians(ext[k]) for k in ("roll_deg", "pitch_deg", "yaw_deg"))
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), \
-        math.sin(y)
-    t = np.eye(4)
-    t[:3, :3] = [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                 [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                 [-sp, cp * sr, cp * cr]]
-    t[:3, 3] = [ext["x_m"], ext["y_m"], ext["z_m"]]
-    return t
 
 
 def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
@@ -162,7 +150,7 @@ class Pipeline:
             pose_topic=request.pose_topic or config["input"]["pose_topic"] or None,
             gnss_topic=config["input"]["gnss_topic"] or None,
             world_frame=config["input"]["world_frame"] or None,
-            extrinsic=extrinsic_matrix(config["input"]["extrinsic"]),
+            extrinsic=extrinsic_matrix(**config["input"]["extrinsic"]),
             max_pose_gap_s=config["input"]["max_pose_gap_s"])
         self.georef = geo_reference(self.reader, config, need_crs=request.map_path is not None)
         self.crs_name = self.georef.crs.to_string() if self.georef is not None else "local"

@@ -1,0 +1,253 @@
+"""Opening an MCAP file and streaming its messages, indexed or not, intact or truncated.
+
+An indexed file (summary with chunk indexes) is read through mcap's seeking reader, which
+yields messages in log-time order chunk by chunk (memory bounded by the chunks overlapping in
+time). A file without an index, or one whose footer is missing (truncated), is read once at
+open with a sequential reader to learn its channels, counts and time span; messages then come
+in file order. Wherever the data stops being valid (short read, bad CRC, broken record) the
+stream ends there, and ONE warning per file says where and why. Messages are decoded per
+channel: ROS 2 CDR (mcap-ros2-support), protobuf (mcap-protobuf-support) and JSON.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import logging
+import struct
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcap.exceptions import EndOfFile, UnsupportedCompressionError
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+
+from evperc.errors import LogError
+
+log = logging.getLogger(__name__)
+
+MAGIC = b"\x89MCAP0\r\n"
+
+
+@dataclass
+class TopicInfo:
+    """One topic of the log: its schema name, encodings and message count."""
+
+    topic: str
+    schema: str
+    schema_encoding: str
+    message_encoding: str
+    messages: int = 0
+
+
+@dataclass
+class RawMessage:
+    """A message as read from the file, not yet decoded."""
+
+    topic: str
+    schema: Schema | None
+    channel: Channel
+    message: Message
+
+
+@dataclass
+class McapSource:
+    """An MCAP file opened for reading; see the module docstring.
+
+    Attributes: ``path``, ``indexed`` (summary with chunk index present), ``topics``
+    (topic name -> :class:`TopicInfo`), ``start_ns`` / ``end_ns`` (log time of the first and
+    last message, ``end_ns`` inclusive), ``stop_reason`` (``None`` when the whole file is valid).
+    """
+
+    path: Path
+    indexed: bool = False
+    topics: dict[str, TopicInfo] = field(default_factory=dict)
+    start_ns: int | None = None
+    end_ns: int | None = None
+    stop_reason: str | None = None
+    _warned: bool = False
+    _decoders: dict[int, Callable[[bytes], Any]] = field(default_factory=dict)
+
+    @classmethod
+    def open(cls, path: str | Path) -> McapSource:
+        """Check that ``path`` is a readable MCAP file and learn its topics; LogError if not."""
+        path = Path(path)
+        try:
+            with path.open("rb") as f:
+                magic = f.read(len(MAGIC))
+        except FileNotFoundError as err:
+            raise LogError(f"{path}: log file not found") from err
+        except IsADirectoryError as err:
+            raise LogError(f"{path}: is a directory; give the .mcap file inside it") from err
+        except OSError as err:
+            raise LogError(f"{path}: cannot read log ({err.strerror})") from err
+        if magic != MAGIC:
+            raise LogError(f"{path}: not an MCAP file (it does not start with the MCAP magic "
+                           "bytes); convert ROS 1 bags / ROS 2 sqlite bags to MCAP first")
+        source = cls(path=path)
+        if not source._read_summary():
+            source._scan_sequentially()
+        return source
+
+    # --- opening -----------------------------------------------------------------------
+
+    def _read_summary(self) -> bool:
+        """Fill topics and time span from the summary; False if there is no usable index."""
+        try:
+            with self.path.open("rb") as f:
+                summary = SeekingReader(f).get_summary()
+        except Exception as err:  # any failure means "no usable footer"
+            log.debug("%s: no readable summary (%s)", self.path, err)
+            return False
+        if summary is None or not summary.chunk_indexes:
+            return False
+        self.indexed = True
+        for channel in summary.channels.values():
+            self._add_channel(channel, summary.schemas.get(channel.schema_id))
+        stats = summary.statistics
+        if stats is not None and stats.message_count > 0:
+            for channel_id, count in stats.channel_message_counts.items():
+                channel = summary.channels.get(channel_id)
+                if channel is not None:
+                    self.topics[channel.topic].messages += count
+            self.start_ns, self.end_ns = stats.message_start_time, stats.message_end_time
+        else:
+            self.start_ns = min(c.message_start_time for c in summary.chunk_indexes)
+            self.end_ns = max(c.message_end_time for c in summary.chunk_indexes)
+            for raw in self.iter_raw():
+                self.topics[raw.topic].messages += 1
+        return True
+
+    def _scan_sequentially(self) -> None:
+        """One pass over an unindexed or truncated file: channels, counts, time span."""
+        start, end = None, None
+        for raw in self.iter_raw():
+            self.topics[raw.topic].messages += 1
+            t = raw.message.log_time
+            start = t if start is None else min(start, t)
+            end = t if end is None else max(end, t)
+        self.start_ns, self.end_ns = start, end
+        if self.stop_reason is None:
+            log.info("%s: no index; reading it sequentially", self.path)
+
+    def _add_channel(self, channel: Channel, schema: Schema | None) -> None:
+        if channel.topic not in self.topics:
+            self.topics[channel.topic] = TopicInfo(
+                topic=channel.topic, schema=schema.name if schema else "",
+                schema_encoding=schema.encoding if schema else "",
+                message_encoding=channel.message_encoding)
+
+    # --- reading -----------------------------------------------------------------------
+
+    def iter_raw(self, topics: Iterable[str] | None = None, start_ns: int | None = None,
+                 end_ns: int | None = None) -> Iterator[RawMessage]:
+        """Messages of ``topics`` with log time in [start_ns, end_ns), undecoded.
+
+        Log-time order for an indexed file, file order otherwise. Stops quietly at the end of
+        the valid data after warning once (per file) where and why it stopped.
+        """
+        wanted = None if topics is None else set(topics)
+        with self.path.open("rb") as f:
+            if self.indexed:
+                reader = SeekingReader(f, validate_crcs=True)
+                iterator = reader.iter_messages(topics=wanted, starting_at=start_ns,
+                                                ending_before=end_ns, log_time_order=True)
+            else:
+                iterator = self._iter_stream(f, wanted, start_ns, end_ns)
+            count = 0
+            while True:
+                offset = f.tell()  # end of the last record read completely
+                try:
+                    schema, channel, message = next(iterator)
+                except StopIteration:
+                    return
+                except UnsupportedCompressionError as err:
+                    name = str(err).rsplit(" ", 1)[-1]
+                    raise LogError(f"{self.path}: its chunks are {name}-compressed; install the "
+                                   f"Python package '{name}' to read it") from err
+                except Exception as err:  # a broken file ends the stream
+                    self._stopped(offset, count, err)
+                    return
+                count += 1
+                yield RawMessage(channel.topic, schema, channel, message)
+
+    def _iter_stream(self, f: Any, wanted: set[str] | None, start_ns: int | None,
+                     end_ns: int | None) -> Iterator[tuple[Schema | None, Channel, Message]]:
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        for record in StreamReader(f, validate_crcs=True).records:
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+                self._add_channel(record, schemas.get(record.schema_id))
+            elif isinstance(record, Message):
+                channel = channels[record.channel_id]
+                if wanted is not None and channel.topic not in wanted:
+                    continue
+                if (start_ns is not None and record.log_time < start_ns) or (
+                        end_ns is not None and record.log_time >= end_ns):
+                    continue
+                yield schemas.get(channel.schema_id), channel, record
+
+    def _stopped(self, offset: int, count: int, err: Exception) -> None:
+        size = self.path.stat().st_size
+        if isinstance(err, EndOfFile) or isinstance(err, struct.error):
+            why = "the file ends inside a record"
+        else:
+            why = f"{type(err).__name__}: {err}" if str(err) else type(err).__name__
+        reason = f"the record after byte {offset} of {size} is unreadable ({why})"
+        if self.stop_reason is None:
+            self.stop_reason = reason
+        if not self._warned:
+            self._warned = True
+            log.warning("%s: log is truncated or damaged; %s; using the %d messages before it",
+                        self.path, reason, count)
+        else:
+            log.debug("%s: %s after %d messages", self.path, reason, count)
+
+    def decode(self, raw: RawMessage) -> Any:
+        """The decoded message: a ROS 2 / protobuf object or, for JSON, a dict."""
+        decoder = self._decoders.get(raw.channel.id)
+        if decoder is None:
+            decoder = self._decoders[raw.channel.id] = _decoder_for(self.path, raw)
+        return decoder(raw.message.data)
+
+
+def _decoder_for(path: Path, raw: RawMessage) -> Callable[[bytes], Any]:
+    encoding = raw.channel.message_encoding
+    schema = raw.schema
+    if encoding == "json":
+        return json.loads
+    try:
+        if encoding == "cdr":
+            from mcap_ros2.decoder import DecoderFactory as Ros2Factory
+
+            decoder = Ros2Factory().decoder_for(encoding, schema)
+        elif encoding == "protobuf":
+            from mcap_protobuf.decoder import DecoderFactory as ProtobufFactory
+
+            decoder = ProtobufFactory().decoder_for(encoding, schema)
+        else:
+            decoder = None
+    except Exception as err:  # a bad embedded schema is a log problem
+        raise LogError(f"{path}: topic {raw.topic}: cannot parse schema "
+                       f"{schema.name if schema else '?'} ({err})") from err
+    if decoder is None:
+        schema_text = f"{schema.name} ({schema.encoding})" if schema else "no schema"
+        raise LogError(f"{path}: topic {raw.topic}: cannot decode message encoding "
+                       f"'{encoding}' with {schema_text}; supported: ROS 2 cdr with ros2msg "
+                       "schemas, protobuf, json")
+    return decoder
+
+
+def json_bytes(value: Any) -> bytes:
+    """A ``bytes`` field of a JSON-encoded message: base64 text (foxglove's JSON convention)."""
+    if isinstance(value, str):
+        return base64.b64decode(value)
+    return bytes(value)
+
+

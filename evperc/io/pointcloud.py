@@ -1,0 +1,108 @@
+"""Point clouds and 2-D scans from packed message buffers into (N, 3) float32 arrays.
+
+No per-point Python loop: a packed buffer is viewed through a structured numpy dtype built from
+the message's field table (name, byte offset, numeric type), its point stride and byte order.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+#: sensor_msgs/msg/PointField datatype constants -> numpy type code
+ROS_POINTFIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
+#: foxglove.PackedElementField.NumericType -> numpy type code (note: UINT8 = 1, INT8 = 2)
+FOXGLOVE_NUMERIC_TYPES = {1: "u1", 2: "i1", 3: "u2", 4: "i2", 5: "u4", 6: "i4", 7: "f4", 8: "f8"}
+
+XYZ = ("x", "y", "z")
+
+
+class MissingFieldsError(ValueError):
+    """The point layout has no x, y and z fields; ``present`` lists the field names it has."""
+
+    def __init__(self, present: list[str]):
+        super().__init__(f"no x/y/z fields (fields: {', '.join(present) or 'none'})")
+        self.present = present
+
+
+def xyz_from_packed(data: bytes | bytearray | memoryview | np.ndarray,
+                    fields: Mapping[str, tuple[int, str]], point_step: int, width: int,
+                    height: int = 1, row_step: int | None = None,
+                    big_endian: bool = False) -> np.ndarray:
+    """x, y, z of every point in a packed buffer, as (N, 3) float32 with non-finite rows dropped.
+
+    ``fields`` maps a field name to (byte offset, numpy type code such as ``"f4"``); only
+    ``x``, ``y``, ``z`` are read. Rows of an organised cloud (``height`` > 1) are ``row_step``
+    bytes apart, which may exceed ``width · point_step`` (row padding).
+    Raises :class:`MissingFieldsError` when x, y or z is absent.
+    """
+    if not all(name in fields for name in XYZ):
+        raise MissingFieldsError(sorted(fields))
+    order = ">" if big_endian else "<"
+    dtype = np.dtype({
+        "names": list(XYZ),
+        "formats": [order + fields[name][1] for name in XYZ],
+        "offsets": [fields[name][0] for name in XYZ],
+        "itemsize": point_step,
+    })
+    if height <= 0 or width <= 0 or point_step <= 0:
+        return np.empty((0, 3), np.float32)
+    raw = np.frombuffer(data, dtype=np.uint8)
+    packed_row = width * point_step
+    row_step = max(row_step or packed_row, packed_row)
+    n_rows = min(height, (raw.size + row_step - packed_row) // row_step)  # complete rows only
+    if row_step != packed_row:
+        raw = np.concatenate([raw, np.zeros(n_rows * row_step - min(raw.size, n_rows * row_step),
+                                            np.uint8)])
+        raw = raw[: n_rows * row_step].reshape(n_rows, row_step)[:, :packed_row].reshape(-1)
+    else:
+        raw = raw[: n_rows * packed_row]
+    points = raw.view(dtype)
+    xyz = np.stack([points[name].astype(np.float32) for name in XYZ], axis=-1)
+    return xyz[np.isfinite(xyz).all(axis=1)]
+
+
+def ros_fields(fields: list) -> dict[str, tuple[int, str]]:
+    """PointField list (objects or dicts with name, offset, datatype, count) -> field table."""
+    table = {}
+    for field in fields:
+        name, offset, datatype = (_attr(field, "name"), _attr(field, "offset"),
+                                  _attr(field, "datatype"))
+        if datatype in ROS_POINTFIELD_TYPES:
+            table[str(name)] = (int(offset), ROS_POINTFIELD_TYPES[int(datatype)])
+    return table
+
+
+def foxglove_fields(fields: list) -> dict[str, tuple[int, str]]:
+    """foxglove PackedElementField list (objects or dicts: name, offset, type) -> field table."""
+    names = {"UINT8": 1, "INT8": 2, "UINT16": 3, "INT16": 4, "UINT32": 5, "INT32": 6,
+             "FLOAT32": 7, "FLOAT64": 8}
+    table = {}
+    for field in fields:
+        numeric = _attr(field, "type")
+        if isinstance(numeric, str):
+            numeric = names.get(numeric.upper(), 0)
+        numeric = int(getattr(numeric, "value", numeric))
+        if numeric in FOXGLOVE_NUMERIC_TYPES:
+            table[str(_attr(field, "name"))] = (int(_attr(field, "offset")),
+                                                FOXGLOVE_NUMERIC_TYPES[numeric])
+    return table
+
+
+def planar_points(ranges: np.ndarray, angles: np.ndarray, range_min: float = 0.0,
+                  range_max: float = np.inf) -> np.ndarray:
+    """Points (r cos a, r sin a, 0) of a 2-D scan, keeping finite r in [range_min, range_max].
+
+    Returns (N, 3) float32. A range of zero or below is never a return.
+    """
+    r = np.asarray(ranges, dtype=np.float64)
+    a = np.asarray(angles, dtype=np.float64)[: r.size]
+    r = r[: a.size]
+    keep = np.isfinite(r) & (r > 0.0) & (r >= range_min) & (r <= range_max) & np.isfinite(a)
+    r, a = r[keep], a[keep]
+    return np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)], axis=-1).astype(np.float32)
+
+
+def _attr(obj: object, name: str) -> object:
+    return obj[name] if isinstance(obj, Mapping) else getattr(obj, name)
