@@ -64,10 +64,23 @@ RULES: dict[str, tuple] = {
     "input.origin_lon_deg": ("range", -180.0, 180.0, False, False),
     "input.origin_heading_deg": ("range", -360.0, 360.0, False, False),
     "output.chunk_frames": ("range", 1, 100_000, False, False),
+    "sim.moving_cars": ("range", 0, 1000, False, False),
+    "sim.pedestrians": ("range", 0, 1000, False, False),
+    "sim.parked_car_spacing_m": ("range", 1.0, 1e6, False, False),
+    "sim.furniture_spacing_m": ("range", 1.0, 1e6, False, False),
+    "sim.ego_max_speed_m_per_s": ("range", 0.0, 40.0, False, False),
+    "sim.range_noise_m": ("range", 0.0, 10.0, False, False),
+    "sim.dropout": ("range", 0.0, 1.0, False, True),
+    "sim.pose_noise_m": ("range", 0.0, 100.0, False, False),
+    "sim.pose_noise_deg": ("range", 0.0, 180.0, False, False),
+    "sim.gnss_noise_m": ("range", 0.0, 100.0, False, False),
+    "sim.start_lat_deg": ("range", -90.0, 90.0, False, False),
+    "sim.start_lon_deg": ("range", -180.0, 180.0, False, False),
 }
 
 #: keys whose value may be NaN, meaning "not set"
-NULLABLE = {"input.origin_lat_deg", "input.origin_lon_deg"}
+NULLABLE = {"input.origin_lat_deg", "input.origin_lon_deg", "sim.range_noise_m", "sim.dropout",
+            "sim.start_lat_deg", "sim.start_lon_deg"}
 
 
 def default_config() -> dict[str, Any]:

@@ -75,8 +75,14 @@ def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
     fixes = reader.gnss_fixes()
     if len(fixes):
         crs = working_crs(config["map"]["crs"], (float(fixes[0, 2]), float(fixes[0, 1])))
-        world_xy = reader.positions_at(fixes[:, 0].astype(np.int64))[:, :2]
-        return georef_mod.from_gnss(world_xy, fixes[:, [2, 1]], crs)
+        stamps = fixes[:, 0].astype(np.int64)
+        world_xy = reader.positions_at(stamps, frame=reader.gnss_antenna_frame())[:, :2]
+        if np.isnan(world_xy).all():
+            log.info("%s: GNSS frame not reachable through the poses; fitting the fixes to the "
+                     "lidar positions", reader.path)
+            world_xy = reader.positions_at(stamps)[:, :2]
+        valid = ~np.isnan(world_xy).any(axis=1)  # fixes outside the pose span
+        return georef_mod.from_gnss(world_xy[valid], fixes[valid][:, [2, 1]], crs)
     if need_crs:
         raise GeoreferenceError(
             f"{reader.path}: poses are in a local frame and the log has no GNSS topic; set "

@@ -111,6 +111,7 @@ class LogReader:
         self._requested = {"lidar": lidar_topic, "pose": pose_topic, "gnss": gnss_topic}
         self._chosen: dict[str, Any] = {}
         self._lidar_frame: str | None = None
+        self._gnss_frame: str | None = None
         self._said: set = set()  # one-time log messages already given
         self.stats: dict[str, int] = {}
 
@@ -311,17 +312,17 @@ class LogReader:
 
     # --- other queries -------------------------------------------------------------------
 
-    def positions_at(self, stamps_ns: np.ndarray) -> np.ndarray:
-        """(K, 3) world-frame position of the lidar at each stamp; NaN rows where no pose fits.
+    def positions_at(self, stamps_ns: np.ndarray, frame: str | None = None) -> np.ndarray:
+        """(K, 3) world-frame position of ``frame`` (default: the lidar) at each stamp; NaN
+        rows where no pose fits.
 
-        Uses the same pose source and interpolation as :meth:`scans`, with the lidar frame of
-        the log's first scan.
+        Uses the same pose source and interpolation as :meth:`scans`.
         """
         stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
         out = np.full((stamps.size, 3), np.nan)
         if stamps.size == 0:
             return out
-        frame = self.lidar_frame
+        frame = self.lidar_frame if frame is None else frame
         poses = self._pose_source()
         order = np.argsort(stamps, kind="stable")
         queue = deque(int(i) for i in order)
@@ -355,6 +356,30 @@ class LogReader:
                 break
         return self._lidar_frame
 
+    def gnss_antenna_frame(self) -> str:
+        """The frame the GNSS fixes locate: their ``frame_id`` when the pose source can place
+        it (the vehicle body of the pose topic, or a frame TF links to it); otherwise the
+        vehicle body of a pose topic, otherwise the lidar frame (each fallback logged once)."""
+        frame = self._gnss_frame
+        if frame is None:
+            self.gnss_fixes()
+            frame = self._gnss_frame or ""
+        poses = self._pose_source()
+        kind, _ = self.pose_topics
+        if kind == "topic":
+            for raw in self.source.iter_raw(self.pose_topics[1]):
+                poses.add(self._pose_records(raw))
+                break
+            body = poses.body_frame
+            if frame and (frame == body or poses.static.static_transform(body, frame)
+                          is not None):
+                return frame
+            log.info("%s: GNSS frame '%s' is not linked to the vehicle body '%s' by TF; "
+                     "taking the fixes at the body", self.path, frame, body)
+            return body
+        # TF: the frame may only appear in dynamic TF; positions_at gives NaN if it never does
+        return frame or self.lidar_frame
+
     def gnss_fixes(self) -> np.ndarray:
         """(K, 4) float64 rows (stamp_ns, lat_deg, lon_deg, alt_m), sorted by stamp, unique
         stamps; fixes without a position (NavSatFix status −1, NaN) are left out. Empty (0, 4)
@@ -367,6 +392,8 @@ class LogReader:
         for raw in self.source.iter_raw([topic]):
             fix = adapter(self.source.decode(raw), raw.message.log_time)
             if fix is not None:
+                if self._gnss_frame is None:
+                    self._gnss_frame = fix.frame_id
                 rows.append((fix.stamp_ns, fix.lat_deg, fix.lon_deg, fix.alt_m))
         if not rows:
             return np.empty((0, 4))

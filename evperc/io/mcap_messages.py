@@ -54,6 +54,7 @@ class GnssFix:
     lat_deg: float
     lon_deg: float
     alt_m: float
+    frame_id: str = ""
 
 
 # --- field access -------------------------------------------------------------------------
@@ -204,18 +205,21 @@ def ros_navsatfix(msg: Any, log_time_ns: int) -> GnssFix | None:
     """None when the receiver reports no fix (status −1) or the position is not finite."""
     if int(get(get(msg, "status"), "status", 0)) < 0:
         return None
-    return _fix(stamp_of(get(get(msg, "header"), "stamp"), log_time_ns), msg)
+    header = get(msg, "header")
+    return _fix(stamp_of(get(header, "stamp"), log_time_ns), msg,
+                str(get(header, "frame_id", "")))
 
 
 def foxglove_location_fix(msg: Any, log_time_ns: int) -> GnssFix | None:
-    return _fix(stamp_of(get(msg, "timestamp"), log_time_ns), msg)
+    return _fix(stamp_of(get(msg, "timestamp"), log_time_ns), msg,
+                str(get(msg, "frame_id", "")))
 
 
-def _fix(stamp_ns: int, msg: Any) -> GnssFix | None:
+def _fix(stamp_ns: int, msg: Any, frame_id: str) -> GnssFix | None:
     lat, lon, alt = (float(get(msg, k, np.nan)) for k in ("latitude", "longitude", "altitude"))
     if not (np.isfinite(lat) and np.isfinite(lon)):
         return None
-    return GnssFix(stamp_ns, lat, lon, alt if np.isfinite(alt) else 0.0)
+    return GnssFix(stamp_ns, lat, lon, alt if np.isfinite(alt) else 0.0, frame_id)
 
 
 # --- schema tables ------------------------------------------------------------------------

@@ -1,0 +1,216 @@
+"""Scores of an evperc run against simulated ground truth (docs/truth-format.md).
+
+Matching: a run frame and a truth frame are paired when their ``stamp_ns`` are equal; cells
+are compared where both windows cover the same global lattice cells, and only where the
+truth is ``observed`` (some ray crossed or ended in the cell at this or an earlier scan).
+
+Decisions map to classes free→F, infrastructure→I, unmapped→U, stopped→S, moving→M.
+``static`` (undecided among I, U, S) and ``unknown`` predict no fine class: they are misses
+for recall and do not count for precision; the confusion matrix shows them. Coarse scores
+use free / static = {I, U, S} / moving, where every static decision (``static``,
+``infrastructure``, ``unmapped``, ``stopped``) is static.
+
+For class c over the evaluated cells: precision = TP / #(decided c), recall = TP / #(truth c),
+F1 = 2PR / (P + R), support = #(truth c); undefined ratios are ``None``.
+
+Detection latency, per moving episode of a simulated agent: an episode is a maximal run of
+consecutive matched frames in which the agent has at least one evaluated cell of truth
+class M. Its onset is the first frame of the episode in which a ray of that frame hits or
+crosses one of the agent's cells (``visible``); it is detected at the first frame from the
+onset on in which at least one of its M cells is decided ``moving``. Latency = detection −
+onset in frames (0 = detected in the first scan that sees it). Episodes never visible are
+not counted; visible ones never detected are ``missed``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from typing import Any
+
+import numpy as np
+
+from evperc.errors import UsageError
+from evperc.geo.window import Window, overlap
+
+FINE = ("free", "infrastructure", "unmapped", "stopped", "moving")
+COARSE = ("free", "static", "moving")
+TRUTH_CODES = {"free": 1, "moving": 2, "stopped": 4, "infrastructure": 5, "unmapped": 6}
+_COARSE_OF_FINE = {"free": "free", "infrastructure": "static", "unmapped": "static",
+                   "stopped": "static", "moving": "moving"}
+_COARSE_OF_DECISION = {"free": "free", "moving": "moving", "static": "static",
+                       "stopped": "static", "infrastructure": "static", "unmapped": "static"}
+
+
+def _pairs(run_frames: Iterable[Any], truth_frames: Iterable[Any]) -> Iterator[tuple[Any, Any]]:
+    """Frames with equal stamps (both sequences in increasing stamp order)."""
+    truth_it = iter(truth_frames)
+    t = next(truth_it, None)
+    for f in run_frames:
+        while t is not None and t.stamp_ns < f.stamp_ns:
+            t = next(truth_it, None)
+        if t is not None and t.stamp_ns == f.stamp_ns:
+            yield f, t
+
+
+def _scores(tp: np.ndarray, predicted: np.ndarray, support: np.ndarray, names: tuple[str, ...]
+            ) -> dict[str, dict[str, float | int | None]]:
+    out = {}
+    for i, name in enumerate(names):
+        p = float(tp[i] / predicted[i]) if predicted[i] else None
+        r = float(tp[i] / support[i]) if support[i] else None
+        f1 = 2 * p * r / (p + r) if p is not None and r is not None and p + r > 0 else None
+        out[name] = {"precision": p, "recall": r, "f1": f1, "support": int(support[i])}
+    return out
+
+
+def evaluate(run: Any, truth: Any) -> dict[str, Any]:
+    """Metrics of ``run`` (``.frames`` with ``stamp_ns, origin, decision``, and
+    ``.decision_codes``) against ``truth`` (:func:`evperc.sim.truth.load_truth`)."""
+    codes: dict[str, int] = dict(run.decision_codes)
+    decisions = sorted(codes, key=codes.get)
+    d_lut = np.full(256, -1, dtype=np.int64)
+    d_lut[[codes[n] for n in decisions]] = np.arange(len(decisions))
+    t_lut = np.full(256, -1, dtype=np.int64)
+    tcodes = dict(getattr(truth, "class_codes", TRUTH_CODES))
+    t_lut[[tcodes[n] for n in FINE]] = np.arange(len(FINE))
+    res = truth.resolution_m
+    run_res = getattr(run, "resolution_m", res)
+    if abs(run_res - res) > 1e-9:
+        raise UsageError(f"run cell size {run_res} m differs from the truth's {res} m; "
+                         "simulate with the run's --config")
+    n_agents = len(getattr(truth, "agents", [])) or 0
+    moving_code = codes.get("moving", -1)
+    confusion = np.zeros((len(FINE), len(decisions)), dtype=np.int64)
+    rows: list[tuple[np.ndarray, ...]] = []
+    stamps, matched, run_frames = [], 0, 0
+
+    def counted(frames: Iterable[Any]) -> Iterator[Any]:
+        nonlocal run_frames
+        for f in frames:
+            run_frames += 1
+            yield f
+
+    for f, t in _pairs(counted(run.frames), truth.frames):
+        matched += 1
+        stamps.append(t.stamp_ns)
+        dec = np.asarray(f.decision)
+        win = Window(res, dec.shape[0], dec.shape[1], int(f.origin[0]), int(f.origin[1]))
+        ov = overlap(win, t.window)
+        if ov is None:
+            rows.append(tuple(np.zeros(n_agents + 1, dtype=bool) for _ in range(3)))
+            continue
+        (rr, rc), (tr, tc) = ov
+        d = d_lut[dec[rr, rc]]
+        tc_ = t_lut[t.classes[tr, tc]]
+        ok = np.asarray(t.observed[tr, tc], dtype=bool) & (tc_ >= 0) & (d >= 0)
+        confusion += np.bincount(tc_[ok] * len(decisions) + d[ok],
+                                 minlength=confusion.size).reshape(confusion.shape)
+        agent = np.where(ok, t.agent[tr, tc], 0)
+        n = max(n_agents, int(agent.max(initial=0))) + 1
+        if n > n_agents + 1:
+            n_agents = n - 1
+            rows = [tuple(np.pad(a, (0, n - len(a))) for a in r) for r in rows]
+        is_m = agent > 0
+        is_m &= t.classes[tr, tc] == tcodes["moving"]
+        moving_now = np.bincount(agent[is_m], minlength=n) > 0
+        visible_now = np.bincount(agent[is_m & t.visible[tr, tc]], minlength=n) > 0
+        detected = np.bincount(agent[is_m & (dec[rr, rc] == moving_code)], minlength=n) > 0
+        rows.append((moving_now, visible_now, detected))
+
+    metrics = _summarise(confusion, decisions)
+    metrics["frames_matched"] = matched
+    metrics["frames_unmatched"] = run_frames - matched
+    metrics["latency_frames"] = _latency(rows, np.array(stamps, dtype=np.int64))
+    return metrics
+
+
+def _summarise(confusion: np.ndarray, decisions: list[str]) -> dict[str, Any]:
+    col = {n: i for i, n in enumerate(decisions)}
+    fine_pred = np.array([confusion[:, col[n]].sum() if n in col else 0 for n in FINE])
+    fine_tp = np.array([confusion[i, col[n]] if n in col else 0 for i, n in enumerate(FINE)])
+    support = confusion.sum(axis=1)
+    coarse_conf = np.zeros((3, 3), dtype=np.int64)
+    for i, tname in enumerate(FINE):
+        for j, dname in enumerate(decisions):
+            if dname in _COARSE_OF_DECISION:
+                coarse_conf[COARSE.index(_COARSE_OF_FINE[tname]),
+                            COARSE.index(_COARSE_OF_DECISION[dname])] += confusion[i, j]
+    coarse_support = np.array([support[[_COARSE_OF_FINE[n] == c for n in FINE]].sum()
+                               for c in COARSE])
+    total = int(confusion.sum())
+    sm = {t: {d: int(confusion[FINE.index(t), col[d]]) for d in decisions}
+          for t in ("stopped", "moving")}
+    return {
+        "cells": total,
+        "accuracy": float(fine_tp.sum() / total) if total else None,
+        "per_class": _scores(fine_tp, fine_pred, support, FINE),
+        "coarse": _scores(np.diag(coarse_conf), coarse_conf.sum(axis=0), coarse_support,
+                          COARSE),
+        "coarse_accuracy": float(np.trace(coarse_conf) / total) if total else None,
+        "confusion": {"truth": list(FINE), "decision": decisions,
+                      "counts": confusion.tolist()},
+        "stopped_vs_moving": sm,
+    }
+
+
+def _latency(rows: list[tuple[np.ndarray, ...]], stamps: np.ndarray) -> dict[str, Any]:
+    episodes: list[dict[str, Any]] = []
+    if rows:
+        moving, visible, detected = (np.stack([r[k] for r in rows]) for k in range(3))
+        for agent in range(1, moving.shape[1]):  # one pass per simulated agent
+            m = moving[:, agent].astype(np.int8)
+            edges = np.diff(np.concatenate([[0], m, [0]]))
+            for start, end in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1),
+                                  strict=True):
+                seen = np.flatnonzero(visible[start:end, agent])
+                if len(seen) == 0:
+                    continue
+                onset = start + int(seen[0])
+                hit = np.flatnonzero(detected[onset:end, agent])
+                ep = {"agent": agent, "onset_frame": int(onset), "end_frame": int(end),
+                      "latency_frames": int(hit[0]) if len(hit) else None,
+                      "latency_s": (float(stamps[onset + hit[0]] - stamps[onset]) / 1e9
+                                    if len(hit) else None)}
+                episodes.append(ep)
+    lat = np.array([e["latency_frames"] for e in episodes if e["latency_frames"] is not None])
+    return {"episodes": len(episodes), "detected": int(len(lat)),
+            "missed": len(episodes) - int(len(lat)),
+            "mean": float(lat.mean()) if len(lat) else None,
+            "median": float(np.median(lat)) if len(lat) else None,
+            "max": int(lat.max()) if len(lat) else None,
+            "per_episode": episodes}
+
+
+def format_report(metrics: dict[str, Any], other: dict[str, Any] | None = None,
+                  names: tuple[str, str] = ("run", "compare")) -> str:
+    """A plain-text table of ``metrics`` (and ``other`` side by side)."""
+    runs = [(names[0], metrics)] + ([(names[1], other)] if other is not None else [])
+
+    def num(v: float | None) -> str:
+        return "   -  " if v is None else f"{v:6.3f}"
+
+    head = f"{'class':<15}{'support':>9}" + "".join(
+        f"  | {name[:20]:<20} P      R      F1   " for name, _ in runs)
+    lines = ["frames matched: " + ", ".join(f"{n} {m['frames_matched']}" for n, m in runs),
+             "cells evaluated: " + ", ".join(f"{n} {m['cells']}" for n, m in runs), "", head]
+    for table, keys in (("per_class", FINE), ("coarse", COARSE)):
+        for k in keys:
+            row = f"{k:<15}{metrics[table][k]['support']:>9}"
+            for _, m in runs:
+                s = m[table][k]
+                row += f"  | {'':<20}{num(s['precision'])} {num(s['recall'])} {num(s['f1'])}"
+            lines.append(row)
+        lines.append("")
+    for n, m in runs:
+        conf = m["confusion"]
+        lines.append(f"confusion ({n}): rows truth, columns decision")
+        lines.append(f"{'':<15}" + "".join(f"{d[:9]:>10}" for d in conf["decision"]))
+        for t, counts in zip(conf["truth"], conf["counts"], strict=True):
+            lines.append(f"{t:<15}" + "".join(f"{c:>10}" for c in counts))
+        lat = m["latency_frames"]
+        lines.append(f"moving-object latency ({n}): {lat['episodes']} episodes, "
+                     f"{lat['detected']} detected, {lat['missed']} missed; frames mean "
+                     f"{num(lat['mean']).strip()}, median {num(lat['median']).strip()}, "
+                     f"max {lat['max'] if lat['max'] is not None else '-'}")
+        lines.append("")
+    return "\n".join(lines).rstrip() + "\n"

@@ -1,0 +1,140 @@
+"""Evaluator on hand-made grids with hand-computed scores."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from evperc.cli import cli
+from evperc.config import load_config
+from evperc.eval.metrics import evaluate
+from evperc.geo.window import Window
+from evperc.io.writer import RunWriter
+from evperc.sim.truth import TruthFrame, TruthWriter, load_truth
+
+CODES = {"unknown": 0, "free": 1, "moving": 2, "static": 3, "stopped": 4,
+         "infrastructure": 5, "unmapped": 6}
+F, M, S, I, U = 1, 2, 4, 5, 6   # truth codes (docs/truth-format.md)
+UNK, FREE, MOV, STA, STO, INF, UNM = range(7)
+
+
+def write_truth(tmp: Path, frames: list[dict], agents: int = 0) -> Path:
+    w = TruthWriter(tmp / "truth", 2, 0.5, "EPSG:32635",
+                    {"agents": [{"id": i + 1} for i in range(agents)]}, chunk_frames=2)
+    for k, f in enumerate(frames):
+        classes = np.array(f["classes"], dtype=np.uint8)
+        rows, cols = classes.shape
+        origin = f.get("origin", (0, 0))
+        w.manifest["rows"], w.manifest["cols"] = rows, cols
+        w.add(TruthFrame(k, f["stamp"], origin, Window(0.5, rows, cols, *origin),
+                         np.zeros(3), classes,
+                         np.array(f.get("observed", np.ones_like(classes)), dtype=bool),
+                         np.array(f.get("visible", np.ones_like(classes)), dtype=bool),
+                         np.array(f.get("agent", np.zeros_like(classes)), dtype=np.int32)))
+    w.close()
+    return tmp / "truth"
+
+
+def fake_run(frames: list[dict]) -> SimpleNamespace:
+    return SimpleNamespace(decision_codes=CODES, frames=[
+        SimpleNamespace(stamp_ns=f["stamp"], origin=f.get("origin", (0, 0)),
+                        decision=np.array(f["decision"], dtype=np.uint8)) for f in frames])
+
+
+def test_per_class_and_coarse_scores_by_hand(tmp_path: Path) -> None:
+    truth = load_truth(write_truth(tmp_path, [{
+        "stamp": 100, "classes": [[F, F, I], [S, M, U]],
+        "observed": [[1, 1, 1], [1, 1, 0]]}]))
+    run = fake_run([{"stamp": 100, "decision": [[FREE, MOV, INF], [STA, MOV, UNM]]},
+                    {"stamp": 150, "decision": [[FREE, FREE, FREE], [FREE, FREE, FREE]]}])
+    m = evaluate(run, truth)
+    # evaluated: F→free ✓, F→moving ✗, I→infrastructure ✓, S→static (miss), M→moving ✓;
+    # the U cell is unobserved
+    assert m["cells"] == 5 and m["frames_matched"] == 1 and m["frames_unmatched"] == 1
+    pc = m["per_class"]
+    assert pc["free"] == pytest.approx({"precision": 1.0, "recall": 0.5, "f1": 2 / 3,
+                                        "support": 2})
+    assert pc["infrastructure"] == {"precision": 1.0, "recall": 1.0, "f1": 1.0, "support": 1}
+    assert pc["stopped"] == {"precision": None, "recall": 0.0, "f1": None, "support": 1}
+    assert pc["moving"] == pytest.approx({"precision": 0.5, "recall": 1.0, "f1": 2 / 3,
+                                          "support": 1})
+    assert pc["unmapped"] == {"precision": None, "recall": None, "f1": None, "support": 0}
+    co = m["coarse"]
+    assert co["static"] == {"precision": 1.0, "recall": 1.0, "f1": 1.0, "support": 2}
+    assert co["free"]["recall"] == 0.5 and co["moving"]["precision"] == 0.5
+    assert m["accuracy"] == pytest.approx(3 / 5) and m["coarse_accuracy"] == pytest.approx(4 / 5)
+    conf = np.array(m["confusion"]["counts"])
+    assert m["confusion"]["decision"] == list(CODES)
+    assert conf[3, STA] == 1 and conf[0, MOV] == 1 and conf.sum() == 5
+    assert m["stopped_vs_moving"]["stopped"]["static"] == 1
+    assert m["stopped_vs_moving"]["moving"]["moving"] == 1
+
+
+def test_windows_compared_where_both_cover(tmp_path: Path) -> None:
+    truth = load_truth(write_truth(tmp_path, [{"stamp": 5, "classes": [[F, I, I], [F, F, M]]}]))
+    # run window shifted one column east: its columns 0, 1 are the truth's columns 1, 2
+    run = fake_run([{"stamp": 5, "origin": (0, 1), "decision": [[INF, FREE, UNK],
+                                                                 [FREE, MOV, UNK]]}])
+    m = evaluate(run, truth)
+    assert m["cells"] == 4
+    assert m["per_class"]["infrastructure"] == pytest.approx(
+        {"precision": 1.0, "recall": 0.5, "f1": 2 / 3, "support": 2})
+    assert m["per_class"]["moving"]["recall"] == 1.0
+    assert m["per_class"]["free"]["recall"] == 1.0
+
+
+def test_latency_per_moving_episode(tmp_path: Path) -> None:
+    # agent 1 moves in frames 0-3, first seen at frame 1, decided moving at frame 3: 2 frames;
+    # agent 2 moves in frames 0-3, seen at 0, never decided moving: missed
+    frames, run = [], []
+    for k in range(4):
+        frames.append({"stamp": 10 * k, "classes": [[M, M]], "agent": [[1, 2]],
+                       "visible": [[k >= 1, True]]})
+        run.append({"stamp": 10 * k, "decision": [[MOV if k == 3 else FREE, STO]]})
+    m = evaluate(fake_run(run), load_truth(write_truth(tmp_path, frames, agents=2)))
+    lat = m["latency_frames"]
+    assert (lat["episodes"], lat["detected"], lat["missed"]) == (2, 1, 1)
+    assert lat["mean"] == 2.0 and lat["max"] == 2
+    ep = [e for e in lat["per_episode"] if e["agent"] == 1][0]
+    assert ep["onset_frame"] == 1 and ep["latency_s"] == pytest.approx(20e-9)
+
+
+def write_run(out: Path, decision: np.ndarray, stamp: int) -> None:
+    rows, cols = decision.shape
+    w = RunWriter(out, load_config(), {"decision_codes": CODES, "resolution_m": 0.5,
+                                       "rows": rows, "cols": cols, "crs": "EPSG:32635"})
+    w.add(stamp, np.zeros(3), (0, 0), np.zeros((rows, cols, 32)), np.zeros((rows, cols, 5)),
+          decision, np.zeros((rows, cols)), np.zeros((rows, cols, 3)))
+    w.close({})
+
+
+def test_evaluate_cli_json_and_compare(tmp_path: Path) -> None:
+    truth = write_truth(tmp_path, [{"stamp": 7, "classes": [[F, I], [S, M]]}])
+    write_run(tmp_path / "map", np.array([[FREE, INF], [STO, MOV]], dtype=np.uint8), 7)
+    write_run(tmp_path / "nomap", np.array([[FREE, STA], [STA, FREE]], dtype=np.uint8), 7)
+    res = CliRunner().invoke(cli, ["evaluate", str(tmp_path / "map"), "--truth", str(truth),
+                                   "--compare", str(tmp_path / "nomap"), "--json",
+                                   str(tmp_path / "m.json")])
+    assert res.exit_code == 0, res.output
+    assert "infrastructure" in res.output and "nomap" in res.output
+    doc = json.loads((tmp_path / "m.json").read_text())
+    assert doc["per_class"]["infrastructure"]["recall"] == 1.0
+    assert doc["per_class"]["moving"]["f1"] == 1.0
+    assert doc["compare"]["per_class"]["infrastructure"]["recall"] == 0.0
+    assert doc["compare"]["per_class"]["moving"]["recall"] == 0.0
+    assert doc["compare"]["coarse"]["static"]["recall"] == 1.0
+    assert set(doc["per_class"]) == {"free", "infrastructure", "unmapped", "stopped", "moving"}
+    assert "confusion" in doc and "latency_frames" in doc
+
+
+def test_evaluate_cli_missing_truth_is_one_line(tmp_path: Path) -> None:
+    write_run(tmp_path / "run", np.zeros((2, 2), dtype=np.uint8), 1)
+    res = CliRunner().invoke(cli, ["evaluate", str(tmp_path / "run"), "--truth",
+                                   str(tmp_path / "nothing")])
+    assert res.exit_code == 2
+    assert res.output.count("\n") == 1 and "truth" in res.output
