@@ -21,6 +21,12 @@ run: $(STAMP)
 	$(BIN)/evperc run sample_data/drive.mcap --map sample_data/map.geojson --out $(OUT)/sample --overwrite
 	$(BIN)/evperc render $(OUT)/sample --gif $(OUT)/sample.gif --dest $(OUT)/sample-png
 
+# The bundled drive: 20 s, ibeo4 profile, seed 7, on the Helsinki OSM extract (tests/data/osm).
+sample-data: $(STAMP)
+	$(BIN)/evperc simulate --map tests/data/osm/helsinki_buildings.geojson \
+		--roads tests/data/osm/helsinki_roads.geojson --profile ibeo4 --seconds 20 --seed 7 \
+		--out sample_data --overwrite
+
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
