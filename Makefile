@@ -36,6 +36,10 @@ test-all: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py
 
+# Rewrite tests/golden/ after an intended change of results; review the diff, then commit.
+golden: $(STAMP)
+	$(BIN)/python -m tests.golden.update
+
 lint: $(STAMP)
 	$(BIN)/ruff check evperc tests benchmarks
 
