@@ -271,9 +271,12 @@ def simulate_command(map_path: Path, roads_path: Path | None, out_dir: Path, pro
               help="Second run scored beside OUT (e.g. the --no-map baseline).")
 @click.option("--json", "json_path", type=click.Path(path_type=Path),
               help="Also write the metrics as JSON.")
+@click.option("--cells", type=click.Choice(["observed", "visible"]), default="observed",
+              show_default=True,
+              help="Score cells ever observed so far, or only those the sensor sees now.")
 @user_errors
 def evaluate_command(out_dir: Path, truth_dir: Path, compare_dir: Path | None,
-                     json_path: Path | None) -> None:
+                     json_path: Path | None, cells: str) -> None:
     """Score OUT (an `evperc run` folder) against simulated ground truth."""
     import json
 
@@ -282,8 +285,9 @@ def evaluate_command(out_dir: Path, truth_dir: Path, compare_dir: Path | None,
     from evperc.sim.truth import load_truth
 
     truth = load_truth(truth_dir)
-    metrics = evaluate(load(out_dir), truth)
-    other = evaluate(load(compare_dir), truth) if compare_dir is not None else None
+    metrics = evaluate(load(out_dir), truth, cells=cells)
+    other = (evaluate(load(compare_dir), truth, cells=cells) if compare_dir is not None
+             else None)
     names = (out_dir.name or str(out_dir), compare_dir.name if compare_dir else "")
     click.echo(format_report(metrics, other, names), nl=False)
     if json_path is not None:

@@ -63,9 +63,18 @@ def _scores(tp: np.ndarray, predicted: np.ndarray, support: np.ndarray, names: t
     return out
 
 
-def evaluate(run: Any, truth: Any) -> dict[str, Any]:
+CELL_SETS = ("observed", "visible")
+
+
+def evaluate(run: Any, truth: Any, cells: str = "observed") -> dict[str, Any]:
     """Metrics of ``run`` (``.frames`` with ``stamp_ns, origin, decision``, and
-    ``.decision_codes``) against ``truth`` (:func:`evperc.sim.truth.load_truth`)."""
+    ``.decision_codes``) against ``truth`` (:func:`evperc.sim.truth.load_truth`).
+
+    ``cells``: ``"observed"`` scores every cell some ray reached at this or an earlier frame
+    (what the grid is meant to remember); ``"visible"`` only the cells a ray reaches in the
+    frame itself (what the sensor sees now: no penalty for forgetting)."""
+    if cells not in CELL_SETS:
+        raise UsageError(f"cells {cells!r}: choose one of {', '.join(CELL_SETS)}")
     codes: dict[str, int] = dict(run.decision_codes)
     decisions = sorted(codes, key=codes.get)
     d_lut = np.full(256, -1, dtype=np.int64)
@@ -102,7 +111,8 @@ def evaluate(run: Any, truth: Any) -> dict[str, Any]:
         (rr, rc), (tr, tc) = ov
         d = d_lut[dec[rr, rc]]
         tc_ = t_lut[t.classes[tr, tc]]
-        ok = np.asarray(t.observed[tr, tc], dtype=bool) & (tc_ >= 0) & (d >= 0)
+        scored = t.observed if cells == "observed" else t.visible
+        ok = np.asarray(scored[tr, tc], dtype=bool) & (tc_ >= 0) & (d >= 0)
         confusion += np.bincount(tc_[ok] * len(decisions) + d[ok],
                                  minlength=confusion.size).reshape(confusion.shape)
         agent = np.where(ok, t.agent[tr, tc], 0)
@@ -118,6 +128,7 @@ def evaluate(run: Any, truth: Any) -> dict[str, Any]:
         rows.append((moving_now, visible_now, detected))
 
     metrics = _summarise(confusion, decisions)
+    metrics["cell_set"] = cells
     metrics["frames_matched"] = matched
     metrics["frames_unmatched"] = run_frames - matched
     metrics["latency_frames"] = _latency(rows, np.array(stamps, dtype=np.int64))
@@ -192,7 +203,9 @@ def format_report(metrics: dict[str, Any], other: dict[str, Any] | None = None,
     head = f"{'class':<15}{'support':>9}" + "".join(
         f"  | {name[:20]:<20} P      R      F1   " for name, _ in runs)
     lines = ["frames matched: " + ", ".join(f"{n} {m['frames_matched']}" for n, m in runs),
-             "cells evaluated: " + ", ".join(f"{n} {m['cells']}" for n, m in runs), "", head]
+             "cells evaluated: " + ", ".join(
+                 f"{n} {m['cells']} ({m.get('cell_set', 'observed')})" for n, m in runs),
+             "", head]
     for table, keys in (("per_class", FINE), ("coarse", COARSE)):
         for k in keys:
             row = f"{k:<15}{metrics[table][k]['support']:>9}"

@@ -138,3 +138,20 @@ def test_evaluate_cli_missing_truth_is_one_line(tmp_path: Path) -> None:
                                    str(tmp_path / "nothing")])
     assert res.exit_code == 2
     assert res.output.count("\n") == 1 and "truth" in res.output
+
+
+def test_visible_cells_only(tmp_path: Path) -> None:
+    """``cells="visible"`` scores only the cells seen in the frame itself."""
+    truth = load_truth(write_truth(tmp_path, [{
+        "stamp": 100, "classes": [[F, F, I], [S, M, U]],
+        "observed": [[1, 1, 1], [1, 1, 1]], "visible": [[1, 0, 1], [0, 1, 0]]}]))
+    run = fake_run([{"stamp": 100, "decision": [[FREE, UNK, INF], [UNK, MOV, UNK]]}])
+    seen = evaluate(run, truth, cells="visible")
+    assert seen["cells"] == 3
+    assert seen["per_class"]["free"]["recall"] == 1.0
+    assert seen["per_class"]["moving"]["recall"] == 1.0
+    remembered = evaluate(run, truth, cells="observed")
+    assert remembered["cells"] == 6
+    assert remembered["per_class"]["free"]["recall"] == 0.5
+    with pytest.raises(Exception, match="visible"):
+        evaluate(run, truth, cells="everything")
