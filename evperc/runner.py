@@ -17,9 +17,10 @@ import numpy as np
 from tqdm import tqdm
 
 from evperc.errors import GeoreferenceError, OutputError
+from evperc.fused import fused_step
 from evperc.geo import georef as georef_mod
 from evperc.geo.crs import working_crs
-from evperc.geo.prior import PriorRasteriser, prior_masses
+from evperc.geo.prior import PriorRasteriser
 from evperc.geo.window import Window, scroll
 from evperc.io.log import PosedScan, open_log
 from evperc.io.maps import MapData, check_overlap, load_map
@@ -31,9 +32,6 @@ from evperc.pipeline import (
     DECISION_CODES,
     OMEGA,
     FusionParams,
-    decide,
-    fusion_step,
-    sensor_masses,
     vacuous,
 )
 from evperc.sensor import SensorParams, sensor_grid
@@ -219,14 +217,13 @@ class Pipeline:
         state.window = window
         free, occupied = sensor_grid(scan.points, scan.planar, t_crs, window,
                                      self.sensor_params)
-        prior = (prior_masses(self.rasteriser.labels(window), *self.betas)
-                 if self.rasteriser is not None else vacuous(window.shape))
+        labels = self.rasteriser.labels(window) if self.rasteriser is not None else None
         dt_s = 0.0 if state.prev_ns is None else (scan.stamp_ns - state.prev_ns) * 1e-9
         state.prev_ns = scan.stamp_ns
-        state.pg, state.zeta, conflict = fusion_step(
-            state.pg, state.zeta, sensor_masses(free, occupied), prior,
-            (free > 0) | (occupied > 0), dt_s, self.params)
-        betp, decision = decide(state.pg, self.params)
+        # SPEC §5 and §6 in one compiled pass; evperc.pipeline is the numpy twin it is tested on
+        out = fused_step(state.pg, state.zeta, free, occupied, labels, self.betas, dt_s,
+                         self.params)
+        betp, decision, conflict = out.betp, out.decision, out.conflict
         state.frames += 1
         state.decision_counts += np.bincount(decision.ravel(),
                                              minlength=len(state.decision_counts))

@@ -44,7 +44,8 @@ def cast(origin: np.ndarray, angles: np.ndarray, segs: np.ndarray, max_range: fl
 
 
 def write_street_drive(path: Path, n_scans: int = 40, speed_mps: float = 5.0,
-                       with_car: bool = True, beams: int = 720) -> Path:
+                       with_car: bool = True, beams: int = 720,
+                       chunk_size: int = 1024 * 1024) -> Path:
     """The street drive as ROS 2 MCAP: /scan LaserScan in ``laser`` at 10 Hz, /odom
     map→base_link, /tf_static base_link→laser (0.5 m forward)."""
     angles = -np.pi + np.arange(beams) * (2 * np.pi / beams)
@@ -59,4 +60,5 @@ def write_street_drive(path: Path, n_scans: int = 40, speed_mps: float = 5.0,
     odom.append((BASE_NS + int(round(0.1 * n_scans * 1e9)), transform(x=speed_mps * 0.1
                                                                           * n_scans)))
     return write_ros2_mcap(path, laserscans=scans, scan_range=(0.1, 75.0), odometry=odom,
-                           tf_static=[("base_link", "laser", transform(x=0.5))])
+                           tf_static=[("base_link", "laser", transform(x=0.5))],
+                           chunk_size=chunk_size)

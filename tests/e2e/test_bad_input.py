@@ -94,15 +94,17 @@ def test_ambiguous_lidar_topics_list_ready_options(tmp_path: Path) -> None:
     assert_one_line_error(code, out, "--lidar-topic /front", "--lidar-topic /rear")
 
 
-def test_truncated_log_gives_a_partial_complete_run_with_a_warning(drive: Path,
-                                                                    tmp_path: Path) -> None:
+def test_truncated_log_gives_a_partial_complete_run_with_a_warning(tmp_path: Path) -> None:
+    """A log cut mid-chunk (a recorder that died) is read as far as it is valid."""
+    drive = write_street_drive(tmp_path / "full.mcap", n_scans=8, chunk_size=8 * 1024)
     data = drive.read_bytes()
     cut = tmp_path / "cut.mcap"
-    cut.write_bytes(data[: len(data) // 3])
+    cut.write_bytes(data[: len(data) // 2])  # inside the third of four chunks
     out = tmp_path / "o"
     result = CliRunner().invoke(cli, ["run", str(cut), "--no-map", "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert "Traceback" not in result.output
+    assert "truncated" in result.output
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["complete"] is True
     assert 0 < manifest["frame_count"] < 8
