@@ -116,6 +116,11 @@ class FusionState:
     decision_counts: np.ndarray = field(
         default_factory=lambda: np.zeros(len(DECISION_CODES), dtype=np.int64))
 
+    def snapshot(self) -> FusionState:
+        """A copy that later frames do not change (saved by the writer thread)."""
+        return FusionState(self.window, self.pg.copy(), self.zeta.copy(), self.prev_ns,
+                           self.scan_index, self.frames, self.decision_counts.copy())
+
     def save(self, path: Path) -> None:
         w = self.window
         arrays = {"pg": self.pg, "zeta": self.zeta,
@@ -247,21 +252,34 @@ def run(request: RunRequest, resume: bool = False,
     else:
         writer = RunWriter(out_dir, request.config, pipeline.meta(), overwrite=request.overwrite)
     # chunk written -> checkpoint of the state -> manifest: a crash anywhere leaves a
-    # checkpoint that matches the manifest
-    writer.on_chunk = lambda frames: state.save(checkpoint_path(out_dir, frames))
+    # checkpoint that matches the manifest; older checkpoints go once a newer one is committed
+    def on_chunk(frames: int) -> Callable[[], None]:
+        snapshot, path = state.snapshot(), checkpoint_path(out_dir, frames)
+
+        def commit() -> None:
+            snapshot.save(path)
+            committed = checkpoint_path(out_dir, writer.manifest["frame_count"])
+            _remove_checkpoints(out_dir, keep={path, committed})
+        return commit
+
+    writer.on_chunk = on_chunk
     t0 = time.perf_counter()
     new_frames = 0
     bar = tqdm(pipeline.scans(state.scan_index), unit="frame", desc=request.log_path.name,
                disable=None, leave=False, initial=state.frames)
-    for index, scan in bar:
-        frame = pipeline.step(state, scan)
-        state.scan_index = index
-        new_frames += 1
-        if writer.add(**frame):
-            _remove_checkpoints(out_dir, keep=checkpoint_path(out_dir, state.frames))
-        if on_frame is not None:
-            on_frame(frame)
-    bar.close()
+    try:
+        for index, scan in bar:
+            frame = pipeline.step(state, scan)
+            state.scan_index = index
+            new_frames += 1
+            writer.add(**frame)
+            if on_frame is not None:
+                on_frame(frame)
+    except BaseException:
+        writer.abort()
+        raise
+    finally:
+        bar.close()
     wall = time.perf_counter() - t0
     counts = state.decision_counts
     total = max(int(counts.sum()), 1)
@@ -273,13 +291,13 @@ def run(request: RunRequest, resume: bool = False,
                "skipped_scans": dict(pipeline.reader.stats),
                "resumed": resume}
     writer.close(summary)
-    _remove_checkpoints(out_dir, keep=None)
+    _remove_checkpoints(out_dir, keep=set())
     return summary
 
 
-def _remove_checkpoints(out_dir: Path, keep: Path | None) -> None:
+def _remove_checkpoints(out_dir: Path, keep: set[Path]) -> None:
     for path in out_dir.glob(CHECKPOINT_GLOB):
-        if path != keep:
+        if path not in keep:
             path.unlink(missing_ok=True)
 
 

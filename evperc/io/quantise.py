@@ -1,0 +1,42 @@
+"""Storage precision of the output: values in [0, 1] as uint8 steps of 1/255, planar.
+
+``q = round(255 · x)``, so a stored value is within 1/510 of the computed one (the output
+format promises 1/255). Layers are stored planar, ``(channels, rows, cols)``: each channel
+is one contiguous plane, which deflates 2–3× better than interleaved channels.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+SCALE = 255.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _planar_kernel(values: np.ndarray, out: np.ndarray) -> None:
+    rows, cols, channels = values.shape
+    for r in range(rows):
+        for c in range(cols):
+            for k in range(channels):
+                v = values[r, c, k]
+                v = 0.0 if v < 0.0 else (1.0 if v > 1.0 else v)
+                out[k, r, c] = np.uint8(v * SCALE + 0.5)
+
+
+def quantise_planar(values: np.ndarray) -> np.ndarray:
+    """``(rows, cols, channels)`` floats in [0, 1] → ``(channels, rows, cols)`` uint8."""
+    values = np.ascontiguousarray(values, dtype=np.float32)
+    out = np.empty((values.shape[2], values.shape[0], values.shape[1]), dtype=np.uint8)
+    _planar_kernel(values, out)
+    return out
+
+
+def quantise(values: np.ndarray) -> np.ndarray:
+    """Any shape of floats in [0, 1] → uint8 of the same shape."""
+    return np.floor(np.clip(values, 0.0, 1.0) * SCALE + 0.5).astype(np.uint8)
+
+
+def dequantise(q: np.ndarray) -> np.ndarray:
+    """uint8 steps → float32 values."""
+    return q.astype(np.float32) * np.float32(1.0 / SCALE)
