@@ -238,9 +238,11 @@ class Pipeline:
 
 
 def run(request: RunRequest, resume: bool = False,
-        on_frame: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+        on_frame: Callable[[dict[str, Any]], None] | None = None,
+        progress: bool | None = None) -> dict[str, Any]:
     """Run the whole pipeline (or continue an interrupted run); returns the summary written
-    into the manifest. ``on_frame`` sees every frame's arrays (e.g. to render as it goes)."""
+    into the manifest. ``on_frame`` sees every frame's arrays (e.g. to render as it goes);
+    ``progress``: show the per-frame bar (``None``: only on a terminal)."""
     pipeline = Pipeline(request)
     state = FusionState()
     out_dir = request.out_dir
@@ -266,7 +268,8 @@ def run(request: RunRequest, resume: bool = False,
     t0 = time.perf_counter()
     new_frames = 0
     bar = tqdm(pipeline.scans(state.scan_index), unit="frame", desc=request.log_path.name,
-               disable=None, leave=False, initial=state.frames)
+               disable=None if progress is None else not progress, leave=False,
+               initial=state.frames)
     try:
         for index, scan in bar:
             frame = pipeline.step(state, scan)

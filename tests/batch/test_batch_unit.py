@@ -1,0 +1,87 @@
+"""The parts of `evperc batch` that need no cluster: the log list, output names, and the
+worker function's handling of errors, leftovers and foreign outputs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from evperc.batch import LogTask, format_table, output_names, process_log, read_log_list
+from evperc.config import load_config
+from evperc.errors import UsageError
+from tests.batch.logs import write_street_log
+
+
+def test_log_list_ignores_comments_and_blank_lines_relative_to_the_list(tmp_path):
+    listing = tmp_path / "lists" / "logs.txt"
+    listing.parent.mkdir()
+    listing.write_text("# drives of monday\n\na.mcap\n  sub/b.mcap   # second\n/abs/c.mcap\n")
+    assert read_log_list(listing) == [tmp_path / "lists" / "a.mcap",
+                                      tmp_path / "lists" / "sub" / "b.mcap",
+                                      Path("/abs/c.mcap")]
+
+
+def test_missing_log_list_is_a_usage_error(tmp_path):
+    with pytest.raises(UsageError, match="logs.txt: cannot read the log list"):
+        read_log_list(tmp_path / "logs.txt")
+
+
+def test_output_names_dedupe_shared_stems_by_parent_folder():
+    logs = [Path("/data/mon/drive.mcap"), Path("/data/tue/drive.mcap"), Path("/data/x.mcap")]
+    assert output_names(logs) == ["drive--mon", "drive--tue", "x"]
+    # independent of order
+    assert output_names(logs[::-1]) == ["x", "drive--tue", "drive--mon"]
+    # same parent name: go one folder further up
+    deeper = [Path("/a/day/drive.mcap"), Path("/b/day/drive.mcap")]
+    assert output_names(deeper) == ["drive--a-day", "drive--b-day"]
+    # same folder, same stem, other extension: the file name tells them apart
+    twins = [Path("/a/drive.mcap"), Path("/a/drive.bag")]
+    assert output_names(twins) == ["drive.mcap--a", "drive.bag--a"]
+
+
+def test_output_name_collision_is_a_usage_error():
+    with pytest.raises(UsageError, match="both would write ROOT/drive--mon"):
+        output_names([Path("/d/mon/drive.mcap"), Path("/d/tue/drive.mcap"),
+                      Path("/d/drive--mon.mcap")])
+
+
+def test_unexpected_exception_becomes_an_error_row(tmp_path):
+    log_path = write_street_log(tmp_path / "a.mcap", 2)
+    row = process_log(LogTask(log_path=log_path, out_dir=tmp_path / "out", config={}))
+    assert row["status"] == "error"
+    assert row["error"].startswith("KeyError: ")
+    assert row["frames"] is None and row["wall_time_s"] >= 0
+
+
+def test_leftovers_of_a_run_killed_before_its_manifest_are_cleared(tmp_path):
+    log_path = write_street_log(tmp_path / "a.mcap", 2)
+    out = tmp_path / "out"
+    (out / "frames").mkdir(parents=True)
+    (out / "config.toml").write_text("half")
+    (out / ".manifest.json.tmp").write_text("{")
+    config = load_config(overrides={"grid.window_size_m": 10.0})
+    row = process_log(LogTask(log_path=log_path, out_dir=out, config=config))
+    assert (row["status"], row["frames"]) == ("ok", 2)
+
+
+def test_foreign_folder_is_not_touched(tmp_path):
+    log_path = write_street_log(tmp_path / "a.mcap", 2)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    row = process_log(LogTask(log_path=log_path, out_dir=out, config=load_config()))
+    assert row["status"] == "failed" and "not an evperc output" in row["error"]
+    assert (out / "notes.txt").read_text() == "mine"
+
+
+def test_table_lists_every_log_with_dashes_for_missing_numbers():
+    rows = [{"log": "/x/a.mcap", "frames": 30, "frames_per_s": 7.123, "status": "ok",
+             "error": None},
+            {"log": "/x/bad.mcap", "frames": None, "frames_per_s": None, "status": "failed",
+             "error": "/x/bad.mcap: no lidar topic"}]
+    lines = format_table(rows).splitlines()
+    assert lines[0].split() == ["log", "frames", "frames/s", "status", "error"]
+    assert lines[1].split() == ["a.mcap", "30", "7.1", "ok"]
+    assert lines[2].split()[:4] == ["bad.mcap", "-", "-", "failed"]
+    assert lines[2].endswith("/x/bad.mcap: no lidar topic")
