@@ -97,6 +97,27 @@ def pose_xy_yaw(t_crs_sensor: np.ndarray) -> np.ndarray:
 CHECKPOINT_GLOB = "checkpoint_*.npz"
 
 
+class StageClock:
+    """Wall time per pipeline stage, summed over frames (for the run summary and benchmarks).
+
+    ``clock.lap("sensor")`` charges the time since the previous lap to ``sensor``."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        self._last = time.perf_counter()
+
+    def restart(self) -> None:
+        self._last = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + now - self._last
+        self._last = now
+
+    def per_frame_ms(self, frames: int) -> dict[str, float]:
+        return {k: round(1e3 * v / max(frames, 1), 3) for k, v in self.seconds.items()}
+
+
 def checkpoint_path(out_dir: Path, frames: int) -> Path:
     """The state after ``frames`` frames; the one matching the manifest is used on resume."""
     return out_dir / f"checkpoint_{frames:09d}.npz"
@@ -177,6 +198,7 @@ class Pipeline:
         self.params = FusionParams.from_config(config)
         self.sensor_params = SensorParams.from_config(config["sensor"], self.resolution)
         self._overlap_checked = False
+        self.clock = StageClock()
         self._vacuous_vector = np.zeros(32, dtype=np.float32)
         self._vacuous_vector[OMEGA] = 1
 
@@ -207,6 +229,8 @@ class Pipeline:
 
     def step(self, state: FusionState, scan: PosedScan) -> dict[str, Any]:
         """Fuse one scan into ``state`` (updated in place); returns the frame's arrays."""
+        clock = self.clock
+        clock.lap("read")  # time since the last frame was handed out: reading, decoding
         t_crs = (self.georef.apply(scan.T_world_sensor) if self.georef is not None
                  else scan.T_world_sensor)
         pose = pose_xy_yaw(t_crs)
@@ -220,15 +244,19 @@ class Pipeline:
             state.pg = scroll(state.pg, state.window, window, self._vacuous_vector)
             state.zeta = scroll(state.zeta, state.window, window, 0.0)
         state.window = window
+        clock.lap("geometry")
         free, occupied = sensor_grid(scan.points, scan.planar, t_crs, window,
                                      self.sensor_params)
+        clock.lap("sensor")
         labels = self.rasteriser.labels(window) if self.rasteriser is not None else None
+        clock.lap("prior")
         dt_s = 0.0 if state.prev_ns is None else (scan.stamp_ns - state.prev_ns) * 1e-9
         state.prev_ns = scan.stamp_ns
         # SPEC §5 and §6 in one compiled pass; evperc.pipeline is the numpy twin it is tested on
         out = fused_step(state.pg, state.zeta, free, occupied, labels, self.betas, dt_s,
                          self.params)
         betp, decision, conflict = out.betp, out.decision, out.conflict
+        clock.lap("fusion")
         state.frames += 1
         state.decision_counts += np.bincount(decision.ravel(),
                                              minlength=len(state.decision_counts))
@@ -270,19 +298,25 @@ def run(request: RunRequest, resume: bool = False,
     bar = tqdm(pipeline.scans(state.scan_index), unit="frame", desc=request.log_path.name,
                disable=None if progress is None else not progress, leave=False,
                initial=state.frames)
+    clock = pipeline.clock
+    clock.restart()
     try:
         for index, scan in bar:
             frame = pipeline.step(state, scan)
             state.scan_index = index
             new_frames += 1
             writer.add(**frame)
+            clock.lap("write")
             if on_frame is not None:
                 on_frame(frame)
+                clock.lap("on_frame")
     except BaseException:
         writer.abort()
         raise
     finally:
         bar.close()
+    writer.finish()
+    clock.lap("write")
     wall = time.perf_counter() - t0
     counts = state.decision_counts
     total = max(int(counts.sum()), 1)
@@ -292,7 +326,9 @@ def run(request: RunRequest, resume: bool = False,
                "decision_share": {n: round(float(counts[DECISION_CODES[n]]) / total, 6)
                                   for n in names},
                "skipped_scans": dict(pipeline.reader.stats),
-               "resumed": resume}
+               "resumed": resume,
+               "stage_ms_per_frame": dict(clock.per_frame_ms(new_frames), writer_thread=round(
+                   1e3 * writer.thread_seconds / max(new_frames, 1), 3))}
     writer.close(summary)
     _remove_checkpoints(out_dir, keep=set())
     return summary

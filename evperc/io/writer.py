@@ -19,6 +19,7 @@ import logging
 import os
 import shutil
 import threading
+import time
 import zipfile
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -147,6 +148,8 @@ class RunWriter:
         self._lock = threading.Lock()
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evperc-writer")
         self._pending: Future | None = None
+        #: seconds the writer thread spent stacking, compressing and writing chunks
+        self.thread_seconds = 0.0
         #: called with the frame count when a chunk is queued; returns the commit to run
         #: (in the writer thread) after the chunk file is written and before the manifest
         self.on_chunk: Callable[[int], Callable[[], None]] | None = None
@@ -218,6 +221,7 @@ class RunWriter:
 
     def _write_chunk(self, c: _Chunk, index: int, first: int, frames: list[dict[str, Any]],
                      commit: Callable[[], None] | None) -> None:
+        t0 = time.perf_counter()
         masses = np.stack(c.masses)                       # (K, 32, rows, cols)
         used = np.flatnonzero(masses.any(axis=(0, 2, 3)))
         name = f"chunk_{index:05d}.npz"
@@ -241,12 +245,19 @@ class RunWriter:
                 write_json(self.out_dir / MANIFEST, self.manifest)
         except OSError as err:
             raise OutputError(f"{path}: cannot write chunk ({err.strerror or err})") from err
+        finally:
+            self.thread_seconds += time.perf_counter() - t0
+
+    def finish(self) -> None:
+        """Write the last chunk and wait for the writer thread (the manifest stays
+        incomplete until :meth:`close`)."""
+        self._flush()
+        self._wait()
 
     def close(self, summary: dict[str, Any]) -> None:
         """Write the last chunk, then the manifest with ``complete: true``."""
         try:
-            self._flush()
-            self._wait()
+            self.finish()
             self.manifest["summary"] = summary
             self.manifest["complete"] = True
             write_json(self.out_dir / MANIFEST, self.manifest)
