@@ -160,3 +160,19 @@ def test_killed_process_resumes_identically(tmp_path: Path) -> None:
     for fa, fb in zip(a, b, strict=True):
         np.testing.assert_array_equal(fa.decision, fb.decision)
         np.testing.assert_array_equal(fa.masses, fb.masses)
+
+
+def test_run_renders_as_it_goes(drive: Path, small_config: Path, tmp_path: Path) -> None:
+    import imageio.v3 as iio
+
+    out, png = tmp_path / "out", tmp_path / "png"
+    result = invoke("run", str(drive), "--no-map", "--config", str(small_config), "--out",
+                    str(out), "--end", "1.0", "--render", str(png))
+    assert result.exit_code == 0, result.output
+    pictures = sorted(png.glob("frame_*.png"))
+    assert len(pictures) == len(evperc.load(out)) == 10
+    image = iio.imread(pictures[-1])
+    assert image.ndim == 3 and image.shape[2] == 3
+    # the free street is drawn green somewhere in the decision panel
+    green = (image[..., 1] > 200) & (image[..., 0] < 80) & (image[..., 2] < 80)
+    assert green.sum() > 100
