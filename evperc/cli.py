@@ -43,6 +43,16 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
+def check_map_options(map_path: Path | None, roads_path: Path | None, no_map: bool) -> None:
+    """--map, --roads and --no-map of `run` and `batch`: a map, or explicitly none."""
+    if map_path is None and not no_map:
+        raise UsageError("give --map MAP, or --no-map for the map-less baseline")
+    if map_path is not None and no_map:
+        raise UsageError("--map and --no-map exclude each other")
+    if roads_path is not None and map_path is None:
+        raise UsageError("--roads needs --map")
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="evperc")
 @click.option("-v", "--verbose", count=True, help="More log output (repeatable).")
@@ -99,12 +109,7 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
     else:
         if log_path is None:
             raise UsageError("give LOG.mcap (or --resume DIR)")
-        if map_path is None and not no_map:
-            raise UsageError("give --map MAP, or --no-map for the map-less baseline")
-        if map_path is not None and no_map:
-            raise UsageError("--map and --no-map exclude each other")
-        if roads_path is not None and map_path is None:
-            raise UsageError("--roads needs --map")
+        check_map_options(map_path, roads_path, no_map)
         config = load_config(config_path)
         out_dir = out_dir or Path("evperc-out") / log_path.stem
         request = RunRequest(log_path=log_path, out_dir=out_dir, config=config,
@@ -338,12 +343,7 @@ def batch_command(logs: tuple[Path, ...], list_path: Path | None, map_path: Path
     from evperc.batch import BatchRequest, format_table, read_log_list, run_batch, summary_line
     from evperc.config import load_config
 
-    if map_path is None and not no_map:
-        raise UsageError("give --map MAP, or --no-map for the map-less baseline")
-    if map_path is not None and no_map:
-        raise UsageError("--map and --no-map exclude each other")
-    if roads_path is not None and map_path is None:
-        raise UsageError("--roads needs --map")
+    check_map_options(map_path, roads_path, no_map)
     if workers is not None and scheduler is not None:
         raise UsageError("--workers sizes the local cluster; the cluster at --scheduler has "
                          "its own workers, give one of the two")
