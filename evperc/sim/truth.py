@@ -73,6 +73,8 @@ def paint_solids(classes: np.ndarray, ids: np.ndarray | None, window: Window, so
     solid, pr, pc = np.nonzero(inside)
     rr, cc, rk = rows[solid, pr, 0], cols[solid, 0, pc], rank[solid]
     flat = rr * window.cols + cc
+    if flat.size == 0:  # no solid in the window
+        return
     order = np.lexsort((rk, flat))
     last = np.r_[flat[order][1:] != flat[order][:-1], True]
     pick = order[last]

@@ -100,3 +100,14 @@ def test_small_object_covers_the_cell_of_its_centre() -> None:
     classes = np.full(win.shape, FREE, dtype=np.uint8)
     paint_solids(classes, None, win, pole)
     assert list(zip(*np.nonzero(classes == 6), strict=True)) == [(6, 6)]  # 3.3 / 0.5 = 6.6
+
+
+def test_painting_solids_that_all_lie_outside_the_window_changes_nothing() -> None:
+    """Regression: a scene whose solids are all far from the window (a long drive leaving
+    them behind) used to raise IndexError."""
+    window = Window(0.5, 20, 20, 0, 0)
+    classes = np.full(window.shape, FREE, dtype=np.uint8)
+    far = solids((BOX, 500.0, 500.0, 0.0, 4.0, 2.0, 1.5, STOPPED),
+                 (CYLINDER, -300.0, 20.0, 0.0, 0.3, 0.3, 3.0, INFRASTRUCTURE))
+    paint_solids(classes, None, window, far)
+    assert np.all(classes == FREE)

@@ -1,0 +1,421 @@
+"""Speed and memory of the whole `evperc run` at scale (issue 7), against a naive dense
+reference measured in the same process (benchmarks/naive.py).
+
+Workloads, simulated once with `evperc simulate` on the Helsinki extract (tests/data/osm)
+into ``bench-out/`` (git-ignored; reused when present):
+
+- (a) hdl64, 10 s (100 scans of ~120,000 points), 200 m window at 0.5 m = 160,000 cells;
+- (b) ibeo4 (~800 points per scan), 20 s (200 scans), default 100 m window (40,000 cells);
+- (c) ibeo4, 100 s (1,000 scans) and the same log looped 10× (10,000 scans): peak RSS must
+  not depend on the log's length. `evperc simulate --seconds 1000` is too slow here (and
+  failed, see docs/performance.md), so the long log repeats the 100 s one with its stamps
+  shifted by the loop's length (messages decoded and re-encoded with mcap-ros2's writer);
+  the ego pose jumps back to the start at each seam (the window is then rebuilt).
+
+Every `evperc run` is a subprocess (``python -m evperc -q run``): frames/s and the per-stage
+times come from its manifest summary, the peak RSS from ``os.wait4``'s rusage of that child
+(and RSS polled from /proc during the run). Numba start-up: the (b) log's first second run
+with ``NUMBA_CACHE_DIR`` pointed at an empty directory (compiles) and then again (loads).
+
+In-process, on scan 11 of (a) with the state after 10 scans: our sensor grid and fused step
+(best of 5) against the naive per-point Python sensor model (whole scan, timed once) and the
+naive dense pair-loop fusion (timed on 16,000 random cells, scaled ×10 to 160,000). The
+naive results are compared with ours (same decisions expected). Output precision: the first
+10 frames of (a) recomputed in memory (float32) against what the run stored.
+
+``python benchmarks/bench_run.py [--quick]`` (quick: 3× loop, one repeat per workload).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(HERE))
+
+import naive  # noqa: E402
+
+from evperc import load  # noqa: E402
+from evperc.config import load_config  # noqa: E402
+from evperc.fused import FusedOutputs, fused_step  # noqa: E402
+from evperc.geo.prior import prior_masses  # noqa: E402
+from evperc.geo.window import Window, scroll  # noqa: E402
+from evperc.io.quantise import quantise_planar  # noqa: E402
+from evperc.runner import FusionState, Pipeline, RunRequest  # noqa: E402
+from evperc.sensor import sensor_grid  # noqa: E402
+
+CACHE = ROOT / "bench-out"
+OSM = ROOT / "tests" / "data" / "osm"
+QUICK = "--quick" in sys.argv[1:] or bool(os.environ.get("EVPERC_BENCH_QUICK"))
+LOOPS = 3 if QUICK else 10
+REPEATS = 1 if QUICK else 2
+NAIVE_CELLS = 16_000
+PRECISION_FRAMES = 10
+WINDOW_200 = "[grid]\nwindow_size_m = 200.0\n"
+#: glibc: no mmap for large arrays and no trimming, so freed pages are reused, not faulted in
+MALLOC_KEEP = {"MALLOC_MMAP_THRESHOLD_": str(2**32), "MALLOC_TRIM_THRESHOLD_": str(2**32),
+               "MALLOC_TOP_PAD_": str(2**28)}
+#: stages of the manifest summary, in pipeline order, with the issue's names
+STAGES = [("read", "decode (read + PointCloud2 → xyz)"),
+          ("geometry", "pose + window scroll"),
+          ("sensor", "sensor grid"),
+          ("prior", "map prior"),
+          ("fusion", "fusion + decision (one kernel)"),
+          ("write", "write: quantise (main thread)"),
+          ("writer_thread", "write: deflate + file (2nd thread)")]
+
+
+# --- inputs ------------------------------------------------------------------------------
+
+def simulate(name: str, profile: str, seconds: float, seed: int = 7) -> Path:
+    """``bench-out/<name>/`` with drive.mcap + map.geojson, simulated once."""
+    out = CACHE / name
+    if (out / ".done").exists():
+        return out
+    subprocess.run([sys.executable, "-m", "evperc", "-q", "simulate",
+                    "--map", str(OSM / "helsinki_buildings.geojson"),
+                    "--roads", str(OSM / "helsinki_roads.geojson"), "--profile", profile,
+                    "--seconds", str(seconds), "--seed", str(seed), "--out", str(out),
+                    "--overwrite"], check=True, cwd=ROOT)
+    (out / ".done").touch()
+    return out
+
+
+def loop_log(src: Path, times: int) -> Path:
+    """``src``'s drive.mcap repeated ``times`` times, header stamps and log times shifted by
+    the log's span + 0.1 s per repeat; /tf_static written once. Returns the folder."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from mcap_ros2.writer import Writer
+
+    out = CACHE / f"{src.name}-x{times}"
+    if (out / ".done").exists():
+        return out
+    out.mkdir(parents=True, exist_ok=True)
+    shutil.copy(src / "map.geojson", out / "map.geojson")
+    with open(src / "drive.mcap", "rb") as f:
+        stats = make_reader(f).get_summary().statistics
+    period = stats.message_end_time - stats.message_start_time + 100_000_000
+    factory, decoders, schemas = DecoderFactory(), {}, {}
+    with open(out / "drive.mcap", "wb") as sink:
+        writer = Writer(sink)
+        for k in range(times):
+            shift = k * period
+            with open(src / "drive.mcap", "rb") as f:
+                for schema, channel, msg in make_reader(f).iter_messages(log_time_order=True):
+                    if k and channel.topic == "/tf_static":
+                        continue
+                    decoder = decoders.get(channel.id)
+                    if decoder is None:
+                        decoder = decoders[channel.id] = factory.decoder_for(
+                            channel.message_encoding, schema)
+                    message = decoder(msg.data)
+                    headers = ([t.header for t in message.transforms]
+                               if hasattr(message, "transforms") else [message.header])
+                    for header in headers:
+                        ns = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec + shift
+                        header.stamp.sec, header.stamp.nanosec = divmod(ns, 1_000_000_000)
+                    if schema.id not in schemas:
+                        schemas[schema.id] = writer.register_msgdef(schema.name,
+                                                                    schema.data.decode())
+                    writer.write_message(channel.topic, schemas[schema.id], message,
+                                         msg.log_time + shift, msg.publish_time + shift)
+        writer.finish()
+    (out / ".done").touch()
+    return out
+
+
+def config_file(name: str, text: str) -> Path:
+    path = CACHE / "configs" / f"{name}.toml"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+# --- one `evperc run` in a subprocess ----------------------------------------------------
+
+def run_evperc(sim: Path, out: Path, config: Path | None = None, extra: tuple[str, ...] = (),
+               env: dict[str, str] | None = None) -> dict:
+    """Run ``evperc run`` on ``sim``; returns its summary plus wall_s, peak_rss_mb (rusage of
+    the child), rss_mb_samples (VmRSS polled every 0.25 s), cpu_s and bytes_per_frame."""
+    cmd = [sys.executable, "-m", "evperc", "-q", "run", str(sim / "drive.mcap"),
+           "--map", str(sim / "map.geojson"), "--out", str(out), "--overwrite", *extra]
+    if config is not None:
+        cmd += ["--config", str(config)]
+    t0 = time.perf_counter()
+    with tempfile.TemporaryFile() as err:
+        child = subprocess.Popen(cmd, cwd=ROOT, env={**os.environ, **(env or {})},
+                                 stdout=subprocess.DEVNULL, stderr=err)
+        samples = []
+        while True:
+            pid, status, usage = os.wait4(child.pid, os.WNOHANG)
+            if pid:
+                break
+            samples.append(_vm_rss_mb(child.pid))
+            time.sleep(0.25)
+        wall = time.perf_counter() - t0
+        child.returncode = os.waitstatus_to_exitcode(status)
+        if child.returncode:
+            err.seek(0)
+            raise RuntimeError(f"{' '.join(cmd)} failed:\n{err.read().decode()[-2000:]}")
+    summary = json.loads((out / "manifest.json").read_text())["summary"]
+    frame_bytes = sum(p.stat().st_size for p in (out / "frames").iterdir())
+    return {**summary, "wall_s": wall, "peak_rss_mb": usage.ru_maxrss / 1024,
+            "rss_mb_samples": [s for s in samples if s], "cpu_s": usage.ru_utime + usage.ru_stime,
+            "sys_s": usage.ru_stime, "minor_faults": usage.ru_minflt,
+            "bytes_per_frame": frame_bytes / max(summary["frames"], 1)}
+
+
+def _vm_rss_mb(pid: int) -> float:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return 0.0
+
+
+def best_run(sim: Path, out: Path, config: Path | None = None) -> dict:
+    """The fastest of REPEATS runs (the machine is shared); peak RSS is the largest seen."""
+    runs = [run_evperc(sim, out, config) for _ in range(REPEATS)]
+    best = max(runs, key=lambda r: r["frames_per_s"])
+    return {**best, "peak_rss_mb": max(r["peak_rss_mb"] for r in runs),
+            "all_frames_per_s": [r["frames_per_s"] for r in runs]}
+
+
+def numba_startup(sim: Path) -> tuple[float, float]:
+    """Wall s of a 1 s run (10 frames) with an empty numba cache and then with it filled."""
+    with tempfile.TemporaryDirectory() as cache:
+        env = {"NUMBA_CACHE_DIR": cache}
+        out = CACHE / "runs" / "numba"
+        cold = run_evperc(sim, out, extra=("--end", "1.0"), env=env)["wall_s"]
+        warm = run_evperc(sim, out, extra=("--end", "1.0"), env=env)["wall_s"]
+    return cold, warm
+
+
+# --- in-process: ours vs naive on the same inputs, and the output precision ---------------
+
+def best_of(fn, repeats: int = 5) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def in_process(sim: Path, config_path: Path, stored: Path) -> dict:
+    """Replays (a) in memory: precision of the stored frames, then ours vs naive on the next
+    scan with the state after PRECISION_FRAMES scans."""
+    config = load_config(config_path)
+    pipeline = Pipeline(RunRequest(log_path=sim / "drive.mcap", out_dir=CACHE / "unused",
+                                   config=config, map_path=sim / "map.geojson"))
+    state = FusionState()
+    scans = pipeline.scans(-1)
+    run = load(stored)
+    worst = {"masses": 0.0, "betp": 0.0, "zeta": 0.0, "conflict": 0.0}
+    same_decisions = cells = 0
+    for (_, scan), saved in zip(scans, run.frames, strict=False):
+        frame = pipeline.step(state, scan)
+        same_decisions += int((frame["decision"] == saved.decision).sum())
+        cells += frame["decision"].size
+        for key in worst:
+            worst[key] = max(worst[key], float(np.abs(frame[key] - getattr(saved, key)).max()))
+        if saved.index + 1 == PRECISION_FRAMES:
+            break
+
+    _, scan = next(scans)
+    t_crs = pipeline.georef.apply(scan.T_world_sensor)
+    window, sp = state.window, pipeline.sensor_params
+    ours_sensor = best_of(lambda: sensor_grid(scan.points, scan.planar, t_crs, window, sp))
+    free, occ = sensor_grid(scan.points, scan.planar, t_crs, window, sp)
+    t0 = time.perf_counter()
+    naive_free, naive_occ = naive.sensor_grid(scan.points, scan.planar, t_crs, window, sp)
+    naive_sensor = time.perf_counter() - t0
+    sensor_agree = float(((free > 0) == (naive_free > 0)).mean()
+                         * ((occ > 0) == (naive_occ > 0)).mean())
+
+    labels = pipeline.rasteriser.labels(window)
+    betas, params = pipeline.betas, pipeline.params
+    out = FusedOutputs.empty(window.shape)
+    pg, zeta = state.pg.copy(), state.zeta.copy()
+
+    def ours() -> None:
+        np.copyto(pg, state.pg)
+        np.copyto(zeta, state.zeta)
+        fused_step(pg, zeta, free, occ, labels, betas, 0.1, params, out=out)
+
+    copy_s = best_of(lambda: (np.copyto(pg, state.pg), np.copyto(zeta, state.zeta)))
+    ours_fusion = best_of(ours) - copy_s  # the restore of the state is not part of a step
+    moved = Window(window.resolution_m, window.rows, window.cols, window.row0 + 1,
+                   window.col0 + 1)
+    vacuous_vector = np.zeros(32, np.float32)
+    vacuous_vector[-1] = 1.0
+    scroll_s = best_of(lambda: scroll(state.pg, window, moved, vacuous_vector))
+    quantise_s = best_of(lambda: (quantise_planar(pg), quantise_planar(out.betp),
+                                  quantise_planar(out.conflict)))
+    n_cells = window.rows * window.cols
+    pick = np.random.default_rng(0).choice(n_cells, NAIVE_CELLS, replace=False)
+    observed = ((free > 0) | (occ > 0)).ravel()[pick]
+    prior = prior_masses(labels, *betas).reshape(-1, 32)[pick]
+    t0 = time.perf_counter()
+    naive_pg, _, _, naive_decision = naive.dense_step(
+        state.pg.reshape(-1, 32)[pick], state.zeta.ravel()[pick], free.ravel()[pick],
+        occ.ravel()[pick], prior, observed, 0.1, params)
+    naive_fusion = (time.perf_counter() - t0) * n_cells / NAIVE_CELLS
+    return {"points": len(scan.points), "cells": n_cells, "precision_frames": PRECISION_FRAMES,
+            "decisions_equal": same_decisions / cells, "max_abs_error": worst,
+            "ours_sensor_s": ours_sensor, "naive_sensor_s": naive_sensor,
+            "sensor_agreement": sensor_agree, "ours_fusion_s": ours_fusion,
+            "naive_fusion_s": naive_fusion, "state_copy_s": copy_s, "scroll_s": scroll_s,
+            "quantise_s": quantise_s,
+            "naive_decisions_equal": float((naive_decision == out.decision.ravel()[pick]).mean()),
+            "naive_mass_max_diff": float(np.abs(naive_pg - pg.reshape(-1, 32)[pick]).max())}
+
+
+# --- the table ---------------------------------------------------------------------------
+
+def _fps(ms: float) -> str:
+    return f"{1e3 / ms:,.0f}" if ms > 0 else "—"
+
+
+def machine() -> dict:
+    load_avg = os.getloadavg()
+    with open("/proc/meminfo") as f:
+        mem_gb = int(f.readline().split()[1]) / 2**20
+    model = next((line.split(":", 1)[1].strip()
+                  for line in Path("/proc/cpuinfo").read_text().splitlines()
+                  if line.startswith("model name")), "?")
+    return {"cpu": model, "cores": os.cpu_count(), "ram_gb": round(mem_gb, 1),
+            "load_1min": round(load_avg[0], 2)}
+
+
+def collect() -> dict:
+    """Every measurement, as a dict (also written to bench-out/bench_run.json)."""
+    CACHE.mkdir(exist_ok=True)
+    before = machine()
+    sim_a = simulate("sim-hdl64-10s", "hdl64", 10)
+    sim_b = simulate("sim-ibeo4-20s", "ibeo4", 20)
+    sim_c = simulate("sim-ibeo4-100s", "ibeo4", 100)
+    long_c = loop_log(sim_c, LOOPS)
+    w200 = config_file("window200", WINDOW_200)
+    w200_chunk10 = config_file("window200-chunk10", WINDOW_200 + "[output]\nchunk_frames = 10\n")
+    runs_dir = CACHE / "runs"
+    results = {
+        "a": best_run(sim_a, runs_dir / "a", w200),
+        "a_chunk10": run_evperc(sim_a, runs_dir / "a-chunk10", w200_chunk10),
+        "a_malloc": run_evperc(sim_a, runs_dir / "a-malloc", w200, env=MALLOC_KEEP),
+        "b": best_run(sim_b, runs_dir / "b"),
+        "c_short": run_evperc(sim_c, runs_dir / "c-short"),
+        "c_long": run_evperc(long_c, runs_dir / "c-long"),
+    }
+    cold, warm = numba_startup(sim_b)
+    inproc = in_process(sim_a, w200, runs_dir / "a")
+    shutil.rmtree(runs_dir / "c-long", ignore_errors=True)  # ~1.3 GB of frames
+    after = machine()
+    return {"machine_before": before, "machine_after": after, "quick": QUICK, "loops": LOOPS,
+            "runs": results, "numba_cold_s": cold, "numba_warm_s": warm, "in_process": inproc}
+
+
+def rows_from(data: dict) -> list[dict]:
+    r, ip = data["runs"], data["in_process"]
+    cols = {"a": "(a) hdl64 200 m", "b": "(b) ibeo4 100 m", "c_short": "(c) 1k frames",
+            "c_long": f"(c) {data['loops']}k frames"}
+    rows = []
+    for key, label in STAGES:
+        row = {"measure": f"{label}: frames/s (ms)"}
+        for run_key, col in cols.items():
+            ms = r[run_key]["stage_ms_per_frame"].get(key, 0.0)
+            row[col] = f"{_fps(ms)} ({ms:.2f})"
+        rows.append(row)
+    whole = {"measure": "whole evperc run: frames/s"}
+    rss = {"measure": "peak RSS MB (RSS polled: max)"}
+    out = {"measure": "output bytes/frame"}
+    cores = {"measure": "cores busy (cpu s / wall s)"}
+    kernel = {"measure": "kernel (sys) CPU ms/frame; minor page faults/frame"}
+    for run_key, col in cols.items():
+        run = r[run_key]
+        whole[col] = f"{run['frames_per_s']:.1f}"
+        if "all_frames_per_s" in run:
+            whole[col] += f" (runs: {', '.join(f'{v:.1f}' for v in run['all_frames_per_s'])})"
+        rss[col] = f"{run['peak_rss_mb']:.0f} ({max(run['rss_mb_samples'], default=0):.0f})"
+        out[col] = f"{run['bytes_per_frame'] / 1e3:,.0f} kB"
+        cores[col] = f"{run['cpu_s'] / run['wall_s']:.2f}"
+        kernel[col] = (f"{1e3 * run['sys_s'] / run['frames']:.1f}; "
+                       f"{run['minor_faults'] / run['frames']:,.0f}")
+    rows += [whole, rss, out, cores, kernel]
+    long_rss = r["c_long"]["peak_rss_mb"] / r["c_short"]["peak_rss_mb"]
+    rows.append({"measure": "peak RSS, (c) long / 1k", cols["c_long"]: f"{long_rss:.3f}"})
+    rows.append({"measure": "(a) with output.chunk_frames = 10",
+                 cols["a"]: f"{r['a_chunk10']['frames_per_s']:.1f} frames/s, "
+                            f"{r['a_chunk10']['peak_rss_mb']:.0f} MB peak, "
+                            f"{r['a_chunk10']['bytes_per_frame'] / 1e3:,.0f} kB/frame"})
+    m = r["a_malloc"]
+    rows.append({"measure": "(a) with MALLOC_MMAP/TRIM_THRESHOLD_=4 GiB",
+                 cols["a"]: f"{m['frames_per_s']:.1f} frames/s, sys "
+                            f"{1e3 * m['sys_s'] / m['frames']:.1f} ms/frame, "
+                            f"{m['minor_faults'] / m['frames']:,.0f} faults/frame, "
+                            f"geometry {m['stage_ms_per_frame']['geometry']:.1f} ms, "
+                            f"write {m['stage_ms_per_frame']['write']:.1f} ms"})
+    cells = f"{ip['cells']:,} cells"
+    rows.append({"measure": f"in-process sensor grid, {ip['points']:,} points: ms",
+                 cols["a"]: f"ours {ip['ours_sensor_s'] * 1e3:.2f}, naive per-point Python "
+                            f"{ip['naive_sensor_s'] * 1e3:,.0f} (whole scan): "
+                            f"{ip['naive_sensor_s'] / ip['ours_sensor_s']:,.0f}x",
+                 "note": f"same cells: {ip['sensor_agreement']:.4f}"})
+    rows.append({"measure": f"in-process fusion + decision, {cells}: ms",
+                 cols["a"]: f"ours {ip['ours_fusion_s'] * 1e3:.2f} "
+                            f"({1 / ip['ours_fusion_s']:.0f} frames/s), naive dense pair loops "
+                            f"{ip['naive_fusion_s'] * 1e3:,.0f} ({NAIVE_CELLS:,} cells, scaled): "
+                            f"{ip['naive_fusion_s'] / ip['ours_fusion_s']:,.0f}x",
+                 "note": f"naive decisions equal: {ip['naive_decisions_equal']:.4f}, masses "
+                         f"within {ip['naive_mass_max_diff']:.1e}"})
+    rows.append({"measure": f"in-process pieces, {cells}: ms",
+                 cols["a"]: f"state copy (20 MB) {ip['state_copy_s'] * 1e3:.2f}, scroll by "
+                            f"one cell {ip['scroll_s'] * 1e3:.2f}, quantise masses + betP + "
+                            f"conflict {ip['quantise_s'] * 1e3:.2f}"})
+    naive_frame = ip["naive_sensor_s"] + ip["naive_fusion_s"]
+    rows.append({"measure": "whole frame: naive (sensor + fusion) s vs our run",
+                 cols["a"]: f"naive {naive_frame:.2f} s/frame; ours "
+                            f"{1 / r['a']['frames_per_s']:.3f} s/frame: "
+                            f"{naive_frame * r['a']['frames_per_s']:,.0f}x"})
+    err = ip["max_abs_error"]
+    rows.append({"measure": f"stored vs in-memory float32, {ip['precision_frames']} frames of (a)",
+                 cols["a"]: f"decisions equal {ip['decisions_equal']:.6f}; max |error| masses "
+                            f"{err['masses']:.5f}, betP {err['betp']:.5f}, zeta "
+                            f"{err['zeta']:.5f}, conflict {err['conflict']:.5f} (1/255 = "
+                            f"{1 / 255:.5f})"})
+    rows.append({"measure": "numba start-up: 1 s of (b), empty cache vs filled (wall s)",
+                 cols["b"]: f"{data['numba_cold_s']:.2f} vs {data['numba_warm_s']:.2f}: "
+                            f"compile {data['numba_cold_s'] - data['numba_warm_s']:.2f} s"})
+    mb, ma = data["machine_before"], data["machine_after"]
+    rows.append({"measure": "machine", "note": f"{mb['cpu']}, {mb['cores']} cores, "
+                 f"{mb['ram_gb']} GB; load avg (1 min) {mb['load_1min']} before, "
+                 f"{ma['load_1min']} after"})
+    return rows
+
+
+def run() -> list[dict]:
+    data = collect()
+    (CACHE / "bench_run.json").write_text(json.dumps(data, indent=1))
+    return rows_from(data)
+
+
+if __name__ == "__main__":
+    from run import print_table
+
+    t_start = time.perf_counter()
+    print_table(f"run ({'quick' if QUICK else 'full'})", run())
+    print(f"\n({time.perf_counter() - t_start:.0f} s; raw figures in {CACHE / 'bench_run.json'})")
