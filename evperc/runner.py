@@ -17,7 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from evperc.errors import GeoreferenceError, OutputError
-from evperc.fused import fused_step
+from evperc.fused import FusedOutputs, fused_step
 from evperc.geo import georef as georef_mod
 from evperc.geo.crs import working_crs
 from evperc.geo.prior import PriorRasteriser
@@ -199,6 +199,8 @@ class Pipeline:
         self.sensor_params = SensorParams.from_config(config["sensor"], self.resolution)
         self._overlap_checked = False
         self.clock = StageClock()
+        self._spare: tuple[np.ndarray, np.ndarray] | None = None
+        self._outputs: FusedOutputs | None = None
         self._vacuous_vector = np.zeros(32, dtype=np.float32)
         self._vacuous_vector[OMEGA] = 1
 
@@ -227,6 +229,11 @@ class Pipeline:
             if index > after_index and index % r.every == 0:
                 yield index, scan
 
+    def _spares(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        if self._spare is None or self._spare[1].shape != shape:
+            self._spare = (np.empty((*shape, 32), np.float32), np.empty(shape, np.float32))
+        return self._spare
+
     def step(self, state: FusionState, scan: PosedScan) -> dict[str, Any]:
         """Fuse one scan into ``state`` (updated in place); returns the frame's arrays."""
         clock = self.clock
@@ -241,8 +248,12 @@ class Pipeline:
         if state.window is None:
             state.pg, state.zeta = vacuous(window.shape), np.zeros(window.shape, np.float32)
         elif window != state.window:
-            state.pg = scroll(state.pg, state.window, window, self._vacuous_vector)
-            state.zeta = scroll(state.zeta, state.window, window, 0.0)
+            # into the spare buffers, which then hold the previous state for the next move
+            spare_pg, spare_zeta = self._spares(window.shape)
+            self._spare = (state.pg, state.zeta)
+            state.pg = scroll(state.pg, state.window, window, self._vacuous_vector,
+                              out=spare_pg)
+            state.zeta = scroll(state.zeta, state.window, window, 0.0, out=spare_zeta)
         state.window = window
         clock.lap("geometry")
         free, occupied = sensor_grid(scan.points, scan.planar, t_crs, window,
@@ -253,8 +264,11 @@ class Pipeline:
         dt_s = 0.0 if state.prev_ns is None else (scan.stamp_ns - state.prev_ns) * 1e-9
         state.prev_ns = scan.stamp_ns
         # SPEC §5 and §6 in one compiled pass; evperc.pipeline is the numpy twin it is tested on
+        if self._outputs is None or self._outputs.decision.shape != window.shape:
+            self._outputs = FusedOutputs.empty(window.shape)
+        # the outputs are reused by the next frame: the writer copies them at once
         out = fused_step(state.pg, state.zeta, free, occupied, labels, self.betas, dt_s,
-                         self.params)
+                         self.params, out=self._outputs)
         betp, decision, conflict = out.betp, out.decision, out.conflict
         clock.lap("fusion")
         state.frames += 1

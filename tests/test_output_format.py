@@ -97,3 +97,24 @@ def test_existing_output_is_refused_without_overwrite(tmp_path: Path) -> None:
 def test_load_rejects_non_outputs(tmp_path: Path) -> None:
     with pytest.raises(OutputError, match="no manifest.json"):
         evperc.load(tmp_path)
+
+
+def test_chunks_are_capped_by_bytes() -> None:
+    from evperc.io.writer import BYTES_PER_CELL, chunk_frames_for
+
+    config = load_config()
+    assert chunk_frames_for(config, (50, 50)) == 50     # 0.1 MB a frame: the frame count rules
+    assert chunk_frames_for(config, (200, 200)) == 38   # 1.68 MB a frame: 64 MB / 1.68 MB
+    big = chunk_frames_for(config, (400, 400))           # 6.7 MB a frame
+    assert big == int(64e6 // (400 * 400 * BYTES_PER_CELL)) == 9
+    config["output"]["chunk_max_mb"] = 1.0
+    assert chunk_frames_for(config, (400, 400)) == 1     # never zero
+
+
+def test_a_frame_of_the_wrong_shape_is_refused(tmp_path: Path) -> None:
+    writer = make_writer(tmp_path / "out")
+    rng = np.random.default_rng(3)
+    masses, betp, decision, zeta, conflict = frame_arrays(rng)
+    with pytest.raises(ValueError, match="window"):
+        writer.add(0, np.zeros(3), (0, 0), masses, betp, decision[:2], zeta, conflict)
+    writer.abort()

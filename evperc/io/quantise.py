@@ -24,10 +24,15 @@ def _planar_kernel(values: np.ndarray, out: np.ndarray) -> None:
                 out[k, r, c] = np.uint8(v * SCALE + 0.5)
 
 
-def quantise_planar(values: np.ndarray) -> np.ndarray:
-    """``(rows, cols, channels)`` floats in [0, 1] → ``(channels, rows, cols)`` uint8."""
+def quantise_planar(values: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """``(rows, cols, channels)`` floats in [0, 1] → ``(channels, rows, cols)`` uint8
+    (into ``out`` if given)."""
     values = np.ascontiguousarray(values, dtype=np.float32)
-    out = np.empty((values.shape[2], values.shape[0], values.shape[1]), dtype=np.uint8)
+    shape = (values.shape[2], values.shape[0], values.shape[1])
+    if out is None:
+        out = np.empty(shape, dtype=np.uint8)
+    elif out.shape != shape or out.dtype != np.uint8:
+        raise ValueError(f"out must be uint8 {shape}, got {out.dtype} {out.shape}")
     _planar_kernel(values, out)
     return out
 

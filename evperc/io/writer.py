@@ -23,7 +23,6 @@ import time
 import zipfile
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -87,6 +86,14 @@ def write_npz(path: Path, arrays: dict[str, np.ndarray], compress: bool) -> None
         raise
 
 
+def chunk_frames_for(config: dict[str, Any], shape: tuple[int, int]) -> int:
+    """Frames per chunk: ``output.chunk_frames``, fewer if a chunk would pass
+    ``output.chunk_max_mb`` of uint8 layers (two chunk buffers are held at once)."""
+    frame_bytes = shape[0] * shape[1] * BYTES_PER_CELL
+    cap = int(config["output"]["chunk_max_mb"] * 1e6 // max(frame_bytes, 1))
+    return max(1, min(int(config["output"]["chunk_frames"]), cap))
+
+
 def prepare_output_dir(out_dir: Path, overwrite: bool) -> None:
     """Create ``out_dir``; refuse an existing non-empty one unless ``overwrite``."""
     if out_dir.exists():
@@ -108,16 +115,41 @@ def prepare_output_dir(out_dir: Path, overwrite: bool) -> None:
         raise OutputError(f"{out_dir}: output directory is not writable")
 
 
-@dataclass
+#: bytes of uint8 layers per cell and frame: 32 masses, 5 betP, decision, ζ, 3 conflicts
+BYTES_PER_CELL = 32 + 5 + 1 + 1 + 3
+
+
 class _Chunk:
-    stamp_ns: list[int] = field(default_factory=list)
-    pose: list[np.ndarray] = field(default_factory=list)
-    origin: list[tuple[int, int]] = field(default_factory=list)
-    masses: list[np.ndarray] = field(default_factory=list)
-    betp: list[np.ndarray] = field(default_factory=list)
-    decision: list[np.ndarray] = field(default_factory=list)
-    zeta: list[np.ndarray] = field(default_factory=list)
-    conflict: list[np.ndarray] = field(default_factory=list)
+    """Preallocated uint8 layers of up to ``capacity`` frames; frames are quantised straight
+    into them (no per-frame arrays, no stacking copy)."""
+
+    def __init__(self, capacity: int, shape: tuple[int, int]) -> None:
+        rows, cols = shape
+        self.capacity = capacity
+        self.shape = shape
+        self.count = 0
+        self.stamp_ns = np.zeros(capacity, np.int64)
+        self.pose = np.zeros((capacity, 3), np.float64)
+        self.origin = np.zeros((capacity, 2), np.int64)
+        self.masses = np.empty((capacity, 32, rows, cols), np.uint8)
+        self.betp = np.empty((capacity, 5, rows, cols), np.uint8)
+        self.decision = np.empty((capacity, rows, cols), np.uint8)
+        self.zeta = np.empty((capacity, rows, cols), np.uint8)
+        self.conflict = np.empty((capacity, 3, rows, cols), np.uint8)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The NPZ members of the frames held (views where possible)."""
+        k = self.count
+        masses = self.masses[:k]
+        used = np.flatnonzero(masses.any(axis=(0, 2, 3)))
+        if len(used) and used[-1] - used[0] + 1 == len(used):  # contiguous: a view
+            stored = masses[:, used[0]:used[-1] + 1]
+        else:
+            stored = masses[:, used]
+        return {"stamp_ns": self.stamp_ns[:k], "pose": self.pose[:k],
+                "origin": self.origin[:k], "focal_masks": used.astype(np.uint8),
+                "masses": stored, "betp": self.betp[:k], "decision": self.decision[:k],
+                "zeta": self.zeta[:k], "conflict": self.conflict[:k]}
 
 
 class RunWriter:
@@ -127,7 +159,7 @@ class RunWriter:
                  overwrite: bool = False) -> None:
         self.out_dir = Path(out_dir)
         prepare_output_dir(self.out_dir, overwrite)
-        self.chunk_frames = int(config["output"]["chunk_frames"])
+        self.chunk_frames = chunk_frames_for(config, (int(meta["rows"]), int(meta["cols"])))
         self.compress = bool(config["output"]["compress"])
         self.manifest: dict[str, Any] = {
             "format_version": FORMAT_VERSION, "complete": False, "frame_count": 0,
@@ -141,7 +173,10 @@ class RunWriter:
         self._start()
 
     def _start(self) -> None:
-        self._chunk = _Chunk()
+        shape = (int(self.manifest["rows"]), int(self.manifest["cols"]))
+        # two buffers: one filling while the writer thread writes the other
+        self._buffers = [_Chunk(self.chunk_frames, shape), _Chunk(self.chunk_frames, shape)]
+        self._chunk = self._buffers[0]
         self._frames: list[dict[str, Any]] = list(self.manifest["frames"])
         self._queued = self.manifest["frame_count"]   # frames handed to the writer thread
         self._chunks_queued = len(self.manifest["chunks"])
@@ -185,17 +220,21 @@ class RunWriter:
         """Queue one frame (quantised at once: the caller may reuse its arrays); a full chunk
         is handed to the writer thread (then returns True)."""
         c = self._chunk
-        c.stamp_ns.append(int(stamp_ns))
-        c.pose.append(np.asarray(pose, dtype=np.float64))
-        c.origin.append((int(origin[0]), int(origin[1])))
-        c.masses.append(quantise_planar(masses))
-        c.betp.append(quantise_planar(betp))
-        c.decision.append(np.array(decision, dtype=np.uint8))
-        c.zeta.append(quantise(zeta))
-        c.conflict.append(quantise_planar(conflict))
+        k = c.count
+        if tuple(decision.shape) != c.shape:
+            raise ValueError(f"frame of shape {decision.shape}, the run's window is {c.shape}")
+        c.stamp_ns[k] = int(stamp_ns)
+        c.pose[k] = pose
+        c.origin[k] = origin
+        quantise_planar(masses, out=c.masses[k])
+        quantise_planar(betp, out=c.betp[k])
+        c.decision[k] = decision
+        c.zeta[k] = quantise(zeta)
+        quantise_planar(conflict, out=c.conflict[k])
+        c.count = k + 1
         self._frames.append({"stamp_ns": int(stamp_ns), "pose": [float(v) for v in pose],
                              "origin": [int(origin[0]), int(origin[1])]})
-        if len(c.stamp_ns) >= self.chunk_frames:
+        if c.count >= self.chunk_frames:
             self._flush()
             return True
         return False
@@ -207,14 +246,15 @@ class RunWriter:
 
     def _flush(self) -> None:
         c = self._chunk
-        if not c.stamp_ns:
+        if not c.count:
             return
-        self._wait()
-        self._chunk = _Chunk()
+        self._wait()  # the other buffer is free again once its chunk is on disk
+        self._chunk = self._buffers[1] if c is self._buffers[0] else self._buffers[0]
+        self._chunk.count = 0
         index = self._chunks_queued
         first = self._queued
         self._chunks_queued += 1
-        self._queued += len(c.stamp_ns)
+        self._queued += c.count
         commit = self.on_chunk(self._queued) if self.on_chunk is not None else None
         frames = list(self._frames[:self._queued])
         self._pending = self._pool.submit(self._write_chunk, c, index, first, frames, commit)
@@ -222,15 +262,8 @@ class RunWriter:
     def _write_chunk(self, c: _Chunk, index: int, first: int, frames: list[dict[str, Any]],
                      commit: Callable[[], None] | None) -> None:
         t0 = time.perf_counter()
-        masses = np.stack(c.masses)                       # (K, 32, rows, cols)
-        used = np.flatnonzero(masses.any(axis=(0, 2, 3)))
         name = f"chunk_{index:05d}.npz"
-        arrays = {
-            "stamp_ns": np.array(c.stamp_ns, dtype=np.int64),
-            "pose": np.stack(c.pose), "origin": np.array(c.origin, dtype=np.int64),
-            "focal_masks": used.astype(np.uint8), "masses": masses[:, used],
-            "betp": np.stack(c.betp), "decision": np.stack(c.decision),
-            "zeta": np.stack(c.zeta), "conflict": np.stack(c.conflict)}
+        arrays = c.arrays()
         path = self.out_dir / FRAMES_DIR / name
         try:
             write_npz(path, arrays, self.compress)
@@ -239,8 +272,8 @@ class RunWriter:
             with self._lock:
                 self.manifest["chunks"].append({"file": f"{FRAMES_DIR}/{name}",
                                                 "first_frame": first,
-                                                "frame_count": len(c.stamp_ns)})
-                self.manifest["frame_count"] = first + len(c.stamp_ns)
+                                                "frame_count": c.count})
+                self.manifest["frame_count"] = first + c.count
                 self.manifest["frames"] = frames
                 write_json(self.out_dir / MANIFEST, self.manifest)
         except OSError as err:

@@ -60,3 +60,18 @@ def test_scroll_vector_fill_and_disjoint_windows() -> None:
     assert overlap(old, Window(0.5, 2, 2, 2, 0)) is None
     with pytest.raises(ValueError):
         overlap(old, Window(1.0, 2, 2, 0, 0))
+
+
+@pytest.mark.parametrize(("drow", "dcol"), [(0, 0), (1, 2), (-3, 1), (0, -4), (7, 7), (99, 0)])
+def test_scroll_into_a_spare_buffer_equals_a_fresh_one(drow: int, dcol: int) -> None:
+    rng = np.random.default_rng([drow + 100, dcol + 100])
+    old = Window(1.0, 6, 5, 10, 20)
+    new = Window(1.0, 6, 5, 10 + drow, 20 + dcol)
+    layer = rng.uniform(size=(6, 5, 3))
+    fill = np.array([0.0, 0.0, 1.0])
+    spare = np.full((6, 5, 3), np.nan)  # stale content must all be overwritten
+    got = scroll(layer, old, new, fill, out=spare)
+    assert got is spare
+    np.testing.assert_array_equal(got, scroll(layer, old, new, fill))
+    with pytest.raises(ValueError):
+        scroll(layer, old, new, fill, out=layer)
