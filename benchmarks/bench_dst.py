@@ -8,10 +8,8 @@ tenth of the cells and scaled ×10, as its cost is linear in the number of cells
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable
-
 import numpy as np
+from timing import best_of  # noqa: E402  (benchmarks/ is on sys.path)
 
 from evperc.dst import FRAME, conjunctive, contextual_discount, dempster, disjunctive
 from evperc.dst import reference as ref
@@ -21,14 +19,6 @@ NAIVE_FRACTION = 10
 RATES = np.array([0.1, 0.0, 0.01, 0.02, 0.1])  # SPEC §5.3 defaults, bit order F I U S M
 
 
-def best_of(fn: Callable[[], object], repeats: int) -> float:
-    """Best wall time of ``repeats`` calls, seconds."""
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def random_grid(rng: np.random.Generator, dtype: type) -> np.ndarray:

@@ -25,6 +25,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from timing import best_of  # noqa: E402  (benchmarks/ is on sys.path)
+
 from evperc.config import load_config  # noqa: E402
 from evperc.fused import FusedOutputs, fused_step  # noqa: E402
 from evperc.geo.prior import prior_masses  # noqa: E402
@@ -95,13 +97,6 @@ def scene_scan(labels: np.ndarray, frame: int) -> tuple[np.ndarray, np.ndarray]:
     return free, occ
 
 
-def best_of(fn, repeats: int = REPEATS) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def copy_time(nbytes: int) -> float:
@@ -182,7 +177,7 @@ def bench_side(side: int, params: FusionParams, betas, n_ref: int) -> list[dict]
         f, o = next(frames)
         fused_step(state[0], state[1], f, o, labels, betas, 0.1, params, out=out)
 
-    fused_s = best_of(fused_frame)
+    fused_s = best_of(fused_frame, REPEATS)
 
     rates = scaled_rate(params.discount_rates, 0.1, params.discount_period_s).tolist()
     p = {"prior_where": params.prior_where, "discount": params.discount,

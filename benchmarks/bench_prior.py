@@ -10,11 +10,11 @@ A cold time is measured on a fresh rasteriser each repeat; the best of the repea
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pyproj
+from timing import best_of  # noqa: E402  (benchmarks/ is on sys.path)
 
 from evperc.config import default_config
 from evperc.geo.prior import PriorRasteriser, prior_masses
@@ -29,13 +29,6 @@ TILE = 256
 REPEATS = 3
 
 
-def best_of(fn: Callable[[], object], repeats: int = REPEATS) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def run() -> list[dict]:

@@ -45,6 +45,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(HERE))
 
 import naive  # noqa: E402
+from timing import best_of  # noqa: E402  (benchmarks/ is on sys.path)
 
 from evperc import load  # noqa: E402
 from evperc.config import load_config  # noqa: E402
@@ -207,13 +208,6 @@ def numba_startup(sim: Path) -> tuple[float, float]:
 
 # --- in-process: ours vs naive on the same inputs, and the output precision ---------------
 
-def best_of(fn, repeats: int = 5) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def in_process(sim: Path, config_path: Path, stored: Path) -> dict:
@@ -239,7 +233,7 @@ def in_process(sim: Path, config_path: Path, stored: Path) -> dict:
     _, scan = next(scans)
     t_crs = pipeline.georef.apply(scan.T_world_sensor)
     window, sp = state.window, pipeline.sensor_params
-    ours_sensor = best_of(lambda: sensor_grid(scan.points, scan.planar, t_crs, window, sp))
+    ours_sensor = best_of(lambda: sensor_grid(scan.points, scan.planar, t_crs, window, sp), 5)
     free, occ = sensor_grid(scan.points, scan.planar, t_crs, window, sp)
     t0 = time.perf_counter()
     naive_free, naive_occ = naive.sensor_grid(scan.points, scan.planar, t_crs, window, sp)
@@ -257,15 +251,15 @@ def in_process(sim: Path, config_path: Path, stored: Path) -> dict:
         np.copyto(zeta, state.zeta)
         fused_step(pg, zeta, free, occ, labels, betas, 0.1, params, out=out)
 
-    copy_s = best_of(lambda: (np.copyto(pg, state.pg), np.copyto(zeta, state.zeta)))
-    ours_fusion = best_of(ours) - copy_s  # the restore of the state is not part of a step
+    copy_s = best_of(lambda: (np.copyto(pg, state.pg), np.copyto(zeta, state.zeta)), 5)
+    ours_fusion = best_of(ours, 5) - copy_s  # the restore of the state is not part of a step
     moved = Window(window.resolution_m, window.rows, window.cols, window.row0 + 1,
                    window.col0 + 1)
     vacuous_vector = np.zeros(32, np.float32)
     vacuous_vector[-1] = 1.0
-    scroll_s = best_of(lambda: scroll(state.pg, window, moved, vacuous_vector))
+    scroll_s = best_of(lambda: scroll(state.pg, window, moved, vacuous_vector), 5)
     quantise_s = best_of(lambda: (quantise_planar(pg), quantise_planar(out.betp),
-                                  quantise_planar(out.conflict)))
+                                  quantise_planar(out.conflict)), 5)
     n_cells = window.rows * window.cols
     pick = np.random.default_rng(0).choice(n_cells, NAIVE_CELLS, replace=False)
     observed = ((free > 0) | (occ > 0)).ravel()[pick]
