@@ -23,9 +23,13 @@ run: $(STAMP)
 
 # The bundled drive: 20 s, ibeo4 profile, seed 7, on the Helsinki OSM extract (tests/data/osm).
 sample-data: $(STAMP)
+	rm -rf sample_data.tmp
 	$(BIN)/evperc simulate --map tests/data/osm/helsinki_buildings.geojson \
 		--roads tests/data/osm/helsinki_roads.geojson --profile ibeo4 --seconds 20 --seed 7 \
-		--out sample_data --overwrite
+		--out sample_data.tmp
+	rm -rf sample_data/truth
+	mv sample_data.tmp/drive.mcap sample_data.tmp/map.geojson sample_data.tmp/truth sample_data/
+	rm -rf sample_data.tmp
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -5,9 +5,11 @@ Rules (cell = its centre, docs/conventions.md):
   its reference point (centre) in the cell — so every object covers at least one cell;
   buildings I, street furniture U, agents S or M at that instant; everything else F.
   Priority where footprints overlap: M > S > U > I > F.
-- visible: the cell holds a return of this scan, or its centre lies on the horizontal
-  projection of a returning beam before its return (the beam nearest in azimuth to the cell
-  centre, with the farthest return over the layers).
+- visible: what a lidar can tell about the cell in this scan, as the sensor model (SPEC §3)
+  sees it: along each azimuth (the one nearest to the cell centre), up to the nearest
+  return off the ground if there is one — upper layers passing over a car say nothing about
+  the cells behind it — else up to the farthest ground return; plus the cells holding those
+  returns.
 - observed: visible at this frame or any earlier one.
 """
 
@@ -27,7 +29,7 @@ import shapely
 from evperc.errors import OutputError
 from evperc.geo.window import Window
 from evperc.io.writer import atomic_write_bytes, write_json
-from evperc.sim.lidar import Hits
+from evperc.sim.lidar import GROUND, Hits
 from evperc.sim.scene import (
     BOX,
     FREE,
@@ -102,8 +104,11 @@ def paint_buildings(classes: np.ndarray, window: Window, buildings: np.ndarray) 
 def visible_cells(window: Window, hits: Hits, x: float, y: float, yaw: float) -> np.ndarray:
     """Cells a returning beam crossed or ended in (module docstring), bool (rows, cols)."""
     out = np.zeros(window.shape, dtype=bool)
-    reach = np.nanmax(np.where(np.isfinite(hits.horizontal_m), hits.horizontal_m, -np.inf),
-                      axis=0)
+    returned = np.isfinite(hits.horizontal_m)
+    obstacle = returned & (hits.label != GROUND)
+    nearest_obstacle = np.where(obstacle, hits.horizontal_m, np.inf).min(axis=0)
+    farthest_ground = np.where(returned & ~obstacle, hits.horizontal_m, -np.inf).max(axis=0)
+    reach = np.where(np.isfinite(nearest_obstacle), nearest_obstacle, farthest_ground)
     az = hits.azimuths
     if len(az) > 1:
         step = (az[-1] - az[0]) / (len(az) - 1)
@@ -116,7 +121,7 @@ def visible_cells(window: Window, hits: Hits, x: float, y: float, yaw: float) ->
             idx %= len(az)
         inside = (idx >= 0) & (idx < len(az))
         out |= inside & (np.hypot(dx, dy) <= reach[np.clip(idx, 0, len(az) - 1)])
-    ok = np.isfinite(hits.horizontal_m)
+    ok = returned & (hits.horizontal_m <= reach[None, :])
     h = hits.horizontal_m[ok]
     a = np.broadcast_to(az[None, :], ok.shape)[ok] + yaw
     row, col = window.index_of(x + h * np.cos(a), y + h * np.sin(a))

@@ -71,7 +71,7 @@ def test_moving_objects_are_found(scores: dict[str, Any]) -> None:
 def test_free_space_is_trustworthy(scores: dict[str, Any]) -> None:
     for run in ("map", "nomap"):
         assert scores["observed"][run]["coarse"]["free"]["precision"] >= 0.99  # measured 0.997
-        assert scores["visible"][run]["coarse"]["free"]["precision"] >= 0.995  # measured 0.999
+        assert scores["visible"][run]["coarse"]["free"]["precision"] >= 0.995  # measured 0.9998
 
 
 def test_the_map_helps(scores: dict[str, Any]) -> None:

@@ -111,3 +111,28 @@ def test_painting_solids_that_all_lie_outside_the_window_changes_nothing() -> No
                  (CYLINDER, -300.0, 20.0, 0.0, 0.3, 0.3, 3.0, INFRASTRUCTURE))
     paint_solids(classes, None, window, far)
     assert np.all(classes == FREE)
+
+
+def test_visible_stops_at_the_nearest_obstacle_not_the_farthest_layer() -> None:
+    """An upper layer passing over a parked car and hitting a wall behind it says nothing
+    about the cells between car and wall (the sensor model gives them no evidence)."""
+    from evperc.sim.lidar import Hits
+
+    az = np.array([-0.2, 0.0, 0.2])
+    nan = np.nan
+    horizontal = np.array([[5.2, 5.2, 5.2],      # lower layer: the car's face at 5.2 m
+                           [20.2, 20.2, 20.2],   # upper layer: over the car, a wall at 20 m
+                           [nan, nan, nan]])
+    label = np.array([[STOPPED] * 3, [INFRASTRUCTURE] * 3, [GROUND] * 3], dtype=np.uint8)
+    hits = Hits(horizontal, horizontal, label, az, np.array([-0.05, 0.05, -0.2]))
+    window = Window(0.5, 10, 60, -5, -5)   # x from -2.5 to 27.5 m, y from -2.5 to 2.5 m
+    seen = visible_cells(window, hits, 0.0, 0.0, 0.0)
+    row, col = window.index_of(np.array([3.0, 5.2, 12.0, 20.2]), np.zeros(4))
+    assert seen[row[0], col[0]] and seen[row[1], col[1]]          # before and at the car
+    assert not seen[row[2], col[2]] and not seen[row[3], col[3]]  # behind it, and the wall
+    nine = np.full((3, 3), 9.0)
+    ground_only = Hits(nine, nine, np.full((3, 3), GROUND, np.uint8), az,
+                       np.array([-0.2] * 3))
+    seen = visible_cells(window, ground_only, 0.0, 0.0, 0.0)
+    row, col = window.index_of(np.array([8.5, 12.0]), np.zeros(2))
+    assert seen[row[0], col[0]] and not seen[row[1], col[1]]      # free up to the ground hit
