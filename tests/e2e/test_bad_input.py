@@ -196,3 +196,40 @@ def test_disk_full_while_writing(drive: Path, tmp_path: Path, monkeypatch) -> No
     assert_one_line_error(code, text, "No space left on device")
     assert_not_complete(out)
     assert not list((out / "frames").iterdir())  # no chunk, no temporary file left
+
+
+def test_unsupported_message_encoding(tmp_path: Path) -> None:
+    """A PointCloud2 topic in an encoding evperc cannot decode (here CBOR)."""
+    from mcap.writer import Writer
+
+    path = tmp_path / "cbor.mcap"
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start()
+        cloud = writer.register_schema("sensor_msgs/msg/PointCloud2", "ros2msg", b"")
+        odom = writer.register_schema("nav_msgs/msg/Odometry", "ros2msg", b"")
+        c1 = writer.register_channel("/points", "cbor", cloud)
+        c2 = writer.register_channel("/odom", "cbor", odom)
+        for k in range(3):
+            for channel in (c1, c2):
+                writer.add_message(channel, log_time=BASE_NS + k, data=b"\xa0",
+                                   publish_time=BASE_NS + k)
+        writer.finish()
+    code, out = run_cli(str(path), "--no-map", "--out", str(tmp_path / "o"))
+    assert_one_line_error(code, out, "cbor.mcap", "/points")
+    assert_not_complete(tmp_path / "o")
+
+
+def test_empty_and_non_finite_scans_run(tmp_path: Path) -> None:
+    """Empty clouds and NaN/inf points are data, not errors: the run completes."""
+    nan_cloud = np.array([[np.nan, 1, 0], [np.inf, 0, 0], [5, 0, 0]], dtype=np.float32)
+    clouds = [(BASE_NS, np.zeros((0, 3), np.float32), "lidar"),
+              (BASE_NS + 100_000_000, nan_cloud, "lidar"),
+              (BASE_NS + 200_000_000, np.zeros((0, 3), np.float32), "lidar")]
+    log = write_ros2_mcap(tmp_path / "sparse.mcap", clouds=clouds,
+                          odometry=[(BASE_NS - 10**8 + k * 10**8, transform(x=k))
+                                    for k in range(5)])
+    out = tmp_path / "o"
+    result = CliRunner().invoke(cli, ["run", str(log), "--no-map", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "manifest.json").read_text())["frame_count"] == 3
