@@ -110,16 +110,16 @@ def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | N
             raise ConfigError(f"{path}: not valid TOML ({err})") from err
         except OSError as err:
             raise ConfigError(f"{path}: cannot read config ({err.strerror})") from err
-        problems = _merge(config, user, prefix="")
-        if problems:
-            raise ConfigError(f"{path}: " + "; ".join(problems))
+        merge_problems = _merge(config, user, prefix="")
+    else:
+        merge_problems = []
     for dotted, value in (overrides or {}).items():
         *tables, key = dotted.split(".")
         node = config
         for t in tables:
             node = node[t]
         node[key] = value
-    problems = validate(config)
+    problems = merge_problems + validate(config)
     if problems:
         raise ConfigError(f"{source}: " + "; ".join(problems))
     return config

@@ -71,6 +71,7 @@ def test_every_failing_key_is_listed(tmp_path: Path) -> None:
         load_config(path)
     message = str(info.value)
     assert "grid.cell_size_m must be float" in message
+    assert "sensor.mu_free = 1.5 is outside" in message  # type and range errors together
     assert "\n" not in message
     path = write(tmp_path, '[sensor]\nmu_free = 1.5\n[fusion]\ndiscount = "fancy"\n')
     with pytest.raises(ConfigError) as info:
