@@ -31,7 +31,10 @@ _TIE = 1e-4
 
 @dataclass(frozen=True)
 class FusionParams:
-    """The ``[fusion]`` and ``[decision]`` keys of the config (SPEC §5, §6)."""
+    """The ``[fusion]`` and ``[decision]`` keys of the config (SPEC §5, §6).
+
+    The field defaults are SPEC's values; ``configs/default.toml`` (via :meth:`from_config`)
+    holds the defaults of a run, some of them tuned (docs/evaluation.md)."""
 
     prior_where: str = "observed"
     discount: str = "contextual"

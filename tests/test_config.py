@@ -55,7 +55,7 @@ def test_user_file_overrides(tmp_path: Path) -> None:
     assert config["fusion"]["zeta_increment"] == 0.2
     assert config["grid"]["window_size_m"] == 50.0
     assert isinstance(config["grid"]["window_size_m"], float)
-    assert config["fusion"]["zeta_decrement"] == 0.5
+    assert config["fusion"]["zeta_decrement"] == default_config()["fusion"]["zeta_decrement"]
 
 
 def test_unknown_key_is_named(tmp_path: Path) -> None:
