@@ -16,7 +16,8 @@ fusion (:func:`evperc.fused.fused_step`, the runner's kernel) and is scored with
 
     .venv/bin/python scripts/evaluation_study.py --tune --work /tmp/evstudy  # tuning seeds 1,2
 
-Everything of docs/evaluation.md (tuning, then the report with the defaults and the tuned config):
+Everything of docs/evaluation.md (tuning, then the report with the defaults, the SPEC values and
+the tuned config side by side, paired per seed):
 
     .venv/bin/python scripts/evaluation_study.py --all --work /tmp/evstudy --out study.md
 
@@ -70,13 +71,17 @@ CELL_SETS = ("observed", "visible")
 TEST_SEEDS = "11,12,13,14,15,16"
 TUNING_SEEDS = "1,2"
 
-#: SPEC §5-§6 defaults of the tuned keys (the values before any tuning): ``--config spec``
+#: SPEC §5-§6 values of the tuned keys (the shipped defaults before the tuning of
+#: docs/evaluation.md was adopted); the start and the parsimony target of ``--tune``
 SPEC_VALUES: dict[str, dict[str, float]] = {
     "fusion": {"zeta_increment": 0.1, "zeta_decrement": 0.5, "gamma_occupied": 0.6,
                "gamma_conflict": 0.2, "discount_free": 0.1, "discount_moving": 0.1,
                "discount_stopped": 0.02, "discount_unmapped": 0.01},
     "decision": {"min_betp": 0.5, "max_ignorance": 0.5},
 }
+
+#: SPEC values of fusion keys that are not tuned, written with SPEC_VALUES by ``--config spec``
+SPEC_FIXED: dict[str, dict[str, float]] = {"fusion": {"discount_infrastructure": 0.0}}
 
 #: tune mode: a stage's winner replaces the previous values only if J improves by more than this
 MIN_GAIN = 0.001
@@ -184,7 +189,8 @@ def resolve_config(name: str, work: Path) -> Path | None:
     if name == "default":
         return None
     if name == "spec":
-        return write_config(work / "configs" / "spec.toml", SPEC_VALUES)
+        values = {s: {**SPEC_FIXED.get(s, {}), **keys} for s, keys in SPEC_VALUES.items()}
+        return write_config(work / "configs" / "spec.toml", values)
     path = Path(name)
     if not path.is_file():
         raise SystemExit(f"--config {name}: no such file (or use 'default' / 'spec')")
@@ -373,6 +379,35 @@ def comparison(work: Path, tags: Sequence[str], drives: Sequence[Drive],
                 ("per_class", "moving", "f1"), ("per_class", "stopped", "f1"),
                 ("per_class", "infrastructure", "f1"), ("coarse", "static", "f1"),
                 ("coarse", "free", "precision"), ("coarse", "free", "recall"))) + " |")
+    return "\n".join(lines)
+
+
+def paired(work: Path, tags: Sequence[str], drives: Sequence[Drive],
+           profiles: Sequence[str]) -> str:
+    """The first config minus each other one, per seed (with the map): mean ± sd of the
+    differences and on how many seeds the first config is ahead."""
+    scores = (("J", None), ("F1 moving", ("per_class", "moving", "f1")),
+              ("F1 stopped", ("per_class", "stopped", "f1")),
+              ("coarse F1 static", ("coarse", "static", "f1")),
+              ("coarse R free", ("coarse", "free", "recall")))
+    lines = ["| profile | cells | first − | " + " | ".join(
+        f"Δ {name} (first ahead on)" for name, _ in scores) + " |", "|" + "---|" * 8]
+
+    def value(m: dict[str, Any], where: tuple[str, str, str] | None) -> float:
+        if where is None:
+            return objective(m)
+        v = m[where[0]][where[1]][where[2]]
+        return 0.0 if v is None else float(v)
+
+    for profile, cells, tag in itertools.product(profiles, CELL_SETS, tags[1:]):
+        ds = [d for d in drives if d.profile == profile]
+        first = load_metrics(work, tags[0], ds, cells)[0]
+        other = load_metrics(work, tag, ds, cells)[0]
+        row = f"| {profile} | {cells} | {tag} |"
+        for _, where in scores:
+            diff = [value(a, where) - value(b, where) for a, b in zip(first, other, strict=True)]
+            row += f" {_mean_sd(diff)} ({sum(x > 0 for x in diff)} of {len(diff)}) |"
+        lines.append(row)
     return "\n".join(lines)
 
 
@@ -574,7 +609,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--tune", action="store_true", help="grid search on the tuning seeds")
     parser.add_argument("--all", action="store_true",
                         help="everything of docs/evaluation.md: --tune, then the report on the "
-                             "test seeds with the defaults and the tuned config side by side")
+                             "test seeds with the defaults, the SPEC values and the tuned config "
+                             "side by side")
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     parser.add_argument("--out", type=Path, help="also write the markdown to this file")
     args = parser.parse_args(argv)
@@ -595,8 +631,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         text += "# Tuning\n\n" + tune(work, tune_drives, args.workers) + "\n"
     if not args.tune:
         drives = drives_of(args.seeds)
-        names = (args.config or ["default"]) + ([str(work / "tune" / "best.toml")]
-                                                if args.all else [])
+        names = (args.config or (["default", "spec"] if args.all else ["default"])) + (
+            [str(work / "tune" / "best.toml")] if args.all else [])
         configs = [resolve_config(c, work) for c in names]
         times = prepare(work, drives, configs, args.workers, commands)
         tags = [config_tag(c) for c in configs]
@@ -604,6 +640,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if len(tags) > 1:
             text += "\n## Configs compared (with the map)\n\n" + comparison(
                 work, tags, drives, profiles) + "\n"
+            text += ("\n## Paired per seed: the first config minus each other (with the map)"
+                     "\n\n" + paired(work, tags, drives, profiles) + "\n")
         text += "\nStage wall times (s): " + ", ".join(f"{k} {v:.0f}" for k, v in times.items())
     script = shlex.join([sys.executable, str(Path(__file__).resolve()),
                          *(argv if argv is not None else sys.argv[1:])])
