@@ -112,28 +112,19 @@ def test_truncated_log_gives_a_partial_complete_run_with_a_warning(tmp_path: Pat
 
 # --- maps -----------------------------------------------------------------------------------
 
-def test_map_missing(drive: Path, tmp_path: Path) -> None:
-    code, out = run_cli(str(drive), "--map", str(tmp_path / "none.geojson"), "--config",
+@pytest.mark.parametrize(("name", "content", "needle"), [
+    ("none.geojson", None, "not found"),
+    ("broken.geojson", "{ this is not json", "broken.geojson"),
+    ("empty.geojson", '{"type": "FeatureCollection", "features": []}', "no features"),
+])
+def test_bad_map_file(drive: Path, tmp_path: Path, name: str, content: str | None,
+                      needle: str) -> None:
+    map_path = tmp_path / name
+    if content is not None:
+        map_path.write_text(content)
+    code, out = run_cli(str(drive), "--map", str(map_path), "--config",
                         str(config_file(tmp_path, HELSINKI)), "--out", str(tmp_path / "o"))
-    assert_one_line_error(code, out, "none.geojson")
-    assert_not_complete(tmp_path / "o")
-
-
-def test_map_unreadable(drive: Path, tmp_path: Path) -> None:
-    bad = tmp_path / "broken.geojson"
-    bad.write_text("{ this is not json")
-    code, out = run_cli(str(drive), "--map", str(bad), "--config",
-                        str(config_file(tmp_path, HELSINKI)), "--out", str(tmp_path / "o"))
-    assert_one_line_error(code, out, "broken.geojson")
-    assert_not_complete(tmp_path / "o")
-
-
-def test_map_empty(drive: Path, tmp_path: Path) -> None:
-    empty = tmp_path / "empty.geojson"
-    empty.write_text('{"type": "FeatureCollection", "features": []}')
-    code, out = run_cli(str(drive), "--map", str(empty), "--config",
-                        str(config_file(tmp_path, HELSINKI)), "--out", str(tmp_path / "o"))
-    assert_one_line_error(code, out, "empty.geojson")
+    assert_one_line_error(code, out, name, needle)
     assert_not_complete(tmp_path / "o")
 
 
