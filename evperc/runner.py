@@ -272,11 +272,11 @@ class Pipeline:
         betp, decision, conflict = out.betp, out.decision, out.conflict
         clock.lap("fusion")
         state.frames += 1
-        state.decision_counts += np.bincount(decision.ravel(),
-                                             minlength=len(state.decision_counts))
+        counts = np.bincount(decision.ravel(), minlength=len(state.decision_counts))
+        state.decision_counts += counts
         return {"stamp_ns": scan.stamp_ns, "pose": pose, "origin": (window.row0, window.col0),
                 "masses": state.pg, "betp": betp, "decision": decision, "zeta": state.zeta,
-                "conflict": conflict}
+                "conflict": conflict, "decision_counts": counts}
 
 
 def run(request: RunRequest, resume: bool = False,

@@ -215,8 +215,8 @@ class RunWriter:
         return len(self._frames)
 
     def add(self, stamp_ns: int, pose: np.ndarray, origin: tuple[int, int], masses: np.ndarray,
-            betp: np.ndarray, decision: np.ndarray, zeta: np.ndarray, conflict: np.ndarray
-            ) -> bool:
+            betp: np.ndarray, decision: np.ndarray, zeta: np.ndarray, conflict: np.ndarray,
+            decision_counts: np.ndarray | None = None) -> bool:
         """Queue one frame (quantised at once: the caller may reuse its arrays); a full chunk
         is handed to the writer thread (then returns True)."""
         c = self._chunk
@@ -232,8 +232,11 @@ class RunWriter:
         c.zeta[k] = quantise(zeta)
         quantise_planar(conflict, out=c.conflict[k])
         c.count = k + 1
-        self._frames.append({"stamp_ns": int(stamp_ns), "pose": [float(v) for v in pose],
-                             "origin": [int(origin[0]), int(origin[1])]})
+        entry = {"stamp_ns": int(stamp_ns), "pose": [float(v) for v in pose],
+                 "origin": [int(origin[0]), int(origin[1])]}
+        if decision_counts is not None:
+            entry["decision_counts"] = [int(n) for n in decision_counts]
+        self._frames.append(entry)
         if c.count >= self.chunk_frames:
             self._flush()
             return True

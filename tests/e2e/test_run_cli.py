@@ -176,3 +176,14 @@ def test_run_renders_as_it_goes(drive: Path, small_config: Path, tmp_path: Path)
     # the free street is drawn green somewhere in the decision panel
     green = (image[..., 1] > 200) & (image[..., 0] < 80) & (image[..., 2] < 80)
     assert green.sum() > 100
+
+
+def test_manifest_counts_each_frames_decisions(drive: Path, small_config: Path,
+                                               tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    assert invoke("run", str(drive), "--no-map", "--config", str(small_config), "--out",
+                  str(out), "--end", "1.0").exit_code == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    for entry, frame in zip(manifest["frames"], evperc.load(out).frames, strict=True):
+        want = np.bincount(frame.decision.ravel(), minlength=7).tolist()
+        assert entry["decision_counts"] == want
