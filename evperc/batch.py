@@ -21,11 +21,14 @@ import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
 from evperc.errors import EvpercError, OutputError, UsageError
+
+if TYPE_CHECKING:  # the runner (numba, numpy kernels) is imported where a task runs
+    from evperc.runner import RunRequest
 
 log = logging.getLogger(__name__)
 
@@ -40,17 +43,6 @@ _NAME_SEPARATOR = "--"
 #: dynamic mmap threshold, so every large temporary array is mmapped and page-faulted
 #: afresh: evperc ran 1.2-1.7x slower. Unset it (docs/performance.md, remote clusters too).
 NANNY_ENVIRON = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
-
-
-@dataclass(frozen=True)
-class LogTask:
-    """One log's run, as sent to a worker (plain, picklable data; absolute paths)."""
-
-    log_path: Path
-    out_dir: Path
-    config: dict[str, Any]
-    map_path: Path | None = None
-    roads_path: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -117,13 +109,15 @@ def _suffixed(path: Path, depth: int) -> str:
     return f"{head}{_NAME_SEPARATOR}{tail}" if tail else head
 
 
-def plan(request: BatchRequest) -> list[LogTask]:
+def plan(request: BatchRequest) -> list[RunRequest]:
     """One task per distinct log (duplicates dropped), paths made absolute for the workers."""
     logs = list(dict.fromkeys(Path(p).expanduser().resolve() for p in request.logs))
     if not logs:
         raise UsageError("no logs given; pass LOG.mcap paths or --list FILE")
+    from evperc.runner import RunRequest
+
     root = Path(request.out_root).expanduser().resolve()
-    return [LogTask(log_path=path, out_dir=root / name, config=request.config,
+    return [RunRequest(log_path=path, out_dir=root / name, config=request.config,
                     map_path=_absolute(request.map_path),
                     roads_path=_absolute(request.roads_path))
             for path, name in zip(logs, output_names(logs), strict=True)]
@@ -135,7 +129,7 @@ def _absolute(path: Path | None) -> Path | None:
 
 # --- in the worker ------------------------------------------------------------------------
 
-def process_log(task: LogTask) -> dict[str, Any]:
+def process_log(task: RunRequest) -> dict[str, Any]:
     """Skip, resume or run one log; a result row, never an exception (runs on a worker)."""
     row: dict[str, Any] = dict.fromkeys(ROW_KEYS)
     row.update(log=str(task.log_path), out=str(task.out_dir))
@@ -151,10 +145,10 @@ def process_log(task: LogTask) -> dict[str, Any]:
     return row
 
 
-def _skip_resume_or_run(task: LogTask) -> dict[str, Any]:
+def _skip_resume_or_run(task: RunRequest) -> dict[str, Any]:
     from evperc.io.run_reader import read_manifest
     from evperc.io.writer import MANIFEST
-    from evperc.runner import RunRequest, request_from_manifest, run
+    from evperc.runner import request_from_manifest, run
 
     if (task.out_dir / MANIFEST).is_file():
         manifest = read_manifest(task.out_dir)
@@ -168,15 +162,13 @@ def _skip_resume_or_run(task: LogTask) -> dict[str, Any]:
         if task.out_dir.is_dir() and any(task.out_dir.iterdir()):
             raise OutputError(f"{task.out_dir}: exists and is not an evperc output; move it "
                               "away or choose another --out")
-        summary = run(RunRequest(log_path=task.log_path, out_dir=task.out_dir,
-                                 config=task.config, map_path=task.map_path,
-                                 roads_path=task.roads_path), progress=False)
+        summary = run(task, progress=False)
         status = "ok"
     return {"frames": summary["frames"], "frames_per_s": summary["frames_per_s"],
             "status": status}
 
 
-def _check_same_inputs(task: LogTask, manifest: dict[str, Any]) -> None:
+def _check_same_inputs(task: RunRequest, manifest: dict[str, Any]) -> None:
     """Refuse to skip or resume an output made from another log, map or config."""
     differs = []
     if not _same_path(manifest.get("log"), task.log_path):

@@ -7,9 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from evperc.batch import LogTask, format_table, output_names, process_log, read_log_list
+from evperc.batch import format_table, output_names, process_log, read_log_list
 from evperc.config import load_config
 from evperc.errors import UsageError
+from evperc.runner import RunRequest
 from tests.batch.logs import write_street_log
 
 
@@ -48,7 +49,7 @@ def test_output_name_collision_is_a_usage_error():
 
 def test_unexpected_exception_becomes_an_error_row(tmp_path):
     log_path = write_street_log(tmp_path / "a.mcap", 2)
-    row = process_log(LogTask(log_path=log_path, out_dir=tmp_path / "out", config={}))
+    row = process_log(RunRequest(log_path=log_path, out_dir=tmp_path / "out", config={}))
     assert row["status"] == "error"
     assert row["error"].startswith("KeyError: ")
     assert row["frames"] is None and row["wall_time_s"] >= 0
@@ -61,7 +62,7 @@ def test_leftovers_of_a_run_killed_before_its_manifest_are_cleared(tmp_path):
     (out / "config.toml").write_text("half")
     (out / ".manifest.json.tmp").write_text("{")
     config = load_config(overrides={"grid.window_size_m": 10.0})
-    row = process_log(LogTask(log_path=log_path, out_dir=out, config=config))
+    row = process_log(RunRequest(log_path=log_path, out_dir=out, config=config))
     assert (row["status"], row["frames"]) == ("ok", 2)
 
 
@@ -70,7 +71,7 @@ def test_foreign_folder_is_not_touched(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     (out / "notes.txt").write_text("mine")
-    row = process_log(LogTask(log_path=log_path, out_dir=out, config=load_config()))
+    row = process_log(RunRequest(log_path=log_path, out_dir=out, config=load_config()))
     assert row["status"] == "failed" and "not an evperc output" in row["error"]
     assert (out / "notes.txt").read_text() == "mine"
 
