@@ -15,7 +15,7 @@ from typing import Any
 import click
 
 from evperc import __version__
-from evperc.errors import EvpercError, UsageError
+from evperc.errors import EvpercError, OutputError, UsageError
 
 log = logging.getLogger("evperc")
 
@@ -302,7 +302,7 @@ def evaluate_command(out_dir: Path, truth_dir: Path, compare_dir: Path | None,
         try:
             json_path.write_text(json.dumps(doc, indent=1))
         except OSError as err:
-            raise UsageError(f"{json_path}: cannot write JSON ({err.strerror})") from err
+            raise OutputError(f"{json_path}: cannot write JSON ({err.strerror})") from err
 
 
 @cli.command("batch")
@@ -360,7 +360,7 @@ def batch_command(logs: tuple[Path, ...], list_path: Path | None, map_path: Path
         try:
             json_path.write_text(json.dumps(rows, indent=1))
         except OSError as err:
-            raise UsageError(f"{json_path}: cannot write JSON ({err.strerror})") from err
+            raise OutputError(f"{json_path}: cannot write JSON ({err.strerror})") from err
     if any(row["status"] in ("failed", "error") for row in rows):
         sys.exit(1)
 
