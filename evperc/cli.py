@@ -132,6 +132,8 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
     log.info("%d frames in %.1f s (%.1f frames/s) -> %s", summary["frames"],
              summary["wall_time_s"], summary["frames_per_s"] or 0.0, out_dir)
     log.info("cells: %s", shares)
+    log.debug("ms per frame by stage: %s", ", ".join(
+        f"{stage} {ms:.2f}" for stage, ms in summary.get("stage_ms_per_frame", {}).items()))
 
 
 @cli.command("info")
