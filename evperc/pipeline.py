@@ -73,10 +73,8 @@ def scaled_rate(rate: float | np.ndarray, dt_s: float, period_s: float) -> np.nd
 
 
 def vacuous(shape: tuple[int, ...], dtype: np.dtype | type = np.float32) -> np.ndarray:
-    """Mass grid with m(Ω) = 1 in every cell."""
-    m = np.zeros((*shape, 32), dtype=dtype)
-    m[..., OMEGA] = 1
-    return m
+    """Mass grid with m(Ω) = 1 in every cell (also the prior of ``--no-map``)."""
+    return dst.FRAME.vacuous(shape, dtype)
 
 
 def sensor_masses(free: np.ndarray, occupied: np.ndarray) -> np.ndarray:

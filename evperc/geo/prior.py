@@ -150,10 +150,3 @@ def prior_masses(labels: np.ndarray, beta_building: float, beta_road: float,
     np.put_along_axis(out, focal[..., None], beta[..., None], axis=-1)
     out[..., OMEGA] = 1 - beta
     return out
-
-
-def vacuous_prior(shape: tuple[int, int], dtype: np.dtype = np.float32) -> np.ndarray:
-    """The prior without a map (``--no-map``): m(Ω) = 1 in every cell."""
-    out = np.zeros(tuple(shape) + (32,), dtype=dtype)
-    out[..., OMEGA] = 1
-    return out

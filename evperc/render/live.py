@@ -11,7 +11,7 @@ import imageio.v3 as iio
 from evperc.geo.window import Window
 from evperc.pipeline import DECISION_CODES
 from evperc.render.frame import DEFAULT_LAYERS, FrameRenderer
-from evperc.render.run_render import PNG_COMPRESS_LEVEL, _prepare_dest
+from evperc.render.run_render import PNG_COMPRESS_LEVEL, prepare_dest
 
 
 class LiveRenderer:
@@ -20,7 +20,7 @@ class LiveRenderer:
 
     def __init__(self, dest: Path, request: Any) -> None:
         self.dest = Path(dest)
-        _prepare_dest(self.dest, overwrite=bool(getattr(request, "overwrite", False)))
+        prepare_dest(self.dest, overwrite=bool(getattr(request, "overwrite", False)))
         self.resolution_m = request.config["grid"]["cell_size_m"]
         self.renderer = FrameRenderer(DEFAULT_LAYERS, DECISION_CODES)
         self.count = 0

@@ -131,7 +131,7 @@ def _first_stamp(run: Any) -> int | None:
     return int(frames[0]["stamp_ns"]) if frames else None
 
 
-def _prepare_dest(dest: Path, overwrite: bool) -> None:
+def prepare_dest(dest: Path, overwrite: bool) -> None:
     if dest.exists() and not dest.is_dir():
         raise OutputError(f"{dest}: exists and is not a directory; choose another --dest")
     old = sorted(dest.glob("frame_*.png")) if dest.is_dir() else []
@@ -157,7 +157,7 @@ def render_run(req: RenderRequest) -> dict[str, Any]:
     if req.gif is not None and req.gif.exists() and not req.overwrite:
         raise OutputError(f"{req.gif}: exists; pass --overwrite or choose another --gif")
     if req.dest is not None:
-        _prepare_dest(req.dest, req.overwrite)
+        prepare_dest(req.dest, req.overwrite)
     run_a, run_b = req.run, req.compare
     if run_b is not None and (tuple(run_a.shape) != tuple(run_b.shape)
                               or run_a.resolution_m != run_b.resolution_m):

@@ -18,7 +18,6 @@ from evperc.geo.prior import (
     CONTEXT_ROAD,
     PriorRasteriser,
     prior_masses,
-    vacuous_prior,
 )
 from evperc.geo.window import Window
 from evperc.io.maps import MapData, load_map
@@ -174,9 +173,3 @@ def test_prior_masses_per_context() -> None:
     assert prior_masses(labels, 0.9, 0.7, 0.6, dtype=np.float64).dtype == np.float64
     with pytest.raises(ValueError):
         prior_masses(labels, 1.2, 0.7, 0.6)
-
-
-def test_vacuous_prior() -> None:
-    v = vacuous_prior((3, 4))
-    assert v.shape == (3, 4, 32) and v.dtype == np.float32
-    assert (v[..., 31] == 1).all() and v[..., :31].sum() == 0
