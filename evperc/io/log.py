@@ -220,11 +220,24 @@ class LogReader:
                            ) from err
 
     def _pose_records(self, raw: RawMessage) -> list:
+        """The pose samples of one pose or TF message; none if it cannot be decoded (counted
+        as ``pose_undecodable``, like undecodable scans: one bad message must not end the
+        run; a log without any usable pose still fails with a clear error)."""
         schema = self.source.topics[raw.topic].schema
-        decoded = self.source.decode(raw)
-        if schema in POSE_ADAPTERS:
-            return [POSE_ADAPTERS[schema](decoded, raw.message.log_time)]
-        return TF_ADAPTERS[schema](decoded, raw.message.log_time)
+        try:
+            decoded = self.source.decode(raw)
+            if schema in POSE_ADAPTERS:
+                return [POSE_ADAPTERS[schema](decoded, raw.message.log_time)]
+            return TF_ADAPTERS[schema](decoded, raw.message.log_time)
+        except LogError:
+            raise
+        except Exception as err:
+            if "pose_undecodable" not in self.stats:
+                log.warning("%s: topic %s: cannot decode a pose message at log time %d ns "
+                            "(%s); skipping such messages", self.path, raw.topic,
+                            raw.message.log_time, err)
+            self._count("pose_undecodable")
+            return []
 
     def _pose_source(self) -> PoseSource:
         kind, topics = self.pose_topics

@@ -1,13 +1,17 @@
 """Point clouds and 2-D scans from packed message buffers into (N, 3) float32 arrays.
 
-No per-point Python loop: a packed buffer is viewed through a structured numpy dtype built from
-the message's field table (name, byte offset, numeric type), its point stride and byte order.
+No per-point Python loop and no copy of the buffer: each of x, y, z is a strided numpy view of
+the packed bytes, built from the message's field table (name, byte offset, numeric type), its
+point stride, row stride and byte order; one compiled pass converts them to float32 and drops
+the points that are not finite.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
+import numba
 import numpy as np
 
 #: sensor_msgs/msg/PointField datatype constants -> numpy type code
@@ -34,33 +38,66 @@ def xyz_from_packed(data: bytes | bytearray | memoryview | np.ndarray,
 
     ``fields`` maps a field name to (byte offset, numpy type code such as ``"f4"``); only
     ``x``, ``y``, ``z`` are read. Rows of an organised cloud (``height`` > 1) are ``row_step``
-    bytes apart, which may exceed ``width · point_step`` (row padding).
-    Raises :class:`MissingFieldsError` when x, y or z is absent.
+    bytes apart, which may exceed ``width · point_step`` (row padding); only complete rows
+    are read. The buffer is not copied: each coordinate is a strided view of it, and one
+    compiled pass converts to float32 and keeps the rows whose three values are finite.
+    Raises :class:`MissingFieldsError` when x, y or z is absent, ValueError when a field does
+    not fit in the point.
     """
     if not all(name in fields for name in XYZ):
         raise MissingFieldsError(sorted(fields))
     order = ">" if big_endian else "<"
-    dtype = np.dtype({
-        "names": list(XYZ),
-        "formats": [order + fields[name][1] for name in XYZ],
-        "offsets": [fields[name][0] for name in XYZ],
-        "itemsize": point_step,
-    })
+    dtypes = [np.dtype(order + fields[name][1]) for name in XYZ]
+    for name, dtype in zip(XYZ, dtypes, strict=True):
+        if not 0 <= fields[name][0] <= point_step - dtype.itemsize:
+            raise ValueError(f"field {name} ({dtype.str} at byte {fields[name][0]}) does not "
+                             f"fit in a {point_step}-byte point")
     if height <= 0 or width <= 0 or point_step <= 0:
         return np.empty((0, 3), np.float32)
-    raw = np.frombuffer(data, dtype=np.uint8)
+    raw = _byte_view(data)
     packed_row = width * point_step
     row_step = max(row_step or packed_row, packed_row)
     n_rows = min(height, (raw.size + row_step - packed_row) // row_step)  # complete rows only
-    if row_step != packed_row:
-        raw = np.concatenate([raw, np.zeros(n_rows * row_step - min(raw.size, n_rows * row_step),
-                                            np.uint8)])
-        raw = raw[: n_rows * row_step].reshape(n_rows, row_step)[:, :packed_row].reshape(-1)
-    else:
-        raw = raw[: n_rows * packed_row]
-    points = raw.view(dtype)
-    xyz = np.stack([points[name].astype(np.float32) for name in XYZ], axis=-1)
-    return xyz[np.isfinite(xyz).all(axis=1)]
+    if n_rows <= 0:
+        return np.empty((0, 3), np.float32)
+    x, y, z = (_column(raw, fields[name][0], dtype, (n_rows, width), (row_step, point_step))
+               for name, dtype in zip(XYZ, dtypes, strict=True))
+    out = np.empty((n_rows * width, 3), np.float32)
+    kept = _finite_xyz(x, y, z, out)
+    return out if kept == out.shape[0] else out[:kept]
+
+
+def _byte_view(data: bytes | bytearray | memoryview | np.ndarray) -> np.ndarray:
+    """The buffer as a flat uint8 array, without a copy."""
+    if isinstance(data, np.ndarray):
+        return data.reshape(-1).view(np.uint8)
+    return np.frombuffer(data, dtype=np.uint8)
+
+
+def _column(raw: np.ndarray, offset: int, dtype: np.dtype, shape: tuple[int, int],
+            strides: tuple[int, int]) -> np.ndarray:
+    """One field of every point as a (rows, width) strided view of ``raw``; a copy in native
+    float32 only for types the kernel is not compiled for (integers, foreign byte order)."""
+    view = np.ndarray(shape, dtype=dtype, buffer=raw, offset=offset, strides=strides)
+    if dtype.isnative and dtype.kind == "f" and dtype.itemsize in (4, 8):
+        return view
+    return view.astype(np.float32)
+
+
+@numba.njit(cache=True, nogil=True)
+def _finite_xyz(x: np.ndarray, y: np.ndarray, z: np.ndarray, out: np.ndarray) -> int:
+    """Rows (x, y, z) as float32 into ``out`` in point order, skipping a point when any of its
+    three float32 values is NaN or ±inf; returns the number of rows written."""
+    kept = 0
+    for r in range(x.shape[0]):
+        for c in range(x.shape[1]):
+            px, py, pz = np.float32(x[r, c]), np.float32(y[r, c]), np.float32(z[r, c])
+            if math.isfinite(px) and math.isfinite(py) and math.isfinite(pz):
+                out[kept, 0] = px
+                out[kept, 1] = py
+                out[kept, 2] = pz
+                kept += 1
+    return kept
 
 
 def ros_fields(fields: list) -> dict[str, tuple[int, str]]:

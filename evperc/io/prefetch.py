@@ -1,0 +1,108 @@
+"""Pulling the items of an iterator in a background thread, a few ahead of their consumer.
+
+``prefetched(reader.scans())`` lets a second core read, decompress and decode the next scans
+while the main thread fuses the current one (most of the decoding releases the GIL: file reads,
+zstd, CRC and the point-cloud kernel). Items come out in the source's order; the producer is
+never more than ``depth + 1`` items ahead of the consumer (``depth`` in the queue, one in
+hand), so memory stays bounded. An exception of the source is raised in the consumer where
+the item it stopped would have come, as the same object (type and traceback kept). When the
+consumer stops early (``close()``, ``break``, an exception or Ctrl-C in its loop) the producer
+stops after the item it is working on, the source iterator is closed in its own thread, and
+the thread is joined before ``close()`` returns.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from collections.abc import Iterable, Iterator
+from typing import TypeVar
+
+log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+
+#: seconds between the producer's checks of the stop flag while the queue is full
+_POLL_S = 0.05
+
+_ITEM, _ERROR, _DONE = range(3)
+
+
+def prefetched(iterable: Iterable[T], depth: int = 2,
+               name: str = "evperc-prefetch") -> Iterator[T]:
+    """A generator of the items of ``iterable`` in order, produced by a daemon thread named
+    ``name`` into a queue of ``depth`` items. The thread starts at the first ``next()``.
+
+    Use it as ``with contextlib.closing(prefetched(it)) as items: for item in items: ...``
+    (or call ``close()`` in a ``finally``) so that an exception leaving the loop stops the
+    thread at once; otherwise that happens when the generator is garbage-collected.
+    Raises ValueError when ``depth`` < 1.
+    """
+    if depth < 1:
+        raise ValueError(f"prefetch depth must be at least 1, not {depth}")
+    return _consume(iterable, depth, name)
+
+
+def _consume(iterable: Iterable[T], depth: int, name: str) -> Iterator[T]:
+    items: queue.Queue[tuple[int, object]] = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    thread = threading.Thread(target=_produce, args=(iterable, items, stop), name=name,
+                              daemon=True)
+    thread.start()
+    try:
+        while True:
+            kind, value = items.get()
+            if kind == _ITEM:
+                yield value  # type: ignore[misc]
+            elif kind == _ERROR:
+                raise value  # type: ignore[misc]
+            else:
+                return
+    finally:
+        stop.set()
+        while thread.is_alive():
+            _drain(items)  # frees a producer blocked on a full queue, and the items' memory
+            thread.join(_POLL_S)
+        _drain(items)
+
+
+def _produce(iterable: Iterable[T], items: queue.Queue, stop: threading.Event) -> None:
+    """Thread body: put each item, then a done marker, or the exception that ended the
+    source; return early once ``stop`` is set, closing the source."""
+    iterator = None
+    try:
+        iterator = iter(iterable)
+        for item in iterator:
+            if not _put(items, (_ITEM, item), stop) or stop.is_set():
+                return  # before pulling (decoding) another item
+            del item
+        _put(items, (_DONE, None), stop)
+    except BaseException as err:  # noqa: BLE001 - handed to the consumer, which re-raises it
+        _put(items, (_ERROR, err), stop)
+    finally:
+        close = getattr(iterator, "close", None)
+        if close is not None:
+            try:
+                close()
+            except Exception:  # noqa: BLE001 - the consumer has stopped; nobody to tell
+                log.debug("closing the prefetched iterator failed", exc_info=True)
+
+
+def _put(items: queue.Queue, entry: tuple[int, object], stop: threading.Event) -> bool:
+    """Put ``entry``, waiting while the queue is full; False (not put) once ``stop`` is set."""
+    while not stop.is_set():
+        try:
+            items.put(entry, timeout=_POLL_S)
+            return True
+        except queue.Full:
+            continue
+    return False
+
+
+def _drain(items: queue.Queue) -> None:
+    while True:
+        try:
+            items.get_nowait()
+        except queue.Empty:
+            return
