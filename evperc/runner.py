@@ -17,23 +17,19 @@ import numpy as np
 from tqdm import tqdm
 
 from evperc.errors import GeoreferenceError, OutputError
-from evperc.fused import FusedOutputs, fused_step
+from evperc.fused import StoredOutputs, fused_step, vacuous_flags, window_order
 from evperc.geo import georef as georef_mod
 from evperc.geo.crs import working_crs
 from evperc.geo.prior import PriorRasteriser
-from evperc.geo.window import Window, scroll
+from evperc.geo.window import Window
 from evperc.io.log import PosedScan, open_log
 from evperc.io.maps import MapData, check_overlap, load_map
+from evperc.io.prefetch import prefetched
+from evperc.io.quantise import dequantise
 from evperc.io.run_reader import read_manifest
 from evperc.io.transforms import extrinsic_matrix
 from evperc.io.writer import RunWriter, atomic_write_bytes
-from evperc.pipeline import (
-    CLASSES,
-    DECISION_CODES,
-    OMEGA,
-    FusionParams,
-    vacuous,
-)
+from evperc.pipeline import CLASSES, DECISION_CODES, OMEGA, FusionParams
 from evperc.sensor import SensorParams, sensor_grid
 
 log = logging.getLogger(__name__)
@@ -126,25 +122,43 @@ def checkpoint_path(out_dir: Path, frames: int) -> Path:
 @dataclass
 class FusionState:
     """Everything the loop carries from one scan to the next; saved with every chunk so an
-    interrupted run resumes bit-identically (``evperc run --resume``)."""
+    interrupted run resumes bit-identically (``evperc run --resume``).
+
+    ``pg`` (planar ``(32, rows, cols)`` masses) and ``zeta`` are circular buffers: window
+    cell ``(r, c)`` is buffer cell ``((r + offset[0]) % rows, (c + offset[1]) % cols)``
+    (:func:`evperc.fused.fused_step`); ``flags`` marks the exactly vacuous cells."""
 
     window: Window | None = None
     pg: np.ndarray | None = None
     zeta: np.ndarray | None = None
+    flags: np.ndarray | None = None
+    offset: tuple[int, int] = (0, 0)
     prev_ns: int | None = None
     scan_index: int = -1          # position in the log's scan stream of the last frame
     frames: int = 0
     decision_counts: np.ndarray = field(
         default_factory=lambda: np.zeros(len(DECISION_CODES), dtype=np.int64))
 
+    @staticmethod
+    def fresh(window: Window) -> FusionState:
+        """Every cell vacuous, ζ = 0."""
+        pg = np.zeros((32, *window.shape), np.float32)
+        pg[OMEGA] = 1.0
+        return FusionState(window, pg, np.zeros(window.shape, np.float32),
+                           np.ones(window.shape, np.uint8))
+
     def snapshot(self) -> FusionState:
-        """A copy that later frames do not change (saved by the writer thread)."""
-        return FusionState(self.window, self.pg.copy(), self.zeta.copy(), self.prev_ns,
+        """A copy in window order (offset 0) that later frames do not change (saved by the
+        writer thread)."""
+        return FusionState(self.window, window_order(self.pg, self.offset),
+                           window_order(self.zeta, self.offset),
+                           window_order(self.flags, self.offset), (0, 0), self.prev_ns,
                            self.scan_index, self.frames, self.decision_counts.copy())
 
     def save(self, path: Path) -> None:
         w = self.window
-        arrays = {"pg": self.pg, "zeta": self.zeta,
+        arrays = {"pg": window_order(self.pg, self.offset),
+                  "zeta": window_order(self.zeta, self.offset),
                   "window": np.array([w.rows, w.cols, w.row0, w.col0], dtype=np.int64),
                   "resolution_m": np.float64(w.resolution_m),
                   "prev_ns": np.int64(self.prev_ns), "scan_index": np.int64(self.scan_index),
@@ -158,9 +172,13 @@ class FusionState:
         try:
             with np.load(path) as npz:
                 rows, cols, row0, col0 = (int(v) for v in npz["window"])
+                pg, zeta = npz["pg"], npz["zeta"]
+                if pg.shape != (32, rows, cols):
+                    raise ValueError(f"state of shape {pg.shape}, expected (32, {rows}, {cols})")
                 return FusionState(
                     window=Window(float(npz["resolution_m"]), rows, cols, row0, col0),
-                    pg=npz["pg"], zeta=npz["zeta"], prev_ns=int(npz["prev_ns"]),
+                    pg=pg, zeta=zeta, flags=vacuous_flags(pg, zeta),
+                    prev_ns=int(npz["prev_ns"]),
                     scan_index=int(npz["scan_index"]), frames=int(npz["frames"]),
                     decision_counts=npz["decision_counts"])
         except (OSError, ValueError, KeyError) as err:
@@ -199,10 +217,6 @@ class Pipeline:
         self.sensor_params = SensorParams.from_config(config["sensor"], self.resolution)
         self._overlap_checked = False
         self.clock = StageClock()
-        self._spare: tuple[np.ndarray, np.ndarray] | None = None
-        self._outputs: FusedOutputs | None = None
-        self._vacuous_vector = np.zeros(32, dtype=np.float32)
-        self._vacuous_vector[OMEGA] = 1
 
     def meta(self) -> dict[str, Any]:
         """Manifest entries that describe the run (docs/output-format.md)."""
@@ -229,13 +243,9 @@ class Pipeline:
             if index > after_index and index % r.every == 0:
                 yield index, scan
 
-    def _spares(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-        if self._spare is None or self._spare[1].shape != shape:
-            self._spare = (np.empty((*shape, 32), np.float32), np.empty(shape, np.float32))
-        return self._spare
-
-    def step(self, state: FusionState, scan: PosedScan) -> dict[str, Any]:
-        """Fuse one scan into ``state`` (updated in place); returns the frame's arrays."""
+    def step(self, state: FusionState, scan: PosedScan, out: StoredOutputs) -> dict[str, Any]:
+        """Fuse one scan into ``state`` (updated in place); the frame's layers go to ``out``
+        (the writer's chunk buffer); returns the frame's metadata."""
         clock = self.clock
         clock.lap("read")  # time since the last frame was handed out: reading, decoding
         t_crs = (self.georef.apply(scan.T_world_sensor) if self.georef is not None
@@ -245,15 +255,16 @@ class Pipeline:
         if self.map_data is not None and not self._overlap_checked:
             check_overlap(self.map_data, window.bounds)
             self._overlap_checked = True
+        shift = (0, 0)
         if state.window is None:
-            state.pg, state.zeta = vacuous(window.shape), np.zeros(window.shape, np.float32)
+            fresh = FusionState.fresh(window)
+            state.pg, state.zeta, state.flags = fresh.pg, fresh.zeta, fresh.flags
+            state.offset = (0, 0)
         elif window != state.window:
-            # into the spare buffers, which then hold the previous state for the next move
-            spare_pg, spare_zeta = self._spares(window.shape)
-            self._spare = (state.pg, state.zeta)
-            state.pg = scroll(state.pg, state.window, window, self._vacuous_vector,
-                              out=spare_pg)
-            state.zeta = scroll(state.zeta, state.window, window, 0.0, out=spare_zeta)
+            # the state stays in its circular buffer; the step reads it shifted
+            shift = (window.row0 - state.window.row0, window.col0 - state.window.col0)
+            state.offset = ((state.offset[0] + shift[0]) % window.rows,
+                            (state.offset[1] + shift[1]) % window.cols)
         state.window = window
         clock.lap("geometry")
         free, occupied = sensor_grid(scan.points, scan.planar, t_crs, window,
@@ -263,20 +274,25 @@ class Pipeline:
         clock.lap("prior")
         dt_s = 0.0 if state.prev_ns is None else (scan.stamp_ns - state.prev_ns) * 1e-9
         state.prev_ns = scan.stamp_ns
-        # SPEC §5 and §6 in one compiled pass; evperc.pipeline is the numpy twin it is tested on
-        if self._outputs is None or self._outputs.decision.shape != window.shape:
-            self._outputs = FusedOutputs.empty(window.shape)
-        # the outputs are reused by the next frame: the writer copies them at once
-        out = fused_step(state.pg, state.zeta, free, occupied, labels, self.betas, dt_s,
-                         self.params, out=self._outputs)
-        betp, decision, conflict = out.betp, out.decision, out.conflict
+        # SPEC §5 and §6 in one compiled pass, quantised straight into the chunk buffer;
+        # evperc.pipeline is the numpy twin it is tested on
+        fused_step(state.pg, state.zeta, free, occupied, labels, self.betas, dt_s, self.params,
+                   out=out, flags=state.flags, offset=state.offset, shift=shift)
         clock.lap("fusion")
         state.frames += 1
-        counts = np.bincount(decision.ravel(), minlength=len(state.decision_counts))
+        counts = np.bincount(out.decision.ravel(), minlength=len(state.decision_counts))
         state.decision_counts += counts
         return {"stamp_ns": scan.stamp_ns, "pose": pose, "origin": (window.row0, window.col0),
-                "masses": state.pg, "betp": betp, "decision": decision, "zeta": state.zeta,
-                "conflict": conflict, "decision_counts": counts}
+                "decision_counts": counts}
+
+
+def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:
+    """The stored layers of a frame as float arrays, interleaved ``(rows, cols, k)`` as
+    :func:`evperc.load` gives them (for ``on_frame`` consumers such as live rendering)."""
+    return {"masses": dequantise(np.moveaxis(out.masses, 0, -1)),
+            "betp": dequantise(np.moveaxis(out.betp, 0, -1)), "decision": out.decision.copy(),
+            "zeta": dequantise(out.zeta),
+            "conflict": dequantise(np.moveaxis(out.conflict, 0, -1))}
 
 
 def run(request: RunRequest, resume: bool = False,
@@ -309,26 +325,30 @@ def run(request: RunRequest, resume: bool = False,
     writer.on_chunk = on_chunk
     t0 = time.perf_counter()
     new_frames = 0
-    bar = tqdm(pipeline.scans(state.scan_index), unit="frame", desc=request.log_path.name,
+    # scans are read and decoded in a thread (the second core) while this one fuses
+    scans = prefetched(pipeline.scans(state.scan_index), depth=2, name="evperc-decode")
+    bar = tqdm(scans, unit="frame", desc=request.log_path.name,
                disable=None if progress is None else not progress, leave=False,
                initial=state.frames)
     clock = pipeline.clock
     clock.restart()
     try:
         for index, scan in bar:
-            frame = pipeline.step(state, scan)
+            out = StoredOutputs(*writer.frame_slot())
+            frame = pipeline.step(state, scan, out)
             state.scan_index = index
             new_frames += 1
-            writer.add(**frame)
-            clock.lap("write")
             if on_frame is not None:
-                on_frame(frame)
+                on_frame({**frame, **frame_arrays(out)})
                 clock.lap("on_frame")
+            writer.commit_frame(**frame)
+            clock.lap("write")
     except BaseException:
         writer.abort()
         raise
     finally:
         bar.close()
+        scans.close()  # stops and joins the decode thread
     writer.finish()
     clock.lap("write")
     wall = time.perf_counter() - t0

@@ -454,28 +454,29 @@ def _init_worker(directories: Sequence[str]) -> None:
 def replay(prepared: Any, overrides: dict[str, dict[str, float]], with_map: bool = True) -> Any:
     """The decisions `evperc run` would write with ``overrides``, as a run-like object."""
     from evperc.fused import fused_step
-    from evperc.geo.window import scroll
-    from evperc.pipeline import DECISION_CODES, FusionParams, vacuous
+    from evperc.pipeline import DECISION_CODES, FusionParams
+    from evperc.runner import FusionState
 
     config = {s: dict(prepared.base[s]) for s in ("fusion", "decision")}
     for section, keys in overrides.items():
         config[section].update(keys)
     params = FusionParams.from_config(config)
-    omega = np.zeros(32, np.float32)
-    omega[31] = 1
-    window = prev = pg = zeta = None
+    window = prev = state = None
     out = []
     for stamp, w, free, occupied, labels in prepared.frames:
+        shift = (0, 0)
         if window is None:
-            pg, zeta = vacuous(w.shape), np.zeros(w.shape, np.float32)
-        elif w != window:
-            pg = np.ascontiguousarray(scroll(pg, window, w, omega))
-            zeta = np.ascontiguousarray(scroll(zeta, window, w, 0.0))
+            state = FusionState.fresh(w)
+        elif w != window:  # the runner's circular buffer
+            shift = (w.row0 - window.row0, w.col0 - window.col0)
+            state.offset = ((state.offset[0] + shift[0]) % w.rows,
+                            (state.offset[1] + shift[1]) % w.cols)
         window = w
         dt = 0.0 if prev is None else (stamp - prev) * 1e-9
         prev = stamp
-        res = fused_step(pg, zeta, free, occupied, labels if with_map else None,
-                         prepared.betas, dt, params)
+        res = fused_step(state.pg, state.zeta, free, occupied, labels if with_map else None,
+                         prepared.betas, dt, params, flags=state.flags, offset=state.offset,
+                         shift=shift)
         out.append(types.SimpleNamespace(stamp_ns=stamp, origin=(w.row0, w.col0),
                                          decision=res.decision.copy()))
     return types.SimpleNamespace(frames=out, decision_codes=DECISION_CODES,

@@ -20,7 +20,6 @@ import os
 import shutil
 import threading
 import time
-import zipfile
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -30,6 +29,7 @@ import numpy as np
 
 from evperc import config as config_mod
 from evperc.errors import OutputError
+from evperc.io.npz import write_npz
 from evperc.io.quantise import quantise, quantise_planar
 
 log = logging.getLogger(__name__)
@@ -37,9 +37,6 @@ log = logging.getLogger(__name__)
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
 FRAMES_DIR = "frames"
-#: deflate level of the chunks: level 1 is ~3× faster than 6 and, on planar uint8 layers,
-#: within ~25 % of its size (measured on sample_data)
-DEFLATE_LEVEL = 1
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -65,25 +62,6 @@ def _json_default(value: Any) -> Any:
 def write_json(path: Path, obj: Any) -> None:
     text = json.dumps(obj, indent=1, sort_keys=True, default=_json_default, allow_nan=True)
     atomic_write_bytes(path, text.encode())
-
-
-def write_npz(path: Path, arrays: dict[str, np.ndarray], compress: bool) -> None:
-    """An NPZ (readable by ``np.load``) written atomically, deflated at DEFLATE_LEVEL."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    mode = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
-    try:
-        with zipfile.ZipFile(tmp, "w", compression=mode,
-                             compresslevel=DEFLATE_LEVEL) as archive:
-            for name, array in arrays.items():
-                with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
-                    np.lib.format.write_array(member, np.ascontiguousarray(array),
-                                              allow_pickle=False)
-        with tmp.open("rb+") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
 
 
 def chunk_frames_for(config: dict[str, Any], shape: tuple[int, int]) -> int:
@@ -214,23 +192,23 @@ class RunWriter:
         """Frames received so far (written or queued)."""
         return len(self._frames)
 
-    def add(self, stamp_ns: int, pose: np.ndarray, origin: tuple[int, int], masses: np.ndarray,
-            betp: np.ndarray, decision: np.ndarray, zeta: np.ndarray, conflict: np.ndarray,
-            decision_counts: np.ndarray | None = None) -> bool:
-        """Queue one frame (quantised at once: the caller may reuse its arrays); a full chunk
-        is handed to the writer thread (then returns True)."""
+    def frame_slot(self) -> tuple[np.ndarray, ...]:
+        """uint8 views of the next frame's layers in the chunk buffer: ``masses (32, rows,
+        cols), betp (5, …), conflict (3, …), zeta, decision``. Fill them (the fused step
+        quantises straight into them), then call :meth:`commit_frame`."""
         c = self._chunk
         k = c.count
-        if tuple(decision.shape) != c.shape:
-            raise ValueError(f"frame of shape {decision.shape}, the run's window is {c.shape}")
+        return c.masses[k], c.betp[k], c.conflict[k], c.zeta[k], c.decision[k]
+
+    def commit_frame(self, stamp_ns: int, pose: np.ndarray, origin: tuple[int, int],
+                     decision_counts: np.ndarray | None = None) -> bool:
+        """The frame whose layers fill :meth:`frame_slot` is complete; a full chunk is handed
+        to the writer thread (then returns True)."""
+        c = self._chunk
+        k = c.count
         c.stamp_ns[k] = int(stamp_ns)
         c.pose[k] = pose
         c.origin[k] = origin
-        quantise_planar(masses, out=c.masses[k])
-        quantise_planar(betp, out=c.betp[k])
-        c.decision[k] = decision
-        c.zeta[k] = quantise(zeta)
-        quantise_planar(conflict, out=c.conflict[k])
         c.count = k + 1
         entry = {"stamp_ns": int(stamp_ns), "pose": [float(v) for v in pose],
                  "origin": [int(origin[0]), int(origin[1])]}
@@ -241,6 +219,22 @@ class RunWriter:
             self._flush()
             return True
         return False
+
+    def add(self, stamp_ns: int, pose: np.ndarray, origin: tuple[int, int], masses: np.ndarray,
+            betp: np.ndarray, decision: np.ndarray, zeta: np.ndarray, conflict: np.ndarray,
+            decision_counts: np.ndarray | None = None) -> bool:
+        """Queue one frame of float layers, interleaved ``(rows, cols, k)`` (quantised at once:
+        the caller may reuse its arrays); see :meth:`commit_frame`."""
+        if tuple(decision.shape) != self._chunk.shape:
+            raise ValueError(f"frame of shape {decision.shape}, the run's window is "
+                             f"{self._chunk.shape}")
+        q_masses, q_betp, q_conflict, q_zeta, q_decision = self.frame_slot()
+        quantise_planar(masses, out=q_masses)
+        quantise_planar(betp, out=q_betp)
+        q_decision[...] = decision
+        q_zeta[...] = quantise(zeta)
+        quantise_planar(conflict, out=q_conflict)
+        return self.commit_frame(stamp_ns, pose, origin, decision_counts)
 
     def _wait(self) -> None:
         if self._pending is not None:

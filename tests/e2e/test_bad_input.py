@@ -176,12 +176,12 @@ def test_output_not_writable(drive: Path, tmp_path: Path) -> None:
 def test_disk_full_while_writing(drive: Path, tmp_path: Path, monkeypatch) -> None:
     import errno
 
-    import evperc.io.writer as writer_mod
+    import evperc.io.npz as npz_mod
 
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(writer_mod.np.lib.format, "write_array", full)
+    monkeypatch.setattr(npz_mod, "_write_npy", full)
     out = tmp_path / "o"
     code, text = run_cli(str(drive), "--no-map", "--out", str(out))
     assert_one_line_error(code, text, "No space left on device")

@@ -1,20 +1,46 @@
 """The fused numba step (evperc.fused) against numpy fusion_step + decide (float64) and against
-the per-cell plain-Python reference of SPEC §5 (tests/pipeline/reference.py)."""
+the per-cell plain-Python reference of SPEC §5 (tests/pipeline/reference.py); its circular
+buffer against geo.window.scroll; its stored outputs against evperc.io.quantise."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from evperc import fused_codegen
 from evperc.dst import total_conflict_tolerance
-from evperc.fused import NO_MAP, FusedOutputs, fused_step, reachable_focal_sets
+from evperc.fused import (
+    NO_MAP,
+    FusedOutputs,
+    StoredOutputs,
+    reachable_focal_sets,
+    vacuous_flags,
+    window_order,
+)
+from evperc.fused import fused_step as planar_step
 from evperc.geo.prior import prior_masses
+from evperc.geo.window import Window, scroll
+from evperc.io.quantise import quantise
 from evperc.pipeline import FusionParams, decide, fusion_step, scaled_rate, sensor_masses
 
 from . import reference as ref
 
 EPS = 1e-5
 SHAPE = (18, 23)
+
+
+def fused_step(pg: np.ndarray, zeta: np.ndarray, free, occ, labels, betas, dt, params,
+               observed=None, skip_vacuous: bool = True) -> FusedOutputs:
+    """The fused step on an interleaved ``(rows, cols, 32)`` state (updated in place) with
+    interleaved outputs, the layout of numpy's fusion_step; ``skip_vacuous=False`` passes
+    all-zero flags, so that no block is skipped."""
+    planar = np.ascontiguousarray(np.moveaxis(pg, -1, 0))
+    flags = vacuous_flags(planar, zeta) if skip_vacuous else np.zeros(zeta.shape, np.uint8)
+    got = planar_step(planar, zeta, free, occ, labels, betas, dt, params, observed=observed,
+                      flags=flags)
+    pg[...] = np.moveaxis(planar, 0, -1)
+    return FusedOutputs(np.moveaxis(got.conflict, 0, -1), np.moveaxis(got.betp, 0, -1),
+                        got.decision)
 
 
 def random_params(rng: np.random.Generator) -> FusionParams:
@@ -170,7 +196,6 @@ def test_consecutive_steps_match_numpy(seed: int) -> None:
     labels = rng.choice(np.array([0, 1, 2, NO_MAP], np.uint8), size=SHAPE)
     betas = tuple(float(b) for b in rng.choice([0.0, 0.9, 1.0, rng.uniform(0, 1)], 3))
     prior = numpy_prior(labels, betas, SHAPE)
-    out = FusedOutputs.empty(SHAPE)
     flips = tie_differences = 0
     for step in range(5):
         free, occ = random_scan(rng, SHAPE)
@@ -179,8 +204,8 @@ def test_consecutive_steps_match_numpy(seed: int) -> None:
         dt = float(rng.choice([0.0, 0.1, rng.uniform(0.01, 0.3)]))
         want = numpy_step(pg, zeta, free, occ, prior, observed, dt, params)
         near_zeta = near_zeta_threshold(pg, zeta, free, occ, prior, observed, dt, params)
-        fused_step(pg, zeta, free, occ, labels, betas, dt, params,
-                   observed=observed if explicit else None, out=out)
+        out = fused_step(pg, zeta, free, occ, labels, betas, dt, params,
+                         observed=observed if explicit else None)
         flipped, differ = compare((pg, zeta), out, want, near_zeta, params)
         flips, tie_differences = flips + flipped, tie_differences + differ
         assert_masses_valid(pg, params, want[0], cell_tolerance(want[2], params))
@@ -204,7 +229,6 @@ def test_structured_scene_matches_numpy(discount: str) -> None:
     pg = np.zeros((*shape, 32), np.float32)
     pg[..., 31] = 1
     zeta = np.zeros(shape, np.float32)
-    out = FusedOutputs.empty(shape)
     flips = differences = 0
     for step in range(14):
         free = np.zeros(shape, np.float32)
@@ -217,7 +241,7 @@ def test_structured_scene_matches_numpy(discount: str) -> None:
         want = numpy_step(pg, zeta, free, occ, prior, (free > 0) | (occ > 0), 0.1, params)
         near = near_zeta_threshold(pg, zeta, free, occ, prior, (free > 0) | (occ > 0), 0.1,
                                    params)
-        fused_step(pg, zeta, free, occ, labels, betas, 0.1, params, out=out)
+        out = fused_step(pg, zeta, free, occ, labels, betas, 0.1, params)
         f, d = compare((pg, zeta), out, want, near, params)
         flips, differences = flips + f, differences + d
         assert_masses_valid(pg, params, want[0], cell_tolerance(want[2], params))
@@ -283,7 +307,7 @@ def test_skip_path_equals_full_path(seed: int) -> None:
         outs = [fused_step(p, z, free, occ, labels, (0.9, 0.9, 0.8), 0.1, params,
                            skip_vacuous=skip)
                 for (p, z), skip in zip(states, (True, False), strict=True)]
-        for a, b in zip(outs[0].__dict__.values(), outs[1].__dict__.values(), strict=True):
+        for a, b in zip(outs[0].arrays(), outs[1].arrays(), strict=True):
             np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(states[0][0], states[1][0])
         np.testing.assert_array_equal(states[0][1], states[1][1])
@@ -394,7 +418,98 @@ def test_rejects_bad_inputs() -> None:
     with pytest.raises(ValueError, match="context label 7"):
         fused_step(pg, zeta, z, z, np.full((2, 2), 7, np.uint8), (0.9, 0.9, 0.8), 0.1,
                    FusionParams())
+    planar = np.ascontiguousarray(np.moveaxis(pg, -1, 0))
     with pytest.raises(ValueError, match="pg must be"):
-        fused_step(pg.astype(np.float64), zeta, z, z, None, (0.9, 0.9, 0.8), 0.1, FusionParams())
+        planar_step(planar.astype(np.float64), zeta, z, z, None, (0.9, 0.9, 0.8), 0.1,
+                    FusionParams())
+    with pytest.raises(ValueError, match="pg must be"):
+        planar_step(pg, zeta, z, z, None, (0.9, 0.9, 0.8), 0.1, FusionParams())
     with pytest.raises(ValueError, match="free has shape"):
-        fused_step(pg, zeta, np.zeros((3, 2)), z, None, (0.9, 0.9, 0.8), 0.1, FusionParams())
+        planar_step(planar, zeta, np.zeros((3, 2)), z, None, (0.9, 0.9, 0.8), 0.1,
+                    FusionParams())
+    with pytest.raises(ValueError, match="offset"):
+        planar_step(planar, zeta, z, z, None, (0.9, 0.9, 0.8), 0.1, FusionParams(),
+                    offset=(2, 0))
+    with pytest.raises(ValueError, match="out arrays"):
+        planar_step(planar, zeta, z, z, None, (0.9, 0.9, 0.8), 0.1, FusionParams(),
+                    out=StoredOutputs.empty((3, 2)))
+
+
+def planar_random_state(rng: np.random.Generator, shape: tuple[int, int]
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    pg, zeta = random_state(rng, shape, with_empty=False)
+    pg[: shape[0] // 3] = 0  # a vacuous band, so that whole blocks may be skipped
+    pg[: shape[0] // 3, :, 31] = 1
+    zeta[: shape[0] // 3] = 0
+    return np.ascontiguousarray(np.moveaxis(pg, -1, 0)), zeta
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_circular_buffer_equals_scroll_then_step(seed: int) -> None:
+    """The step on a circular buffer (offset, shift) equals scrolling the window-order
+    state with geo.window.scroll and stepping it unshifted: bit for bit, outputs and state,
+    over several frames, with moves smaller and larger than the window and blocks (64
+    cells) cut by the wrap."""
+    rng = np.random.default_rng(300 + seed)
+    shape = (70, 150)
+    params = FusionParams()
+    pg, zeta = planar_random_state(rng, shape)
+    labels = rng.choice(np.array([0, 1, 2, NO_MAP], np.uint8), size=shape)
+    window = Window(0.5, *shape, 0, 0)
+    offset = (int(rng.integers(shape[0])), int(rng.integers(shape[1])))
+    buffer = np.ascontiguousarray(np.roll(pg, offset, axis=(1, 2)))
+    zbuffer = np.ascontiguousarray(np.roll(zeta, offset, axis=(0, 1)))
+    flags = vacuous_flags(buffer, zbuffer)
+    vacuous_vector = np.zeros(32, np.float32)
+    vacuous_vector[31] = 1
+    for frame in range(6):
+        dr, dc = (int(v) for v in rng.integers(-9, 10, 2))
+        if frame == 3:
+            dr, dc = 0, shape[1] + 5  # no cell in common
+        new = Window(0.5, *shape, window.row0 + dr, window.col0 + dc)
+        free, occ = random_scan(rng, shape)
+        free[rng.random(shape) < 0.5] = 0  # untouched blocks next to touched ones
+        occ[free > 0] = 0
+        # plain: scroll, then the unshifted step on window-order arrays
+        moved = scroll(np.moveaxis(pg, 0, -1), window, new, vacuous_vector)
+        pg = np.ascontiguousarray(np.moveaxis(moved, -1, 0))
+        zeta = np.ascontiguousarray(scroll(zeta, window, new, 0.0))
+        want = planar_step(pg, zeta, free, occ, labels, (0.9, 0.9, 0.8), 0.1, params)
+        # circular
+        offset = ((offset[0] + dr) % shape[0], (offset[1] + dc) % shape[1])
+        got = planar_step(buffer, zbuffer, free, occ, labels, (0.9, 0.9, 0.8), 0.1, params,
+                          flags=flags, offset=offset, shift=(dr, dc))
+        window = new
+        for a, b in zip(got.arrays(), want.arrays(), strict=True):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(window_order(buffer, offset), pg)
+        np.testing.assert_array_equal(window_order(zbuffer, offset), zeta)
+        np.testing.assert_array_equal(flags, vacuous_flags(buffer, zbuffer))
+    assert flags.any() and not flags.all()
+
+
+def test_stored_outputs_are_the_quantised_float_outputs() -> None:
+    """StoredOutputs hold round(255·x) of the state and of the float outputs (as
+    evperc.io.quantise computes them) and the same decisions."""
+    rng = np.random.default_rng(9)
+    shape = (40, 130)
+    pg, zeta = planar_random_state(rng, shape)
+    labels = rng.choice(np.array([0, 1, 2, NO_MAP], np.uint8), size=shape)
+    free, occ = random_scan(rng, shape)
+    params = FusionParams()
+    pg2, zeta2 = pg.copy(), zeta.copy()
+    floats = planar_step(pg, zeta, free, occ, labels, (0.9, 0.9, 0.8), 0.1, params)
+    stored = planar_step(pg2, zeta2, free, occ, labels, (0.9, 0.9, 0.8), 0.1, params,
+                         out=StoredOutputs.empty(shape))
+    np.testing.assert_array_equal(pg, pg2)
+    np.testing.assert_array_equal(stored.masses, quantise(pg))
+    np.testing.assert_array_equal(stored.zeta, quantise(zeta))
+    np.testing.assert_array_equal(stored.betp, quantise(floats.betp))
+    np.testing.assert_array_equal(stored.conflict, quantise(floats.conflict))
+    np.testing.assert_array_equal(stored.decision, floats.decision)
+
+
+def test_generated_kernel_is_up_to_date() -> None:
+    """evperc/fused_kernel.py is what evperc/fused_codegen.py writes (regenerate with
+    ``python -m evperc.fused_codegen``)."""
+    assert fused_codegen.TARGET.read_text() == fused_codegen.source()
