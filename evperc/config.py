@@ -65,6 +65,7 @@ RULES: dict[str, tuple] = {
     "input.origin_heading_deg": ("range", -360.0, 360.0, False, False),
     "output.chunk_frames": ("range", 1, 100_000, False, False),
     "output.chunk_max_mb": ("range", 1.0, 1e5, False, False),
+    "output.checkpoint_frames": ("range", 1, 10_000_000, False, False),
     "sim.moving_cars": ("range", 0, 1000, False, False),
     "sim.pedestrians": ("range", 0, 1000, False, False),
     "sim.parked_car_spacing_m": ("range", 1.0, 1e6, False, False),

@@ -62,7 +62,7 @@ _2 = np.float32(2.0)
 #: cells per block: the body runs over a block held in one local buffer ``buf`` of planes of
 #: BLOCK float32 (inputs, then outputs), so every access is ``buf[constant + l]`` and LLVM
 #: proves without run-time checks that the planes do not overlap
-BLOCK = 64
+BLOCK = 256
 IN_ZETA, IN_FREE, IN_OCC, IN_LABEL, IN_OBSERVED = 32, 33, 34, 35, 36
 OUT_MASS = 37
 OUT_ZETA = OUT_MASS + 32

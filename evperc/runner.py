@@ -4,7 +4,6 @@ decision → write. The maths lives in :mod:`evperc.pipeline` and the modules it
 
 from __future__ import annotations
 
-import io
 import logging
 import math
 import time
@@ -17,18 +16,19 @@ import numpy as np
 from tqdm import tqdm
 
 from evperc.errors import GeoreferenceError, OutputError
-from evperc.fused import StoredOutputs, fused_step, vacuous_flags, window_order
+from evperc.fused import StoredOutputs, fused_step, vacuous_flags
 from evperc.geo import georef as georef_mod
 from evperc.geo.crs import working_crs
 from evperc.geo.prior import PriorRasteriser
 from evperc.geo.window import Window
 from evperc.io.log import PosedScan, open_log
 from evperc.io.maps import MapData, check_overlap, load_map
+from evperc.io.npz import write_npz
 from evperc.io.prefetch import prefetched
 from evperc.io.quantise import dequantise
 from evperc.io.run_reader import read_manifest
 from evperc.io.transforms import extrinsic_matrix
-from evperc.io.writer import RunWriter, atomic_write_bytes
+from evperc.io.writer import RunWriter
 from evperc.pipeline import CLASSES, DECISION_CODES, OMEGA, FusionParams
 from evperc.sensor import SensorParams, sensor_grid
 
@@ -147,25 +147,29 @@ class FusionState:
         return FusionState(window, pg, np.zeros(window.shape, np.float32),
                            np.ones(window.shape, np.uint8))
 
-    def snapshot(self) -> FusionState:
-        """A copy in window order (offset 0) that later frames do not change (saved by the
-        writer thread)."""
-        return FusionState(self.window, window_order(self.pg, self.offset),
-                           window_order(self.zeta, self.offset),
-                           window_order(self.flags, self.offset), (0, 0), self.prev_ns,
-                           self.scan_index, self.frames, self.decision_counts.copy())
+    def snapshot(self, into: FusionState | None = None) -> FusionState:
+        """A copy that later frames do not change (saved by the writer thread); reuses the
+        buffers of ``into`` (an earlier snapshot already saved) when they fit."""
+        if into is None or into.pg is None or into.pg.shape != self.pg.shape:
+            into = FusionState(pg=np.empty_like(self.pg), zeta=np.empty_like(self.zeta))
+        np.copyto(into.pg, self.pg)
+        np.copyto(into.zeta, self.zeta)
+        into.window, into.offset, into.prev_ns = self.window, self.offset, self.prev_ns
+        into.scan_index, into.frames = self.scan_index, self.frames
+        into.decision_counts = self.decision_counts.copy()
+        return into
 
     def save(self, path: Path) -> None:
+        """The circular buffers as they are, with their offset (stored, not deflated: the
+        writer thread's time matters more than the checkpoint's size)."""
         w = self.window
-        arrays = {"pg": window_order(self.pg, self.offset),
-                  "zeta": window_order(self.zeta, self.offset),
+        arrays = {"pg": self.pg, "zeta": self.zeta,
+                  "offset": np.array(self.offset, dtype=np.int64),
                   "window": np.array([w.rows, w.cols, w.row0, w.col0], dtype=np.int64),
                   "resolution_m": np.float64(w.resolution_m),
                   "prev_ns": np.int64(self.prev_ns), "scan_index": np.int64(self.scan_index),
                   "frames": np.int64(self.frames), "decision_counts": self.decision_counts}
-        buffer = io.BytesIO()
-        np.savez(buffer, **arrays)
-        atomic_write_bytes(path, buffer.getvalue())
+        write_npz(path, arrays, compress=False)
 
     @staticmethod
     def load(path: Path) -> FusionState:
@@ -175,9 +179,12 @@ class FusionState:
                 pg, zeta = npz["pg"], npz["zeta"]
                 if pg.shape != (32, rows, cols):
                     raise ValueError(f"state of shape {pg.shape}, expected (32, {rows}, {cols})")
+                offset = tuple(int(v) for v in npz["offset"])
+                if not (0 <= offset[0] < rows and 0 <= offset[1] < cols):
+                    raise ValueError(f"offset {offset} outside the {rows} x {cols} window")
                 return FusionState(
                     window=Window(float(npz["resolution_m"]), rows, cols, row0, col0),
-                    pg=pg, zeta=zeta, flags=vacuous_flags(pg, zeta),
+                    pg=pg, zeta=zeta, flags=vacuous_flags(pg, zeta), offset=offset,
                     prev_ns=int(npz["prev_ns"]),
                     scan_index=int(npz["scan_index"]), frames=int(npz["frames"]),
                     decision_counts=npz["decision_counts"])
@@ -313,8 +320,17 @@ def run(request: RunRequest, resume: bool = False,
         writer = RunWriter(out_dir, request.config, pipeline.meta(), overwrite=request.overwrite)
     # chunk written -> checkpoint of the state -> manifest: a crash anywhere leaves a
     # checkpoint that matches the manifest; older checkpoints go once a newer one is committed
-    def on_chunk(frames: int) -> Callable[[], None]:
-        snapshot, path = state.snapshot(), checkpoint_path(out_dir, frames)
+    # checkpoints are 20 MB on a 200 m window: one every output.checkpoint_frames frames
+    spare: list[FusionState | None] = [None]  # the last snapshot, saved before the next one
+    last_checkpoint = [state.frames]
+    every = int(request.config["output"].get("checkpoint_frames", 1))  # 1: runs before it
+
+    def on_chunk(frames: int) -> Callable[[], None] | None:
+        if frames - last_checkpoint[0] < every:
+            return None
+        last_checkpoint[0] = frames
+        snapshot, path = state.snapshot(into=spare[0]), checkpoint_path(out_dir, frames)
+        spare[0] = snapshot
 
         def commit() -> None:
             snapshot.save(path)

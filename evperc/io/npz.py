@@ -58,6 +58,7 @@ from __future__ import annotations
 import logging
 import os
 import zipfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -117,10 +118,24 @@ def _write_npy(fp: object, array: np.ndarray) -> None:
     array = np.asarray(array)
     if array.dtype.hasobject:
         raise ValueError("object arrays cannot be written without pickling")
-    if not (array.flags.c_contiguous or array.flags.f_contiguous):
-        array = np.ascontiguousarray(array)
     header = np.lib.format.header_data_from_array_1_0(array)
     np.lib.format.write_array_header_1_0(fp, header)
-    data = (array.T if header["fortran_order"] else array).reshape(-1).view(np.uint8)
-    for start in range(0, data.size, _PIECE):
-        fp.write(data[start:start + _PIECE])
+    if header["fortran_order"]:
+        array = array.T
+    for part in _contiguous_parts(array):
+        data = part.reshape(-1).view(np.uint8)
+        for start in range(0, data.size, _PIECE):
+            fp.write(data[start:start + _PIECE])
+
+
+def _contiguous_parts(array: np.ndarray) -> Iterator[np.ndarray]:
+    """C-contiguous sub-arrays whose bytes, in order, are ``array``'s in C order: the array
+    itself, else its slices along the first axis (recursively; e.g. a chunk's used mass
+    planes, ``masses[:, lo:hi]``, without a copy of the whole), else copied pieces."""
+    if array.flags.c_contiguous:
+        yield array
+    elif array.ndim > 1 and array[0].nbytes >= _PIECE // 16:
+        for sub in array:
+            yield from _contiguous_parts(sub)
+    else:
+        yield np.ascontiguousarray(array)

@@ -159,13 +159,16 @@ class RunWriter:
         self._queued = self.manifest["frame_count"]   # frames handed to the writer thread
         self._chunks_queued = len(self.manifest["chunks"])
         self._lock = threading.Lock()
+        self._written: list[dict[str, Any]] = list(self.manifest["chunks"])  # on disk
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="evperc-writer")
         self._pending: Future | None = None
         #: seconds the writer thread spent stacking, compressing and writing chunks
         self.thread_seconds = 0.0
         #: called with the frame count when a chunk is queued; returns the commit to run
-        #: (in the writer thread) after the chunk file is written and before the manifest
-        self.on_chunk: Callable[[int], Callable[[], None]] | None = None
+        #: (in the writer thread) after the chunk file is written and before the manifest,
+        #: or None: then the chunk is written but the manifest lists it only at the next
+        #: commit (a resume redoes it) or at close()
+        self.on_chunk: Callable[[int], Callable[[], None] | None] | None = None
 
     @classmethod
     def resume(cls, out_dir: str | Path) -> RunWriter:
@@ -264,12 +267,15 @@ class RunWriter:
         path = self.out_dir / FRAMES_DIR / name
         try:
             write_npz(path, arrays, self.compress)
+            with self._lock:
+                self._written.append({"file": f"{FRAMES_DIR}/{name}", "first_frame": first,
+                                      "frame_count": c.count})
+            if commit is None and self.on_chunk is not None:
+                return
             if commit is not None:
                 commit()
             with self._lock:
-                self.manifest["chunks"].append({"file": f"{FRAMES_DIR}/{name}",
-                                                "first_frame": first,
-                                                "frame_count": c.count})
+                self.manifest["chunks"] = list(self._written)
                 self.manifest["frame_count"] = first + c.count
                 self.manifest["frames"] = frames
                 write_json(self.out_dir / MANIFEST, self.manifest)
@@ -288,6 +294,9 @@ class RunWriter:
         """Write the last chunk, then the manifest with ``complete: true``."""
         try:
             self.finish()
+            self.manifest["chunks"] = list(self._written)
+            self.manifest["frame_count"] = len(self._frames)
+            self.manifest["frames"] = self._frames
             self.manifest["summary"] = summary
             self.manifest["complete"] = True
             write_json(self.out_dir / MANIFEST, self.manifest)

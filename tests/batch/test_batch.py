@@ -20,7 +20,7 @@ from evperc.runner import RunRequest, run
 from tests.batch.logs import write_street_log
 
 N_SCANS = 6
-CONFIG_TOML = "[grid]\nwindow_size_m = 20.0\n[output]\nchunk_frames = 2\n"
+CONFIG_TOML = "[grid]\nwindow_size_m = 20.0\n[output]\nchunk_frames = 2\ncheckpoint_frames = 1\n"
 
 
 @pytest.fixture(scope="module")

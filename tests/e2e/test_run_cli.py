@@ -22,7 +22,7 @@ from evperc.runner import RunRequest, run
 
 from .scenes import write_street_drive
 
-SMALL = "[grid]\nwindow_size_m = 40.0\n[output]\nchunk_frames = 10\n"
+SMALL = "[grid]\nwindow_size_m = 40.0\n[output]\nchunk_frames = 10\ncheckpoint_frames = 20\n"
 
 
 @pytest.fixture(scope="module")
@@ -102,25 +102,36 @@ def _all_frames(out: Path) -> list:
     return list(evperc.load(out).frames)
 
 
-def test_interrupted_run_resumes_identically(drive: Path, tmp_path: Path) -> None:
-    config = load_config(overrides={"grid.window_size_m": 40.0, "output.chunk_frames": 10})
+@pytest.mark.parametrize(("checkpoint_frames", "stop_at", "committed", "on_disk"),
+                         [(1, 25, 20, 2), (15, 38, 20, 3)])
+def test_interrupted_run_resumes_identically(drive: Path, tmp_path: Path, checkpoint_frames: int,
+                                             stop_at: int, committed: int, on_disk: int) -> None:
+    """Chunks of 10 frames; a checkpoint at the first chunk end >= checkpoint_frames frames
+    after the last: with 15, at frame 20 but not 30; the chunk of frames 20-29 is on disk,
+    not in the manifest, and is redone by the resume."""
+    config = load_config(overrides={"grid.window_size_m": 40.0, "output.chunk_frames": 10,
+                                    "output.checkpoint_frames": checkpoint_frames})
     full = tmp_path / "full"
     run(RunRequest(log_path=drive, out_dir=full, config=config, map_path=None))
 
     part = tmp_path / "part"
     seen = []
 
-    def stop_after_25(frame: dict) -> None:
+    def stop(frame: dict) -> None:
         seen.append(frame["stamp_ns"])
-        if len(seen) == 25:
+        if len(seen) == stop_at:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
         run(RunRequest(log_path=drive, out_dir=part, config=config, map_path=None),
-            on_frame=stop_after_25)
+            on_frame=stop)
     manifest = json.loads((part / "manifest.json").read_text())
     assert manifest["complete"] is False
-    assert manifest["frame_count"] == 20
+    assert manifest["frame_count"] == committed
+    assert len(manifest["frames"]) == committed
+    assert len(list((part / "frames").glob("chunk_*.npz"))) == on_disk
+    names = sorted(p.name for p in part.glob("checkpoint_*.npz"))
+    assert names[-1] == f"checkpoint_{committed:09d}.npz", names  # (and the one before)
     result = invoke("run", "--resume", str(part))
     assert result.exit_code == 0, result.output
     a, b = _all_frames(full), _all_frames(part)

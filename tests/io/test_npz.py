@@ -197,3 +197,28 @@ def _npy_header_length(npy: bytes) -> int:
     """Bytes of a version-1.0 ``.npy`` header (magic, version, length, dict)."""
     assert npy[:8] == b"\x93NUMPY\x01\x00"
     return 10 + struct.unpack("<H", npy[8:10])[0]
+
+
+@pytest.mark.parametrize("compress", [True, False])
+def test_views_are_written_without_a_whole_copy_and_read_back_equal(
+        tmp_path: Path, compress: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A chunk's used mass planes ``masses[:, lo:hi]`` (not contiguous) are written slice by
+    slice: the bytes are np.save's, and no copy of the whole view is made."""
+    masses = planes(3, 32, 600, seed=4)  # (3, 32, 600, 600) uint8, ~35 MB
+    view = masses[:, 1:31]
+    copied: list[int] = []
+    real = np.ascontiguousarray
+
+    def spy(a, *args, **kwargs):
+        copied.append(np.asarray(a).nbytes)
+        return real(a, *args, **kwargs)
+
+    monkeypatch.setattr(npz.np, "ascontiguousarray", spy)
+    write_npz(tmp_path / "v.npz", {"masses": view}, compress)
+    assert max(copied, default=0) < view.nbytes // 30
+    with np.load(tmp_path / "v.npz") as got:
+        np.testing.assert_array_equal(got["masses"], view)
+    buffer = io.BytesIO()
+    np.save(buffer, view)
+    with zipfile.ZipFile(tmp_path / "v.npz") as archive:
+        assert archive.read("masses.npy") == buffer.getvalue()
