@@ -11,6 +11,14 @@ equals the bin width does not alias into alternately empty bins as the vehicle t
 Polar grid: ``n_az = round(360° / azimuth_resolution_deg)`` azimuth bins of width
 ``Δ = 2π / n_az``, bin ``a`` centred on azimuth ``a·Δ`` (bin 0 straight ahead); range bins
 of depth ``c`` (the cell size), bin ``k`` covering horizontal range ``[k·c, (k+1)·c)``.
+
+Arithmetic is float32: levelling ``R·p``, range ``√(x² + y²)``, azimuth bin
+``rint((θ − ψ)·(1/Δ)) mod n_az`` and range bin ``⌊r·(1/c)⌋``. The azimuths ``θ`` themselves
+come from numpy's float32 ``arctan2`` between the two compiled per-point passes
+(:func:`level_points`, :func:`polar_bins`), as do those of the cell centres in
+:mod:`.projection`: numpy's vectorised arctan2 is ~20× faster than the scalar libm
+``atan2f`` a numba loop would call, and the two differ in the last bit for many inputs,
+which would move points lying on a bin edge.
 """
 
 from __future__ import annotations
@@ -18,7 +26,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
+
+#: bin index of a point that is dropped (non-finite, or range outside [min, max))
+DROPPED = -1
+#: bound on the number of azimuth bins that keeps float32 azimuths, rounded to a bin, within
+#: one turn of [0, n_az) (:func:`wrap_bin`)
+MAX_AZIMUTH_BINS = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -37,18 +52,21 @@ class PolarLayout:
     def build(azimuth_resolution_deg: float, range_bin_m: float, min_range_m: float,
               max_range_m: float) -> PolarLayout:
         n_az = max(1, int(round(360.0 / azimuth_resolution_deg)))
+        if n_az >= MAX_AZIMUTH_BINS:
+            raise ValueError(f"azimuth_resolution_deg {azimuth_resolution_deg} is too fine")
         n_range = int(max_range_m // range_bin_m) + 2
         return PolarLayout(n_az, 2.0 * math.pi / n_az, n_range, float(range_bin_m),
                            float(min_range_m), float(max_range_m))
 
-    def azimuth_bin(self, azimuth_rad: np.ndarray) -> np.ndarray:
-        """Bin index ``round(θ / Δ) mod n_az`` of azimuths relative to the heading (int32)."""
-        scaled = np.rint(azimuth_rad * np.float32(1.0 / self.az_step_rad))
-        return scaled.astype(np.int32) % np.int32(self.n_az)
+    @property
+    def inv_az_step32(self) -> np.float32:
+        """1/Δ in float32, the factor of the azimuth binning."""
+        return np.float32(1.0 / self.az_step_rad)
 
-    def range_bin(self, range_m: np.ndarray) -> np.ndarray:
-        """Bin index ``⌊r / c⌋`` of non-negative horizontal ranges (int32)."""
-        return (range_m * np.float32(1.0 / self.range_bin_m)).astype(np.int32)
+    @property
+    def inv_range_bin32(self) -> np.float32:
+        """1/c in float32, the factor of the range binning."""
+        return np.float32(1.0 / self.range_bin_m)
 
 
 def sensor_heading(t_crs_sensor: np.ndarray) -> float:
@@ -65,28 +83,57 @@ def as_pose(t_crs_sensor: np.ndarray) -> np.ndarray:
     return t
 
 
-def level_points(points: np.ndarray, t_crs_sensor: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """CRS-aligned offsets ``(x, y, z) = R·p`` (float32, 1-D) of the finite ``points`` (N, 3),
-    sensor at the origin; NaN/inf rows are dropped."""
-    pts = np.asarray(points, dtype=np.float32)
+def as_points(points: np.ndarray) -> np.ndarray:
+    """The points as a C-ordered float32 (N, 3) array; ValueError for any other shape."""
+    pts = np.ascontiguousarray(points, dtype=np.float32)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
-    t = as_pose(t_crs_sensor)
-    if not np.isfinite(pts.sum()):
-        pts = pts[np.isfinite(pts).all(axis=1)]
-    r = t[:3, :3].astype(np.float32)
-    px, py, pz = pts[:, 0], pts[:, 1], pts[:, 2]
-    # written out rather than pts @ r.T: a (N, 3) matmul goes through threaded BLAS, which
-    # stalls when the cores are shared
-    return (r[0, 0] * px + r[0, 1] * py + r[0, 2] * pz,
-            r[1, 0] * px + r[1, 1] * py + r[1, 2] * pz,
-            r[2, 0] * px + r[2, 1] * py + r[2, 2] * pz)
+    return pts
 
 
-def polar_coordinates(x: np.ndarray, y: np.ndarray, heading_rad: float
-                      ) -> tuple[np.ndarray, np.ndarray]:
-    """Horizontal range ``√(x² + y²)`` and azimuth ``atan2(y, x) − ψ`` (not wrapped), float32."""
-    range_m = np.sqrt(x * x + y * y)
-    azimuth = np.arctan2(y, x) - np.float32(heading_rad)
-    return range_m, azimuth
+@numba.njit(cache=True, nogil=True)
+def level_points(xyz: np.ndarray, rotation: np.ndarray, x: np.ndarray, y: np.ndarray,
+                 z: np.ndarray, range_m: np.ndarray) -> None:
+    """Write the CRS-aligned offsets ``(x, y, z) = R·p`` and the horizontal range
+    ``√(x² + y²)`` (float32) of every point ``p`` into ``x``, ``y``, ``z``, ``range_m`` (N,);
+    ``xyz`` holds the points as ``x0, y0, z0, x1, …`` (a C-ordered (N, 3) array, flattened),
+    ``rotation`` is R as float32 (3, 3). A point with a non-finite coordinate gets
+    non-finite x, y, z and range (each offset sums all three ``R_ij·p_j``, and 0·inf is
+    NaN), so :func:`polar_bins` drops it by its range."""
+    r00, r01, r02 = rotation[0, 0], rotation[0, 1], rotation[0, 2]
+    r10, r11, r12 = rotation[1, 0], rotation[1, 1], rotation[1, 2]
+    r20, r21, r22 = rotation[2, 0], rotation[2, 1], rotation[2, 2]
+    for i in range(x.shape[0]):
+        px, py, pz = xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]
+        xi = r00 * px + r01 * py + r02 * pz
+        yi = r10 * px + r11 * py + r12 * pz
+        x[i] = xi
+        y[i] = yi
+        z[i] = r20 * px + r21 * py + r22 * pz
+        range_m[i] = np.sqrt(xi * xi + yi * yi)
+
+
+@numba.njit(cache=True, nogil=True)
+def polar_bins(range_m: np.ndarray, azimuth: np.ndarray, heading: np.float32,
+               inv_az_step: np.float32, n_az: int, min_range: np.float32,
+               max_range: np.float32, inv_range_bin: np.float32, az_bin: np.ndarray,
+               range_bin: np.ndarray) -> None:
+    """Per point: azimuth bin ``rint((θ − ψ)/Δ) mod n_az`` into ``az_bin`` (θ = ``azimuth``
+    = atan2(y, x)) and range bin ``⌊r/c⌋`` into ``range_bin`` (float32 arithmetic);
+    ``az_bin`` is :data:`DROPPED` where ``r`` is not in ``[min_range, max_range)``, which
+    includes NaN / inf ranges."""
+    for i in range(range_m.shape[0]):
+        r = range_m[i]
+        kept = (r >= min_range) & (r < max_range)
+        a = wrap_bin(np.int32(np.rint((azimuth[i] - heading) * inv_az_step)), n_az)
+        az_bin[i] = a if kept else DROPPED
+        range_bin[i] = np.int32(r * inv_range_bin) if kept else 0
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def wrap_bin(v: int, n: int) -> int:
+    """``v mod n`` for ``v`` in ``[−n, 2n)``, without a division or a branch. Azimuth bins
+    ``rint((θ − ψ)/Δ)`` with θ, ψ in [−π, π] (float32) lie in ``[−n, n]`` for
+    ``n <`` :data:`MAX_AZIMUTH_BINS`."""
+    v = v + n if v < 0 else v
+    return v - n if v >= n else v

@@ -10,44 +10,38 @@ the range bin of its furthest ground point:
 - no return: every bin unknown (never free).
 
 A beam is summarised by two integers: ``obstacle_bin[a]`` (``n_range`` when none) and
-``free_end[a]``: bins ``k < free_end[a]`` are free.
+``free_end[a]``: bins ``k < free_end[a]`` are free. The state of the polar cell ``(a, k)``
+is FREE if ``k < free_end[a]``, OCCUPIED if ``k = obstacle_bin[a]``, UNKNOWN otherwise
+(:mod:`.projection` reads it so).
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
+
+from evperc.sensor.ground import GROUND, OBSTACLE
 
 UNKNOWN = np.uint8(0)
 FREE = np.uint8(1)
 OCCUPIED = np.uint8(2)
 
 
-def nearest_obstacle_bin(az_bin: np.ndarray, range_bin: np.ndarray, n_az: int,
-                         n_range: int) -> np.ndarray:
-    """``k_o`` per azimuth bin: the smallest range bin of the obstacle points, ``n_range``
-    where the bin has none (int32, shape (n_az,))."""
-    nearest = np.full(n_az, n_range, dtype=np.int32)
-    np.minimum.at(nearest, az_bin, range_bin)
-    return nearest
-
-
-def furthest_ground_bin(az_bin: np.ndarray, range_bin: np.ndarray, n_az: int) -> np.ndarray:
-    """``k_g`` per azimuth bin: the largest range bin of the ground points, −1 where none."""
+@numba.njit(cache=True, nogil=True)
+def beam_extents(az_bin: np.ndarray, range_bin: np.ndarray, kind: np.ndarray, n_range: int,
+                 obstacle_bin: np.ndarray, free_end: np.ndarray) -> None:
+    """Fill ``obstacle_bin`` (``k_o``, ``n_range`` where the bin has no obstacle point) and
+    ``free_end`` (``k_o`` where there is an obstacle, else ``k_g + 1``, 0 without any
+    return), both int32 (n_az,), from the points' bins and GROUND / OBSTACLE kinds."""
+    n_az = obstacle_bin.shape[0]
     furthest = np.full(n_az, -1, dtype=np.int32)
-    np.maximum.at(furthest, az_bin, range_bin)
-    return furthest
+    obstacle_bin[:] = n_range
+    for i in range(az_bin.shape[0]):
+        a = az_bin[i]
+        if kind[i] == OBSTACLE:
+            obstacle_bin[a] = min(obstacle_bin[a], range_bin[i])
+        elif kind[i] == GROUND:
+            furthest[a] = max(furthest[a], range_bin[i])
+    for a in range(n_az):
+        free_end[a] = obstacle_bin[a] if obstacle_bin[a] < n_range else furthest[a] + 1
 
-
-def free_extent(obstacle_bin: np.ndarray, ground_bin: np.ndarray, n_range: int) -> np.ndarray:
-    """``free_end`` per azimuth bin: ``k_o`` where there is an obstacle, else ``k_g + 1``
-    (0 without any return)."""
-    return np.where(obstacle_bin < n_range, obstacle_bin, ground_bin + 1).astype(np.int32)
-
-
-def polar_state(obstacle_bin: np.ndarray, free_end: np.ndarray, az_bin: np.ndarray,
-                range_bin: np.ndarray) -> np.ndarray:
-    """State (UNKNOWN / FREE / OCCUPIED, uint8) of the polar cells ``(az_bin, range_bin)``
-    (arrays of any matching shape)."""
-    state = (range_bin < free_end[az_bin]).view(np.uint8)
-    state |= (range_bin == obstacle_bin[az_bin]).view(np.uint8) << 1
-    return state

@@ -3,29 +3,44 @@
 from __future__ import annotations
 
 import logging
+import math
+import threading
 
 import numpy as np
 
 from evperc.geo.window import Window
 from evperc.sensor.beams import (
     PolarLayout,
+    as_points,
     as_pose,
     level_points,
-    polar_coordinates,
+    polar_bins,
     sensor_heading,
 )
-from evperc.sensor.evidence import (
-    FREE,
-    OCCUPIED,
-    free_extent,
-    furthest_ground_bin,
-    nearest_obstacle_bin,
-)
-from evperc.sensor.ground import local_ground_height, split_ground
+from evperc.sensor.evidence import beam_extents
+from evperc.sensor.ground import OBSTACLE, classify_points, histogram_shape
 from evperc.sensor.params import SensorParams
-from evperc.sensor.projection import sample_cell_centres, scatter_free_polar_cells, scatter_points
+from evperc.sensor.projection import rasterise, scatter_free_polar_cells, scatter_hits
 
 log = logging.getLogger(__name__)
+
+
+class _Scratch(threading.local):
+    """Per-thread work arrays reused from frame to frame (grown when a frame needs more)."""
+
+    def __init__(self) -> None:
+        self.arrays: dict[str, np.ndarray] = {}
+
+    def take(self, name: str, size: int, dtype: type) -> np.ndarray:
+        """A 1-D array of ``size`` elements of ``dtype``, contents undefined."""
+        array = self.arrays.get(name)
+        if array is None or array.size < size:
+            # headroom: point counts vary a little from scan to scan
+            array = self.arrays[name] = np.empty(size + size // 4, dtype)
+        return array[:size]
+
+
+_scratch = _Scratch()
 
 
 def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, window: Window,
@@ -40,44 +55,45 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
     azimuth bin gives free / occupied / unknown polar cells (:mod:`.evidence`), mapped onto
     the window with occupied > free > unknown (:mod:`.projection`). Then
     free = μ_F where free, occupied = μ_O where occupied, 0 elsewhere.
+
+    Compiled (numba) passes over the points and the cells on per-thread work arrays that are
+    reused from call to call; the returned grids are new arrays (views of one block).
     """
     layout = PolarLayout.build(params.azimuth_resolution_deg,
                                params.range_bin_m or window.resolution_m,
                                params.min_range_m, params.max_range_m)
+    pts = as_points(points)
     t = as_pose(T_crs_sensor)
     heading = sensor_heading(t)
     sensor_xy = (float(t[0, 3]), float(t[1, 3]))
-    x, y, z = level_points(points, t)
-    range_m, azimuth = polar_coordinates(x, y, heading)
-    kept = (range_m >= np.float32(params.min_range_m)) & (range_m < np.float32(params.max_range_m))
-    x, y, z, range_m = x[kept], y[kept], z[kept], range_m[kept]
-    az_bin = layout.azimuth_bin(azimuth[kept])
-    range_bin = layout.range_bin(range_m)
+    n = pts.shape[0]
+    x, y, z, azimuth, range_m = (_scratch.take(name, n, np.float32)
+                                 for name in ("x", "y", "z", "azimuth", "range"))
+    az_bin, range_bin = (_scratch.take(name, n, np.int32) for name in ("az_bin", "range_bin"))
+    kind = _scratch.take("kind", n, np.uint8)
 
-    if planar:
-        is_obstacle = np.ones(range_m.shape, dtype=bool)
-        is_ground = ~is_obstacle
-    else:
-        height = z + np.float32(params.sensor_height_m)
-        ground = local_ground_height(height, range_m, az_bin, layout.n_az, params.max_range_m)
-        is_ground, is_obstacle = split_ground(height, ground, params.ground_threshold_m,
-                                              params.max_obstacle_height_m)
+    level_points(pts.reshape(-1), t[:3, :3].astype(np.float32), x, y, z, range_m)
+    np.arctan2(y, x, out=azimuth)
+    polar_bins(range_m, azimuth, np.float32(heading), layout.inv_az_step32, layout.n_az,
+               np.float32(params.min_range_m), np.float32(params.max_range_m),
+               layout.inv_range_bin32, az_bin, range_bin)
+    hist = _scratch.take("ground_histogram", math.prod(histogram_shape(layout.max_range_m)),
+                         np.int32)
+    classify_points(z, range_m, az_bin, layout.n_az, layout.max_range_m, bool(planar),
+                    np.float32(params.sensor_height_m), np.float32(params.ground_threshold_m),
+                    np.float32(params.max_obstacle_height_m), hist, kind)
 
-    obstacle_bin = nearest_obstacle_bin(az_bin[is_obstacle], range_bin[is_obstacle],
-                                        layout.n_az, layout.n_range)
-    ground_bin = furthest_ground_bin(az_bin[is_ground], range_bin[is_ground], layout.n_az)
-    free_end = free_extent(obstacle_bin, ground_bin, layout.n_range)
+    obstacle_bin = np.empty(layout.n_az, np.int32)
+    free_end = np.empty(layout.n_az, np.int32)
+    beam_extents(az_bin, range_bin, kind, layout.n_range, obstacle_bin, free_end)
 
-    state = np.zeros(window.shape, dtype=np.uint8)
-    sample_cell_centres(state, window, sensor_xy, heading, layout, obstacle_bin, free_end)
+    state = _scratch.take("state", window.rows * window.cols, np.uint8).reshape(window.shape)
+    state.fill(0)
     scatter_free_polar_cells(state, window, sensor_xy, heading, layout, free_end)
-    hits = is_obstacle & (range_bin == obstacle_bin[az_bin])
-    scatter_points(state, window, sensor_xy[0] + x[hits].astype(np.float64),
-                   sensor_xy[1] + y[hits].astype(np.float64))
+    scatter_hits(state, window, sensor_xy, x, y, az_bin, range_bin, kind, obstacle_bin)
     if log.isEnabledFor(logging.DEBUG):
-        log.debug("sensor grid: %d points kept, %d obstacle, %d ground, %d hits",
-                  range_m.size, int(is_obstacle.sum()), int(is_ground.sum()), int(hits.sum()))
-
-    free = np.where(state == FREE, np.float32(params.mu_free), np.float32(0.0))
-    occupied = np.where(state == OCCUPIED, np.float32(params.mu_occupied), np.float32(0.0))
-    return free, occupied
+        log.debug("sensor grid: %d points kept, %d obstacle", int((az_bin >= 0).sum()),
+                  int((kind == OBSTACLE).sum()))
+    return rasterise(state, window, sensor_xy, heading, layout, obstacle_bin, free_end,
+                     params.mu_free, params.mu_occupied,
+                     _scratch.take("cell_azimuth", window.rows * window.cols, np.float32))

@@ -7,8 +7,7 @@ azimuth × bands of ``BAND_M`` horizontal range):
    ``sensor_height_m`` below the sensor in the levelled frame).
 2. Per cell, the ``PERCENTILE`` low percentile of ``h``, from a histogram of ``Z_BIN_M`` bins
    over ``±Z_SPAN_M`` (values outside fall into the two edge bins); the estimate is the
-   centre of the bin holding the ⌈p·n⌉-th lowest point. One ``bincount`` and one ``cumsum``:
-   no sort, no per-cell loop.
+   centre of the bin holding the ⌈p·n⌉-th lowest point: one histogram, no sort.
 3. The estimate is kept if the cell has at least ``MIN_POINTS`` points, the percentile is not
    in an edge bin, and it lies within ``BASE_TOLERANCE_M + MAX_SLOPE·r_out`` of the prior
    (``r_out`` the band's outer range) — the ground may slope by at most ``MAX_SLOPE``.
@@ -34,6 +33,9 @@ occluder's obstacle bin, so they rarely change the grid.
 
 from __future__ import annotations
 
+import math
+
+import numba
 import numpy as np
 
 SECTOR_DEG = 10.0
@@ -45,44 +47,91 @@ Z_SPAN_M = 3.0
 BASE_TOLERANCE_M = 0.5
 MAX_SLOPE = 0.1
 
-
-def local_ground_height(height: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray,
-                        n_az: int, max_range_m: float) -> np.ndarray:
-    """Estimated ground height (float32, above the prior plane) under each point.
-
-    ``height``: z + sensor_height_m of each point; ``range_m``: horizontal range;
-    ``az_bin``: polar azimuth bin (of ``n_az``). See the module docstring for the method."""
-    n_sector = max(1, int(round(360.0 / SECTOR_DEG)))
-    n_band = int(max_range_m // BAND_M) + 1
-    n_z = int(round(2 * Z_SPAN_M / Z_BIN_M))
-    sector = (az_bin.astype(np.int64) * n_sector) // n_az
-    band = np.minimum((range_m * np.float32(1.0 / BAND_M)).astype(np.int64), n_band - 1)
-    cell = sector * n_band + band
-    z_bin = np.clip(((height + np.float32(Z_SPAN_M)) * np.float32(1.0 / Z_BIN_M))
-                    .astype(np.int64), 0, n_z - 1)
-    hist = np.bincount(cell * n_z + z_bin, minlength=n_sector * n_band * n_z)
-    cum = np.cumsum(hist.reshape(n_sector * n_band, n_z), axis=1)
-    count = cum[:, -1]
-    target = np.maximum(np.ceil(PERCENTILE * count), 1)
-    pct_bin = (cum < target[:, None]).sum(axis=1)
-    estimate = (pct_bin + 0.5) * Z_BIN_M - Z_SPAN_M
-    outer = (np.arange(n_band) + 1.0) * BAND_M
-    tolerance = np.tile(np.minimum(BASE_TOLERANCE_M + MAX_SLOPE * outer, Z_SPAN_M), n_sector)
-    accepted = ((count >= MIN_POINTS) & (pct_bin > 0) & (pct_bin < n_z - 1)
-                & (np.abs(estimate) <= tolerance)).reshape(n_sector, n_band)
-    source = np.where(accepted, np.arange(n_band), -1)
-    source = np.maximum.accumulate(source, axis=1)
-    filled = np.where(source >= 0,
-                      np.take_along_axis(estimate.reshape(n_sector, n_band),
-                                         np.maximum(source, 0), axis=1), 0.0)
-    return filled.astype(np.float32).ravel()[cell]
+#: point kinds written by :func:`classify_points` (and read by :mod:`.evidence`)
+IGNORED = np.uint8(0)
+GROUND = np.uint8(1)
+OBSTACLE = np.uint8(2)
 
 
-def split_ground(height: np.ndarray, ground: np.ndarray, threshold_m: float,
-                 max_height_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Masks ``(is_ground, is_obstacle)``: height above ground ``d = height − ground``;
-    ground if d < threshold, obstacle if threshold ≤ d ≤ max_height, else ignored."""
-    d = height - ground
-    is_ground = d < np.float32(threshold_m)
-    is_obstacle = ~is_ground & (d <= np.float32(max_height_m))
-    return is_ground, is_obstacle
+@numba.njit(cache=True, nogil=True)
+def histogram_shape(max_range_m: float) -> tuple[int, int, int]:
+    """``(n_sector, n_band, n_z)``: sectors, range bands and height bins of the estimate."""
+    return (max(1, int(round(360.0 / SECTOR_DEG))), int(max_range_m // BAND_M) + 1,
+            int(round(2 * Z_SPAN_M / Z_BIN_M)))
+
+
+@numba.njit(cache=True, nogil=True)
+def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az: int,
+                    max_range_m: float, planar: bool, sensor_height: np.float32,
+                    threshold: np.float32, max_height: np.float32, hist: np.ndarray,
+                    kind: np.ndarray) -> None:
+    """Write into ``kind`` the GROUND / OBSTACLE / IGNORED kind of each point.
+
+    ``z``: levelled height above the sensor; ``range_m``: horizontal range; ``az_bin``:
+    polar azimuth bin (of ``n_az``; negative: dropped point, IGNORED). Height above the
+    prior ``h = z + sensor_height`` and above the local ground ``d = h − ground`` are
+    float32; ground if ``d < threshold``, obstacle if ``threshold ≤ d ≤ max_height``. See
+    the module docstring for the ground estimate. ``planar``: every kept point is an
+    obstacle. ``hist``: int32 work array of ``n_sector · n_band · n_z`` elements
+    (:func:`histogram_shape`)."""
+    if planar:
+        for i in range(z.shape[0]):
+            kind[i] = OBSTACLE if az_bin[i] >= 0 else IGNORED
+        return
+    n_sector, n_band, n_z = histogram_shape(max_range_m)
+    # sector·n_band of each azimuth bin: no division per point
+    sector_start = (np.arange(n_az) * n_sector) // n_az * n_band
+    hist[:] = 0
+    inv_band = np.float32(1.0 / BAND_M)
+    for i in range(z.shape[0]):
+        if az_bin[i] >= 0:
+            cell = sector_start[az_bin[i]] + min(np.int64(range_m[i] * inv_band), n_band - 1)
+            hist[cell * n_z + _z_bin(z[i] + sensor_height, n_z)] += 1
+    ground = _fill_ground(hist, n_sector, n_band, n_z)
+    for i in range(z.shape[0]):
+        kind[i] = IGNORED
+        if az_bin[i] >= 0:
+            cell = sector_start[az_bin[i]] + min(np.int64(range_m[i] * inv_band), n_band - 1)
+            d = (z[i] + sensor_height) - ground[cell]
+            if d < threshold:
+                kind[i] = GROUND
+            elif d <= max_height:
+                kind[i] = OBSTACLE
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _z_bin(height: np.float32, n_z: int) -> int:
+    """Histogram bin ``⌊(h + Z_SPAN_M)/Z_BIN_M⌋`` (float32), clipped to ``[0, n_z − 1]``."""
+    v = (height + np.float32(Z_SPAN_M)) * np.float32(1.0 / Z_BIN_M)
+    if not v > 0:
+        return 0
+    if v >= n_z - 1:
+        return n_z - 1
+    return int(v)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_ground(hist: np.ndarray, n_sector: int, n_band: int, n_z: int) -> np.ndarray:
+    """Ground estimate (float32) per coarse cell: its own if accepted, else that of the
+    nearest accepted band nearer the sensor in its sector, else 0 (steps 2–4)."""
+    ground = np.zeros(n_sector * n_band, dtype=np.float32)
+    for sector in range(n_sector):
+        last = 0.0
+        for band in range(n_band):
+            cell = sector * n_band + band
+            n = hist[cell * n_z:(cell + 1) * n_z].sum()
+            if n >= MIN_POINTS:
+                target = max(math.ceil(PERCENTILE * n), 1)
+                cum = 0
+                pct_bin = 0
+                while True:
+                    cum += hist[cell * n_z + pct_bin]
+                    if cum >= target:
+                        break
+                    pct_bin += 1
+                estimate = (pct_bin + 0.5) * Z_BIN_M - Z_SPAN_M
+                tolerance = min(BASE_TOLERANCE_M + MAX_SLOPE * ((band + 1.0) * BAND_M), Z_SPAN_M)
+                if 0 < pct_bin < n_z - 1 and abs(estimate) <= tolerance:
+                    last = estimate
+            ground[cell] = np.float32(last)
+    return ground

@@ -1,82 +1,181 @@
 """Visiting world cells: the polar grid mapped onto the window (SPEC §3, polar → world).
 
-Three passes fill a uint8 state per window cell (UNKNOWN 0 < FREE 1 < OCCUPIED 2), each
-keeping the maximum, so occupied wins over free over unknown wherever several polar cells
-meet one world cell:
+Three passes fill a uint8 state per window cell (UNKNOWN 0 < FREE 1 < OCCUPIED 2) so that
+occupied wins over free over unknown wherever several polar cells meet one world cell: the
+state is the maximum of what the passes give the cell. On a state of zeros:
 
-1. :func:`sample_cell_centres` — every world cell whose centre lies within
+1. :func:`scatter_free_polar_cells` — the centre ``((k + ½)·c, a·Δ)`` of every free polar
+   cell within ``[min_range_m, max_range_m)`` marks the world cell it falls in free. Near
+   the sensor a world cell spans several azimuth bins (at 0.5°/0.5 m, up to ~57 m), so this
+   keeps free rays that pass between cell centres.
+2. :func:`scatter_hits` — the world cell holding each obstacle *point* that lies in its
+   bin's occupied polar cell is occupied. This keeps thin obstacles (a pole seen by one
+   azimuth bin) that no cell centre samples. The points themselves are used rather than the
+   occupied polar cells' centres: a polar cell centre can lie up to half a range bin from
+   the return and fall in the neighbouring world cell.
+3. :func:`rasterise` — every world cell whose centre lies within
    ``[min_range_m, max_range_m)`` of the sensor (only the bounding box of that disc is
-   computed) takes the state of the polar cell holding its centre ``(r, θ)``.
-2. :func:`scatter_free_polar_cells` — the centre ``((k + ½)·c, a·Δ)`` of every free polar
-   cell within ``[min_range_m, max_range_m)`` marks the world cell it falls in at least free.
-   Near the sensor a world cell spans several azimuth bins (at 0.5°/0.5 m, up to ~57 m), so
-   this keeps free rays that pass between cell centres.
-3. :func:`scatter_points` (used for the obstacle points lying in their bin's occupied polar
-   cell) — the world cell holding each such *point* is occupied. This keeps thin obstacles
-   (a pole seen by one azimuth bin) that no cell centre samples. The points themselves are
-   used rather than the occupied polar cells' centres: a polar cell centre can lie up to half
-   a range bin from the return and fall in the neighbouring world cell.
+   visited) takes the maximum of its state and that of the polar cell holding its centre
+   ``(r, θ)``; in the same pass over all cells the state becomes the masses m({F}), m({O}).
+
+Passes 1 and 2 store their value without reading the cell (a read-modify-write per polar
+cell would chain through memory): in this order, that is the maximum.
+
+Cell centres are offsets ``(dx, dy)`` from the sensor in float32, in range if
+``dx² + dy²`` is in ``[min², max²)``; their polar coordinates ``√(dx² + dy²)`` and
+``atan2(dy, dx) − ψ`` are binned as the points are (:mod:`.beams`). World coordinates
+(polar cell centres, points) are float64, the cell holding ``(x, y)`` is
+``(⌊y/r⌋ − row0, ⌊x/r⌋ − col0)`` as in :meth:`Window.index_of`.
 """
 
 from __future__ import annotations
 
+import math
+
+import numba
 import numpy as np
 
 from evperc.geo.window import Window
 from evperc.sensor.beams import PolarLayout
-from evperc.sensor.evidence import FREE, OCCUPIED, polar_state
+from evperc.sensor.evidence import FREE, OCCUPIED, UNKNOWN
+from evperc.sensor.ground import OBSTACLE
 
-
-def sample_cell_centres(state: np.ndarray, window: Window, sensor_xy: tuple[float, float],
-                        heading_rad: float, layout: PolarLayout, obstacle_bin: np.ndarray,
-                        free_end: np.ndarray) -> None:
-    """Pass 1: write into ``state`` (rows, cols) the polar state at each cell centre."""
-    xs, ys = window.cell_centres()
-    sx, sy = sensor_xy
-    reach = layout.max_range_m
-    c0, c1 = np.searchsorted(xs, [sx - reach, sx + reach])
-    r0, r1 = np.searchsorted(ys, [sy - reach, sy + reach])
-    if c0 >= c1 or r0 >= r1:
-        return
-    dx = (xs[c0:c1] - sx).astype(np.float32)
-    dy = (ys[r0:r1] - sy).astype(np.float32)[:, None]
-    r2 = dy * dy + dx * dx
-    in_range = (r2 >= np.float32(layout.min_range_m ** 2)) & (r2 < np.float32(reach ** 2))
-    az = layout.azimuth_bin(np.arctan2(dy, dx) - np.float32(heading_rad))
-    rb = np.minimum(layout.range_bin(np.sqrt(r2)), layout.n_range - 1)
-    sampled = polar_state(obstacle_bin, free_end, az, rb)
-    sampled *= in_range.view(np.uint8)
-    np.maximum(state[r0:r1, c0:c1], sampled, out=state[r0:r1, c0:c1])
+# The kernels below call only jitted helpers of this module: numba's cache checks the source
+# file of a kernel, not of the functions it inlines from elsewhere. The imported constants are
+# frozen into the cached code too (clear __pycache__ after changing them).
 
 
 def scatter_free_polar_cells(state: np.ndarray, window: Window, sensor_xy: tuple[float, float],
                              heading_rad: float, layout: PolarLayout,
                              free_end: np.ndarray) -> None:
-    """Pass 2: raise to FREE every world cell holding the centre of a free polar cell."""
-    centres = (np.arange(layout.n_range) + 0.5) * layout.range_bin_m
-    usable = (centres >= layout.min_range_m) & (centres < layout.max_range_m)
-    free = (np.arange(layout.n_range)[None, :] < free_end[:, None]) & usable[None, :]
-    a, k = np.nonzero(free)
-    if a.size == 0:
-        return
+    """Pass 1: set FREE every world cell holding the centre of a free polar cell."""
     angle = np.arange(layout.n_az) * layout.az_step_rad + heading_rad
-    cos, sin = np.cos(angle), np.sin(angle)
-    x = sensor_xy[0] + centres[k] * cos[a]
-    y = sensor_xy[1] + centres[k] * sin[a]
-    rows, cols = _cells_inside(window, x, y)
-    flat = state.reshape(-1)
-    idx = rows * window.cols + cols
-    flat[idx] = np.maximum(flat[idx], FREE)
+    _scatter_free(state, float(window.resolution_m), window.row0, window.col0, sensor_xy[0],
+                  sensor_xy[1], np.cos(angle), np.sin(angle), layout.range_bin_m,
+                  layout.min_range_m, layout.max_range_m, free_end)
 
 
-def scatter_points(state: np.ndarray, window: Window, x: np.ndarray, y: np.ndarray) -> None:
-    """Pass 3: set OCCUPIED the world cells holding the points ``(x, y)`` (working CRS)."""
-    rows, cols = _cells_inside(window, x, y)
-    state.reshape(-1)[rows * window.cols + cols] = OCCUPIED
+def scatter_hits(state: np.ndarray, window: Window, sensor_xy: tuple[float, float],
+                 x: np.ndarray, y: np.ndarray, az_bin: np.ndarray, range_bin: np.ndarray,
+                 kind: np.ndarray, obstacle_bin: np.ndarray) -> None:
+    """Pass 2: set OCCUPIED the world cells holding the OBSTACLE points (level offsets
+    ``x``, ``y`` from the sensor) whose range bin is their azimuth bin's ``obstacle_bin``."""
+    _scatter_hits(state, float(window.resolution_m), window.row0, window.col0, sensor_xy[0],
+                  sensor_xy[1], x, y, az_bin, range_bin, kind, obstacle_bin)
 
 
-def _cells_inside(window: Window, x: np.ndarray, y: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    rows, cols = window.index_of(x, y)
-    inside = window.contains(rows, cols)
-    return rows[inside], cols[inside]
+def rasterise(state: np.ndarray, window: Window, sensor_xy: tuple[float, float],
+              heading_rad: float, layout: PolarLayout, obstacle_bin: np.ndarray,
+              free_end: np.ndarray, mu_free: float, mu_occupied: float,
+              azimuth_buffer: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pass 3, then ``(free, occupied)`` float32 masses: μ_F where the state is FREE, μ_O
+    where OCCUPIED, 0 elsewhere. ``azimuth_buffer``: float32 scratch of at least
+    ``window.rows · window.cols`` elements (the cell-centre azimuths)."""
+    xs, ys = window.cell_centres()
+    sx, sy = sensor_xy
+    reach = layout.max_range_m
+    c0, c1 = (int(v) for v in np.searchsorted(xs, [sx - reach, sx + reach]))
+    r0, r1 = (int(v) for v in np.searchsorted(ys, [sy - reach, sy + reach]))
+    if c0 >= c1 or r0 >= r1:
+        c0 = c1 = r0 = r1 = 0
+    dx = (xs[c0:c1] - sx).astype(np.float32)
+    dy = (ys[r0:r1] - sy).astype(np.float32)
+    azimuth = azimuth_buffer[:dy.size * dx.size].reshape(dy.size, dx.size)
+    np.arctan2(dy[:, None], dx, out=azimuth)
+    # one block for both: fewer, larger allocations, which glibc then keeps on its heap
+    free, occupied = np.empty((2, *window.shape), np.float32)
+    _rasterise(state, r0, c0, dx, dy, azimuth, np.float32(heading_rad), layout.inv_az_step32,
+               layout.n_az, layout.inv_range_bin32, layout.n_range,
+               np.float32(layout.min_range_m ** 2), np.float32(reach ** 2), obstacle_bin,
+               free_end, np.float32(mu_free), np.float32(mu_occupied), free, occupied)
+    return free, occupied
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _mark(state: np.ndarray, res: float, row0: int, col0: int, x: float, y: float,
+          value: np.uint8) -> None:
+    """Set the state of the cell holding ``(x, y)`` to ``value``, if in the window (a plain
+    store: no read-modify-write chain through memory)."""
+    row = math.floor(y / res) - row0
+    col = math.floor(x / res) - col0
+    if 0 <= row < state.shape[0] and 0 <= col < state.shape[1]:
+        state[row, col] = value
+
+
+@numba.njit(cache=True, nogil=True)
+def _scatter_hits(state, res, row0, col0, sx, sy, x, y, az_bin, range_bin, kind,
+                  obstacle_bin) -> None:
+    """See :func:`scatter_hits`."""
+    for i in range(x.shape[0]):
+        if kind[i] == OBSTACLE and range_bin[i] == obstacle_bin[az_bin[i]]:
+            _mark(state, res, row0, col0, sx + np.float64(x[i]), sy + np.float64(y[i]),
+                  OCCUPIED)
+
+
+@numba.njit(cache=True, nogil=True)
+def _scatter_free(state, res, row0, col0, sx, sy, cos, sin, range_bin_m, min_range,
+                  max_range, free_end) -> None:
+    """See :func:`scatter_free_polar_cells`."""
+    for a in range(free_end.shape[0]):
+        for k in range(free_end[a]):
+            centre = (k + 0.5) * range_bin_m
+            if centre >= min_range and centre < max_range:
+                _mark(state, res, row0, col0, sx + centre * cos[a], sy + centre * sin[a], FREE)
+
+
+@numba.njit(cache=True, nogil=True)
+def _rasterise(state, r0, c0, dx, dy, azimuth, heading, inv_az_step, n_az, inv_range_bin,
+               n_range, min_r2, max_r2, obstacle_bin, free_end, mu_free, mu_occupied, free,
+               occupied) -> None:
+    """See :func:`rasterise`: cells ``[r0, r0 + dy.size) × [c0, c0 + dx.size)`` are sampled."""
+    az_bin = np.empty(dx.shape[0], np.int32)
+    range_bin = np.empty(dx.shape[0], np.int32)
+    for row in range(state.shape[0]):
+        i = row - r0
+        if 0 <= i < dy.shape[0]:
+            # two loops: the first (arithmetic only) vectorises, the second looks up the beams
+            _polar_cells(dx, dy[i] * dy[i], azimuth[i], heading, inv_az_step, n_az,
+                         inv_range_bin, n_range, min_r2, max_r2, az_bin, range_bin)
+            _sample(state[row, c0:c0 + dx.shape[0]], az_bin, range_bin, obstacle_bin,
+                    free_end)
+        _masses_row(state[row], mu_free, mu_occupied, free[row], occupied[row])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _polar_cells(dx, dy2, azimuth, heading, inv_az_step, n_az, inv_range_bin, n_range,
+                 min_r2, max_r2, az_bin, range_bin) -> None:
+    """Polar cell ``(a, k)`` of the centres ``(dx[j], dy)`` of one row; ``k = −1`` outside
+    ``[min_range, max_range)``."""
+    for j in range(dx.shape[0]):
+        r2 = dy2 + dx[j] * dx[j]
+        az_bin[j] = _wrap_bin(np.int32(np.rint((azimuth[j] - heading) * inv_az_step)), n_az)
+        k = min(np.int32(np.sqrt(r2) * inv_range_bin), n_range - 1)
+        range_bin[j] = k if (r2 >= min_r2) & (r2 < max_r2) else -1
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _sample(state, az_bin, range_bin, obstacle_bin, free_end) -> None:
+    """Raise ``state[j]`` to the state of the polar cell ``(az_bin[j], range_bin[j])``."""
+    for j in range(state.shape[0]):
+        k = range_bin[j]
+        if k >= 0:
+            a = az_bin[j]
+            sampled = FREE if k < free_end[a] else OCCUPIED if k == obstacle_bin[a] else UNKNOWN
+            state[j] = max(state[j], sampled)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _masses_row(state, mu_free, mu_occupied, free, occupied) -> None:
+    """μ_F where FREE, μ_O where OCCUPIED, 0 elsewhere."""
+    zero = np.float32(0.0)
+    for j in range(state.shape[0]):
+        free[j] = mu_free if state[j] == FREE else zero
+        occupied[j] = mu_occupied if state[j] == OCCUPIED else zero
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _wrap_bin(v: int, n: int) -> int:
+    """``v mod n`` for ``v`` in ``[−n, 2n)``: :func:`evperc.sensor.beams.wrap_bin`, repeated
+    here for the cache (see the note on the imports)."""
+    v = v + n if v < 0 else v
+    return v - n if v >= n else v
