@@ -63,6 +63,8 @@ _2 = np.float32(2.0)
 #: BLOCK float32 (inputs, then outputs), so every access is ``buf[constant + l]`` and LLVM
 #: proves without run-time checks that the planes do not overlap
 BLOCK = 256
+#: lanes per run of the body (whole sub-blocks within [l0, l1) are computed)
+SUB = 16
 IN_ZETA, IN_FREE, IN_OCC, IN_LABEL, IN_OBSERVED = 32, 33, 34, 35, 36
 OUT_MASS = 37
 OUT_ZETA = OUT_MASS + 32
@@ -74,6 +76,7 @@ PLANES = OUT_VACUOUS + 1
 
 
 def _at(plane: int) -> str:
+    """Lane ``l`` of ``plane`` in the body's view ``sb`` of the block buffer."""
     return f"{plane * BLOCK} + l"
 
 
@@ -92,13 +95,13 @@ def _body() -> list[str]:
     s: list[str] = []
     add = s.append
     for a in range(32):
-        add(f"m{a} = buf[{_at(a)}]")
-    add(f"z = buf[{_at(IN_ZETA)}]")
-    add(f"f = buf[{_at(IN_FREE)}]")
-    add(f"o = buf[{_at(IN_OCC)}]")
+        add(f"m{a} = sb[{_at(a)}]")
+    add(f"z = sb[{_at(IN_ZETA)}]")
+    add(f"f = sb[{_at(IN_FREE)}]")
+    add(f"o = sb[{_at(IN_OCC)}]")
     add("u = _1 - f - o")
-    add(f"lab = buf[{_at(IN_LABEL)}]")
-    add(f"ob = buf[{_at(IN_OBSERVED)}]")
+    add(f"lab = sb[{_at(IN_LABEL)}]")
+    add(f"ob = sb[{_at(IN_OBSERVED)}]")
     add("obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)")
     add("is_b = lab == _2")
     add("is_r = lab == _1")
@@ -189,8 +192,8 @@ def _body() -> list[str]:
     add("c0 += _0 if to_s else g")
     # 8. store
     for a in range(32):
-        add(f"buf[{_at(OUT_MASS + a)}] = c{a}")
-    add(f"buf[{_at(OUT_ZETA)}] = z")
+        add(f"sb[{_at(OUT_MASS + a)}] = c{a}")
+    add(f"sb[{_at(OUT_ZETA)}] = z")
     # SPEC §6: betP on the stored masses, then the decision
     add("norm = " + _sum([f"c{a}" for a in range(1, 32)]))
     add("inv_norm = (_1 / norm) if norm > tol else _0")
@@ -222,18 +225,19 @@ def _body() -> list[str]:
     add("code = fine_code if (is_static & fine_ok) else code")
     add("code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code")
     for k, name in enumerate(("p_f", "p_i", "p_u", "p_s", "p_m")):
-        add(f"buf[{_at(OUT_BETP + k)}] = {name}")
+        add(f"sb[{_at(OUT_BETP + k)}] = {name}")
     for k, name in enumerate(("fo", "of", "other")):
-        add(f"buf[{_at(OUT_CONFLICT + k)}] = {name}")
-    add(f"buf[{_at(OUT_CODE)}] = code")
+        add(f"sb[{_at(OUT_CONFLICT + k)}] = {name}")
+    add(f"sb[{_at(OUT_CODE)}] = code")
     # the cell is exactly vacuous with ζ = 0: a later frame may skip it
     add("rest = " + _sum([f"c{a}" for a in range(31)]))
-    add(f"buf[{_at(OUT_VACUOUS)}] = _1 if ((c31 == _1) & (rest == _0) & (z == _0)) else _0")
+    add(f"sb[{_at(OUT_VACUOUS)}] = _1 if ((c31 == _1) & (rest == _0) & (z == _0)) else _0")
     return s
 
 
-def _plane(p: str, width: str = "n") -> str:
-    return f"buf[({p}) * BLOCK:({p}) * BLOCK + {width}]"
+def _plane(p: str, first: str = "l0", last: str = "l1") -> str:
+    """Lanes [first, last) of plane ``p`` of the block buffer."""
+    return f"buf[({p}) * BLOCK + {first}:({p}) * BLOCK + {last}]"
 
 
 def _copy(target: str, source: str, width: str, indent: str) -> list[str]:
@@ -255,37 +259,65 @@ def _segments(lines: list[str], first: str, last: str) -> list[str]:
     return out + ["        " + line for line in lines]
 
 
+def _active_lanes() -> list[str]:
+    """[l0, l1): the lanes to compute, trimmed of leading and trailing cells that are
+    exactly vacuous (ζ = 0), untouched by the scan and without prior (then the step leaves
+    them vacuous), to whole vectors of 16 lanes; all of [0, n) unless ``may_skip``."""
+    flags_in = ["to = act[a0 - j0:a1 - j0]", "fro = flags[buf_row, a0 + shift:a1 + shift]",
+                "for t in range(w):", "    to[t] = fro[t]"]
+    return [
+        "l0 = 0",
+        "l1 = n",
+        "if may_skip:",
+        "    for t in range(n):",
+        "        act[t] = 1  # cells entering the window are vacuous",
+        *["    " + line for line in _segments(flags_in, "s0", "s1")],
+        "    for t in range(n):",
+        "        act[t] = act[t] & np.uint8((free_row[t] == _0) & (occ_row[t] == _0))",
+        "    while l0 < n and act[l0] == 1:",
+        "        l0 += 1",
+        "    while l1 > l0 and act[l1 - 1] == 1:",
+        "        l1 -= 1",
+        "    if l1 > l0:",
+        "        l0 = (l0 // 16) * 16",
+        "        l1 = min(n, (l1 + 15) // 16 * 16)",
+    ]
+
+
 def _load() -> list[str]:
-    """Block inputs into ``buf``: the previous state (vacuous outside the previous window),
-    ζ, the sensor grid, labels and observed cells."""
+    """Lanes [l0, l1) of the block into ``buf``: the previous state (vacuous outside the
+    previous window), ζ, the sensor grid, labels and observed cells."""
     state = ["for a in range(32):",
              *_copy("buf[a * BLOCK + a0 - j0:a * BLOCK + a1 - j0]",
                     "state[a, buf_row, a0 + shift:a1 + shift]", "w", "    "),
              *_copy(f"buf[{IN_ZETA} * BLOCK + a0 - j0:{IN_ZETA} * BLOCK + a1 - j0]",
                     "zeta[buf_row, a0 + shift:a1 + shift]", "w", "")]
     return [
-        "for l in range(31 * BLOCK):",
-        "    buf[l] = _0",
-        "for l in range(BLOCK):",
+        "for a in range(31):",
+        "    for l in range(l0, l1):",
+        "        buf[a * BLOCK + l] = _0",
+        "for l in range(l0, l1):",
         "    buf[31 * BLOCK + l] = _1",
         f"    buf[{IN_ZETA} * BLOCK + l] = _0",
-        *_segments(state, "s0", "s1"),
+        *_segments(state, "max(s0, j0 + l0)", "min(s1, j0 + l1)"),
         f"frees = {_plane(str(IN_FREE))}",
         f"occs = {_plane(str(IN_OCC))}",
         f"labs = {_plane(str(IN_LABEL))}",
         f"obss = {_plane(str(IN_OBSERVED))}",
-        "lab_row = labels[r, j0:j0 + n]",
-        "obs_row = observed[r, j0:j0 + n]",
-        "for t in range(n):",
-        "    frees[t] = free_row[t]",
-        "    occs[t] = occ_row[t]",
+        "lab_row = labels[r, j0 + l0:j0 + l1]",
+        "obs_row = observed[r, j0 + l0:j0 + l1]",
+        "free_part = free_row[l0:l1]",
+        "occ_part = occ_row[l0:l1]",
+        "for t in range(l1 - l0):",
+        "    frees[t] = free_part[t]",
+        "    occs[t] = occ_part[t]",
         "    labs[t] = np.float32(lab_row[t])",
         "    obss[t] = np.float32(obs_row[t])",
     ]
 
 
 def _store_state() -> list[str]:
-    """The new state, ζ and vacuous flags of the block back into the circular buffer."""
+    """The new state, ζ and vacuous flags of lanes [l0, l1) back into the circular buffer."""
     lines = ["for a in range(32):",
              *_copy("state[a, buf_row, a0 + shift:a1 + shift]",
                     f"buf[({OUT_MASS} + a) * BLOCK + a0 - j0:({OUT_MASS} + a) * BLOCK + a1 - j0]",
@@ -296,13 +328,14 @@ def _store_state() -> list[str]:
              f"fro = buf[{OUT_VACUOUS} * BLOCK + a0 - j0:{OUT_VACUOUS} * BLOCK + a1 - j0]",
              "for t in range(w):",
              "    to[t] = np.uint8(fro[t])"]
-    return _segments(lines, "j0", "j0 + n")
+    return _segments(lines, "j0 + l0", "j0 + l1")
 
 
-def _clear_entering() -> list[str]:
-    """A skipped block: cells that entered the window (outside [s0, s1)) become vacuous in
-    the buffer; the others are vacuous already."""
-    lines = ["for a in range(31):",
+def _skipped(kind: str, first: str, last: str) -> list[str]:
+    """Lanes [first, last) not computed: cells that entered the window (outside [s0, s1))
+    become vacuous in the buffer (the others are vacuous already); outputs of a vacuous
+    cell (betP 1/5, no conflict)."""
+    clear = ["for a in range(31):",
              "    row = state[a, buf_row, a0 + shift:a1 + shift]",
              "    for t in range(w):",
              "        row[t] = _0",
@@ -313,73 +346,58 @@ def _clear_entering() -> list[str]:
              "    row[t] = _1",
              "    zrow[t] = _0",
              "    frow[t] = np.uint8(1)"]
-    return (_segments(lines, "j0", "min(s0, j0 + n)")
-            + _segments(lines, "max(s1, j0)", "j0 + n"))
+    lines = (_segments(clear, f"j0 + {first}", f"min(s0, j0 + {last})")
+             + _segments(clear, f"max(s1, j0 + {first})", f"j0 + {last}"))
+    window = f"r, j0 + {first}:j0 + {last}"
+    width = f"{last} - {first}"
+
+    def fill(target: str, value: str, indent: str = "    ") -> list[str]:
+        return [f"{indent}row = {target}", f"{indent}for t in range({width}):",
+                f"{indent}    row[t] = {value}"]
+    if kind == "float":
+        return lines + ["for k in range(5):", *fill(f"betp[k, {window}]", "_INV5"),
+                        "for k in range(3):", *fill(f"conflict[k, {window}]", "_0"),
+                        *fill(f"decision[{window}]", "vac_code", "")]
+    return lines + ["for a in range(32):",
+                    "    value = np.uint8(255) if a == 31 else np.uint8(0)",
+                    *fill(f"q_masses[a, {window}]", "value"),
+                    "for k in range(5):", *fill(f"q_betp[k, {window}]", "np.uint8(51)"),
+                    "for k in range(3):", *fill(f"q_conflict[k, {window}]", "np.uint8(0)"),
+                    *fill(f"q_zeta[{window}]", "np.uint8(0)", ""),
+                    *fill(f"q_decision[{window}]", "vac_code", "")]
 
 
 def _store_outputs(kind: str) -> list[str]:
-    """Lanes ``0 … n`` of the block's outputs into row ``r`` of the output arrays."""
+    """Lanes [l0, l1) of the block's outputs into row ``r`` of the output arrays."""
+    window = "r, j0 + l0:j0 + l1"
+
     def copy(target: str, plane: str, indent: str = "    ") -> list[str]:
-        return _copy(target, _plane(plane), "n", indent)
+        return _copy(target, _plane(plane), "l1 - l0", indent)
     if kind == "float":
-        return ["for k in range(5):", *copy("betp[k, r, j0:j0 + n]", f"{OUT_BETP} + k"),
-                "for k in range(3):", *copy("conflict[k, r, j0:j0 + n]", f"{OUT_CONFLICT} + k"),
+        return ["for k in range(5):", *copy(f"betp[k, {window}]", f"{OUT_BETP} + k"),
+                "for k in range(3):", *copy(f"conflict[k, {window}]", f"{OUT_CONFLICT} + k"),
                 f"codes = {_plane(str(OUT_CODE))}",
-                "row = decision[r, j0:j0 + n]",
-                "for t in range(n):",
+                f"row = decision[{window}]",
+                "for t in range(l1 - l0):",
                 "    row[t] = np.uint8(codes[t])"]
 
     def quantised(target: str, p: str, indent: str = "    ") -> list[str]:
         """round(255 · clip(x, 0, 1)), as evperc.io.quantise"""
         return [f"{indent}values = {_plane(p)}",
                 f"{indent}row = {target}",
-                f"{indent}for t in range(n):",
+                f"{indent}for t in range(l1 - l0):",
                 f"{indent}    v = values[t]",
                 f"{indent}    v = v if v > _0 else _0",
                 f"{indent}    v = v if v < _1 else _1",
                 f"{indent}    row[t] = np.uint8(np.int32(v * _255 + _HALF))"]
-    return ["for a in range(32):", *quantised("q_masses[a, r, j0:j0 + n]", f"{OUT_MASS} + a"),
-            "for k in range(5):", *quantised("q_betp[k, r, j0:j0 + n]", f"{OUT_BETP} + k"),
-            "for k in range(3):", *quantised("q_conflict[k, r, j0:j0 + n]", f"{OUT_CONFLICT} + k"),
-            *quantised("q_zeta[r, j0:j0 + n]", str(OUT_ZETA), indent=""),
+    return ["for a in range(32):", *quantised(f"q_masses[a, {window}]", f"{OUT_MASS} + a"),
+            "for k in range(5):", *quantised(f"q_betp[k, {window}]", f"{OUT_BETP} + k"),
+            "for k in range(3):", *quantised(f"q_conflict[k, {window}]", f"{OUT_CONFLICT} + k"),
+            *quantised(f"q_zeta[{window}]", str(OUT_ZETA), indent=""),
             f"codes = {_plane(str(OUT_CODE))}",
-            "row = q_decision[r, j0:j0 + n]",
-            "for t in range(n):",
+            f"row = q_decision[{window}]",
+            "for t in range(l1 - l0):",
             "    row[t] = np.uint8(codes[t])"]
-
-
-def _vacuous_outputs(kind: str) -> list[str]:
-    """Outputs of a skipped block: those of a vacuous cell (betP 1/5, no conflict)."""
-    if kind == "float":
-        return ["for k in range(5):",
-                "    row = betp[k, r, j0:j0 + n]",
-                "    for t in range(n):",
-                "        row[t] = _INV5",
-                "for k in range(3):",
-                "    row = conflict[k, r, j0:j0 + n]",
-                "    for t in range(n):",
-                "        row[t] = _0",
-                "row = decision[r, j0:j0 + n]",
-                "for t in range(n):",
-                "    row[t] = vac_code"]
-    return ["for a in range(32):",
-            "    row = q_masses[a, r, j0:j0 + n]",
-            "    value = np.uint8(255) if a == 31 else np.uint8(0)",
-            "    for t in range(n):",
-            "        row[t] = value",
-            "for k in range(5):",
-            "    row = q_betp[k, r, j0:j0 + n]",
-            "    for t in range(n):",
-            "        row[t] = np.uint8(51)",
-            "for k in range(3):",
-            "    row = q_conflict[k, r, j0:j0 + n]",
-            "    for t in range(n):",
-            "        row[t] = np.uint8(0)",
-            "zrow = q_zeta[r, j0:j0 + n]",
-            "row = q_decision[r, j0:j0 + n]",
-            "for t in range(n):",
-            "    zrow[t] = np.uint8(0)",
-            "    row[t] = vac_code"]
 
 
 PARAMS = ("derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, "
@@ -391,28 +409,22 @@ PARAMS = ("derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a
 def _kernel(kind: str) -> list[str]:
     outs = ("betp, conflict, decision" if kind == "float"
             else "q_masses, q_betp, q_conflict, q_zeta, q_decision")
-    skip_test = [
+    block = [
         "n = min(BLOCK, cols - j0)",
         "s0 = max(lo, j0)  # [s0, s1): cells of the block inside the previous window",
         "s1 = min(hi, j0 + n)",
         "free_row = free[r, j0:j0 + n]",
         "occ_row = occ[r, j0:j0 + n]",
-        "skip = may_skip",
-        "if skip:",
-        "    seen = _0",
-        "    for t in range(n):",
-        "        seen += free_row[t] + occ_row[t]",
-        "    skip = seen == _0",
-        "if skip:",
-        *["    " + line for line in _segments(
-            ["vac = np.uint8(1)",
-             "frow = flags[buf_row, a0 + shift:a1 + shift]",
-             "for t in range(w):",
-             "    vac &= frow[t]",
-             "skip = skip and vac == 1"], "s0", "s1")],
-        "if skip:",
-        *["    " + line for line in _clear_entering() + _vacuous_outputs(kind)],
+        *_active_lanes(),
+        "if l1 <= l0:",
+        "    l0 = l1 = n",
+        "if l0 > 0:",
+        *["    " + line for line in _skipped(kind, "0", "l0")],
+        "if l1 < n:",
+        *["    " + line for line in _skipped(kind, "l1", "n")],
+        "if l1 <= l0:",
         "    continue",
+        *_load(),
     ]
     lines = [
         "",
@@ -423,6 +435,7 @@ def _kernel(kind: str) -> list[str]:
         "    rows, cols = state.shape[1], state.shape[2]",
         "    wrap = cols - off_c  # window columns from here on wrap to the buffer's start",
         "    buf = np.zeros(PLANES * BLOCK, np.float32)",
+        "    act = np.zeros(BLOCK, np.uint8)",
         "    for r in range(rows):",
         "        buf_row = r + off_r",
         "        buf_row = buf_row - rows if buf_row >= rows else buf_row",
@@ -432,16 +445,20 @@ def _kernel(kind: str) -> list[str]:
         "            lo = hi = 0",
         "        for j0 in range(0, cols, BLOCK):",
     ]
-    lines += ["            " + line for line in skip_test + _load()]
-    lines += ["            for l in range(BLOCK):"]
-    lines += ["                " + line for line in _body()]
+    lines += ["            " + line for line in block]
+    # sub-blocks of SUB lanes from a view: LLVM vectorises a loop of constant trip count
+    # over constant offsets of one base pointer, not one that starts at a run-time lane
+    lines += ["            for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):",
+              "                sb = buf[sub * SUB:]",
+              "                for l in range(SUB):"]
+    lines += ["                    " + line for line in _body()]
     lines += ["            " + line for line in _store_state() + _store_outputs(kind)]
     return lines
 
 
 def source() -> str:
     """The text of evperc/fused_kernel.py."""
-    constants = f"BLOCK = {BLOCK}\nPLANES = {PLANES}\n"
+    constants = f"BLOCK = {BLOCK}\nSUB = {SUB}\nPLANES = {PLANES}\n"
     return HEADER + constants + "\n".join(_kernel("float") + _kernel("stored")) + "\n"
 
 

@@ -224,6 +224,17 @@ class Pipeline:
         self.sensor_params = SensorParams.from_config(config["sensor"], self.resolution)
         self._overlap_checked = False
         self.clock = StageClock()
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Load (or compile, on a fresh install) the numba kernels of the sensor grid and the
+        fused step now, so that start-up is not charged to the first frame."""
+        tiny = Window(self.resolution, 2, 2, 0, 0)
+        points = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, -1.5]], np.float32)
+        free, occupied = sensor_grid(points, False, np.eye(4), tiny, self.sensor_params)
+        state = FusionState.fresh(tiny)
+        fused_step(state.pg, state.zeta, free, occupied, None, self.betas, 0.1, self.params,
+                   out=StoredOutputs.empty(tiny.shape), flags=state.flags)
 
     def meta(self) -> dict[str, Any]:
         """Manifest entries that describe the run (docs/output-format.md)."""
@@ -323,10 +334,11 @@ def run(request: RunRequest, resume: bool = False,
     # checkpoints are 20 MB on a 200 m window: one every output.checkpoint_frames frames
     spare: list[FusionState | None] = [None]  # the last snapshot, saved before the next one
     last_checkpoint = [state.frames]
+    finishing = [False]  # the last chunk needs no checkpoint: close() completes the run
     every = int(request.config["output"].get("checkpoint_frames", 1))  # 1: runs before it
 
     def on_chunk(frames: int) -> Callable[[], None] | None:
-        if frames - last_checkpoint[0] < every:
+        if finishing[0] or frames - last_checkpoint[0] < every:
             return None
         last_checkpoint[0] = frames
         snapshot, path = state.snapshot(into=spare[0]), checkpoint_path(out_dir, frames)
@@ -365,6 +377,7 @@ def run(request: RunRequest, resume: bool = False,
     finally:
         bar.close()
         scans.close()  # stops and joins the decode thread
+    finishing[0] = True
     writer.finish()
     clock.lap("write")
     wall = time.perf_counter() - t0
