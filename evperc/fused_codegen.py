@@ -66,9 +66,11 @@ BLOCK = 256
 #: lanes per run of the body (whole sub-blocks within [l0, l1) are computed)
 SUB = 16
 IN_ZETA, IN_FREE, IN_OCC, IN_LABEL, IN_OBSERVED = 32, 33, 34, 35, 36
-OUT_MASS = 37
-OUT_ZETA = OUT_MASS + 32
-OUT_BETP = OUT_ZETA + 1
+# outputs overwrite the inputs of their own lane (the body loads every input before it
+# stores), which keeps the buffer in L1
+OUT_MASS = 0
+OUT_ZETA = 32
+OUT_BETP = 33
 OUT_CONFLICT = OUT_BETP + 5
 OUT_CODE = OUT_CONFLICT + 3
 OUT_VACUOUS = OUT_CODE + 1
@@ -293,12 +295,13 @@ def _load() -> list[str]:
              *_copy(f"buf[{IN_ZETA} * BLOCK + a0 - j0:{IN_ZETA} * BLOCK + a1 - j0]",
                     "zeta[buf_row, a0 + shift:a1 + shift]", "w", "")]
     return [
-        "for a in range(31):",
+        "if s0 > j0 + l0 or s1 < j0 + l1:  # some lanes entered the window: vacuous",
+        "    for a in range(31):",
+        "        for l in range(l0, l1):",
+        "            buf[a * BLOCK + l] = _0",
         "    for l in range(l0, l1):",
-        "        buf[a * BLOCK + l] = _0",
-        "for l in range(l0, l1):",
-        "    buf[31 * BLOCK + l] = _1",
-        f"    buf[{IN_ZETA} * BLOCK + l] = _0",
+        "        buf[31 * BLOCK + l] = _1",
+        f"        buf[{IN_ZETA} * BLOCK + l] = _0",
         *_segments(state, "max(s0, j0 + l0)", "min(s1, j0 + l1)"),
         f"frees = {_plane(str(IN_FREE))}",
         f"occs = {_plane(str(IN_OCC))}",

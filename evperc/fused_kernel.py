@@ -21,7 +21,7 @@ _INV5 = np.float32(1.0 / 5.0)
 _2 = np.float32(2.0)
 BLOCK = 256
 SUB = 16
-PLANES = 80
+PLANES = 43
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
@@ -164,12 +164,13 @@ def step_float(state, zeta, flags, off_r, off_c, dr, dc, free, occ, labels, obse
                     row[t] = vac_code
             if l1 <= l0:
                 continue
-            for a in range(31):
+            if s0 > j0 + l0 or s1 < j0 + l1:  # some lanes entered the window: vacuous
+                for a in range(31):
+                    for l in range(l0, l1):
+                        buf[a * BLOCK + l] = _0
                 for l in range(l0, l1):
-                    buf[a * BLOCK + l] = _0
-            for l in range(l0, l1):
-                buf[31 * BLOCK + l] = _1
-                buf[32 * BLOCK + l] = _0
+                    buf[31 * BLOCK + l] = _1
+                    buf[32 * BLOCK + l] = _0
             for seg in range(2):
                 a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
                 a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
@@ -698,39 +699,39 @@ def step_float(state, zeta, flags, off_r, off_c, dr, dc, free, occ, labels, obse
                     c16 -= g
                     c8 += g if to_s else _0
                     c0 += _0 if to_s else g
-                    sb[9472 + l] = c0
-                    sb[9728 + l] = c1
-                    sb[9984 + l] = c2
-                    sb[10240 + l] = c3
-                    sb[10496 + l] = c4
-                    sb[10752 + l] = c5
-                    sb[11008 + l] = c6
-                    sb[11264 + l] = c7
-                    sb[11520 + l] = c8
-                    sb[11776 + l] = c9
-                    sb[12032 + l] = c10
-                    sb[12288 + l] = c11
-                    sb[12544 + l] = c12
-                    sb[12800 + l] = c13
-                    sb[13056 + l] = c14
-                    sb[13312 + l] = c15
-                    sb[13568 + l] = c16
-                    sb[13824 + l] = c17
-                    sb[14080 + l] = c18
-                    sb[14336 + l] = c19
-                    sb[14592 + l] = c20
-                    sb[14848 + l] = c21
-                    sb[15104 + l] = c22
-                    sb[15360 + l] = c23
-                    sb[15616 + l] = c24
-                    sb[15872 + l] = c25
-                    sb[16128 + l] = c26
-                    sb[16384 + l] = c27
-                    sb[16640 + l] = c28
-                    sb[16896 + l] = c29
-                    sb[17152 + l] = c30
-                    sb[17408 + l] = c31
-                    sb[17664 + l] = z
+                    sb[0 + l] = c0
+                    sb[256 + l] = c1
+                    sb[512 + l] = c2
+                    sb[768 + l] = c3
+                    sb[1024 + l] = c4
+                    sb[1280 + l] = c5
+                    sb[1536 + l] = c6
+                    sb[1792 + l] = c7
+                    sb[2048 + l] = c8
+                    sb[2304 + l] = c9
+                    sb[2560 + l] = c10
+                    sb[2816 + l] = c11
+                    sb[3072 + l] = c12
+                    sb[3328 + l] = c13
+                    sb[3584 + l] = c14
+                    sb[3840 + l] = c15
+                    sb[4096 + l] = c16
+                    sb[4352 + l] = c17
+                    sb[4608 + l] = c18
+                    sb[4864 + l] = c19
+                    sb[5120 + l] = c20
+                    sb[5376 + l] = c21
+                    sb[5632 + l] = c22
+                    sb[5888 + l] = c23
+                    sb[6144 + l] = c24
+                    sb[6400 + l] = c25
+                    sb[6656 + l] = c26
+                    sb[6912 + l] = c27
+                    sb[7168 + l] = c28
+                    sb[7424 + l] = c29
+                    sb[7680 + l] = c30
+                    sb[7936 + l] = c31
+                    sb[8192 + l] = z
                     norm = (((((c1 + c2) + (c3 + c4)) + ((c5 + c6) + (c7 + c8))) + (((c9 + c10) + (c11 + c12)) + ((c13 + c14) + (c15 + c16)))) + ((((c17 + c18) + (c19 + c20)) + ((c21 + c22) + (c23 + c24))) + (((c25 + c26) + (c27 + c28)) + ((c29 + c30) + c31))))
                     inv_norm = (_1 / norm) if norm > tol else _0
                     w1 = c1
@@ -789,17 +790,17 @@ def step_float(state, zeta, flags, off_r, off_c, dr, dc, free, occ, labels, obse
                     fine_ok = (fine_best >= _HALF) & (fine_best >= _HALF * static) & (fine_best - fine_second > _TIE)
                     code = fine_code if (is_static & fine_ok) else code
                     code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code
-                    sb[17920 + l] = p_f
-                    sb[18176 + l] = p_i
-                    sb[18432 + l] = p_u
-                    sb[18688 + l] = p_s
-                    sb[18944 + l] = p_m
-                    sb[19200 + l] = fo
-                    sb[19456 + l] = of
-                    sb[19712 + l] = other
-                    sb[19968 + l] = code
+                    sb[8448 + l] = p_f
+                    sb[8704 + l] = p_i
+                    sb[8960 + l] = p_u
+                    sb[9216 + l] = p_s
+                    sb[9472 + l] = p_m
+                    sb[9728 + l] = fo
+                    sb[9984 + l] = of
+                    sb[10240 + l] = other
+                    sb[10496 + l] = code
                     rest = (((((c0 + c1) + (c2 + c3)) + ((c4 + c5) + (c6 + c7))) + (((c8 + c9) + (c10 + c11)) + ((c12 + c13) + (c14 + c15)))) + ((((c16 + c17) + (c18 + c19)) + ((c20 + c21) + (c22 + c23))) + (((c24 + c25) + (c26 + c27)) + ((c28 + c29) + c30))))
-                    sb[20224 + l] = _1 if ((c31 == _1) & (rest == _0) & (z == _0)) else _0
+                    sb[10752 + l] = _1 if ((c31 == _1) & (rest == _0) & (z == _0)) else _0
             for seg in range(2):
                 a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
                 a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
@@ -808,28 +809,28 @@ def step_float(state, zeta, flags, off_r, off_c, dr, dc, free, occ, labels, obse
                 if w > 0:
                     for a in range(32):
                         to = state[a, buf_row, a0 + shift:a1 + shift]
-                        fro = buf[(37 + a) * BLOCK + a0 - j0:(37 + a) * BLOCK + a1 - j0]
+                        fro = buf[(0 + a) * BLOCK + a0 - j0:(0 + a) * BLOCK + a1 - j0]
                         for t in range(w):
                             to[t] = fro[t]
                     to = zeta[buf_row, a0 + shift:a1 + shift]
-                    fro = buf[69 * BLOCK + a0 - j0:69 * BLOCK + a1 - j0]
+                    fro = buf[32 * BLOCK + a0 - j0:32 * BLOCK + a1 - j0]
                     for t in range(w):
                         to[t] = fro[t]
                     to = flags[buf_row, a0 + shift:a1 + shift]
-                    fro = buf[79 * BLOCK + a0 - j0:79 * BLOCK + a1 - j0]
+                    fro = buf[42 * BLOCK + a0 - j0:42 * BLOCK + a1 - j0]
                     for t in range(w):
                         to[t] = np.uint8(fro[t])
             for k in range(5):
                 to = betp[k, r, j0 + l0:j0 + l1]
-                fro = buf[(70 + k) * BLOCK + l0:(70 + k) * BLOCK + l1]
+                fro = buf[(33 + k) * BLOCK + l0:(33 + k) * BLOCK + l1]
                 for t in range(l1 - l0):
                     to[t] = fro[t]
             for k in range(3):
                 to = conflict[k, r, j0 + l0:j0 + l1]
-                fro = buf[(75 + k) * BLOCK + l0:(75 + k) * BLOCK + l1]
+                fro = buf[(38 + k) * BLOCK + l0:(38 + k) * BLOCK + l1]
                 for t in range(l1 - l0):
                     to[t] = fro[t]
-            codes = buf[(78) * BLOCK + l0:(78) * BLOCK + l1]
+            codes = buf[(41) * BLOCK + l0:(41) * BLOCK + l1]
             row = decision[r, j0 + l0:j0 + l1]
             for t in range(l1 - l0):
                 row[t] = np.uint8(codes[t])
@@ -991,12 +992,13 @@ def step_stored(state, zeta, flags, off_r, off_c, dr, dc, free, occ, labels, obs
                     row[t] = vac_code
             if l1 <= l0:
                 continue
-            for a in range(31):
+            if s0 > j0 + l0 or s1 < j0 + l1:  # some lanes entered the window: vacuous
+                for a in range(31):
+                    for l in range(l0, l1):
+                        buf[a * BLOCK + l] = _0
                 for l in range(l0, l1):
-                    buf[a * BLOCK + l] = _0
-            for l in range(l0, l1):
-                buf[31 * BLOCK + l] = _1
-                buf[32 * BLOCK + l] = _0
+                    buf[31 * BLOCK + l] = _1
+                    buf[32 * BLOCK + l] = _0
             for seg in range(2):
                 a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
                 a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
@@ -1525,39 +1527,39 @@ def step_stored(state, zeta, flags, off_r, off_c, dr, dc, free, occ, labels, obs
                     c16 -= g
                     c8 += g if to_s else _0
                     c0 += _0 if to_s else g
-                    sb[9472 + l] = c0
-                    sb[9728 + l] = c1
-                    sb[9984 + l] = c2
-                    sb[10240 + l] = c3
-                    sb[10496 + l] = c4
-                    sb[10752 + l] = c5
-                    sb[11008 + l] = c6
-                    sb[11264 + l] = c7
-                    sb[11520 + l] = c8
-                    sb[11776 + l] = c9
-                    sb[12032 + l] = c10
-                    sb[12288 + l] = c11
-                    sb[12544 + l] = c12
-                    sb[12800 + l] = c13
-                    sb[13056 + l] = c14
-                    sb[13312 + l] = c15
-                    sb[13568 + l] = c16
-                    sb[13824 + l] = c17
-                    sb[14080 + l] = c18
-                    sb[14336 + l] = c19
-                    sb[14592 + l] = c20
-                    sb[14848 + l] = c21
-                    sb[15104 + l] = c22
-                    sb[15360 + l] = c23
-                    sb[15616 + l] = c24
-                    sb[15872 + l] = c25
-                    sb[16128 + l] = c26
-                    sb[16384 + l] = c27
-                    sb[16640 + l] = c28
-                    sb[16896 + l] = c29
-                    sb[17152 + l] = c30
-                    sb[17408 + l] = c31
-                    sb[17664 + l] = z
+                    sb[0 + l] = c0
+                    sb[256 + l] = c1
+                    sb[512 + l] = c2
+                    sb[768 + l] = c3
+                    sb[1024 + l] = c4
+                    sb[1280 + l] = c5
+                    sb[1536 + l] = c6
+                    sb[1792 + l] = c7
+                    sb[2048 + l] = c8
+                    sb[2304 + l] = c9
+                    sb[2560 + l] = c10
+                    sb[2816 + l] = c11
+                    sb[3072 + l] = c12
+                    sb[3328 + l] = c13
+                    sb[3584 + l] = c14
+                    sb[3840 + l] = c15
+                    sb[4096 + l] = c16
+                    sb[4352 + l] = c17
+                    sb[4608 + l] = c18
+                    sb[4864 + l] = c19
+                    sb[5120 + l] = c20
+                    sb[5376 + l] = c21
+                    sb[5632 + l] = c22
+                    sb[5888 + l] = c23
+                    sb[6144 + l] = c24
+                    sb[6400 + l] = c25
+                    sb[6656 + l] = c26
+                    sb[6912 + l] = c27
+                    sb[7168 + l] = c28
+                    sb[7424 + l] = c29
+                    sb[7680 + l] = c30
+                    sb[7936 + l] = c31
+                    sb[8192 + l] = z
                     norm = (((((c1 + c2) + (c3 + c4)) + ((c5 + c6) + (c7 + c8))) + (((c9 + c10) + (c11 + c12)) + ((c13 + c14) + (c15 + c16)))) + ((((c17 + c18) + (c19 + c20)) + ((c21 + c22) + (c23 + c24))) + (((c25 + c26) + (c27 + c28)) + ((c29 + c30) + c31))))
                     inv_norm = (_1 / norm) if norm > tol else _0
                     w1 = c1
@@ -1616,17 +1618,17 @@ def step_stored(state, zeta, flags, off_r, off_c, dr, dc, free, occ, labels, obs
                     fine_ok = (fine_best >= _HALF) & (fine_best >= _HALF * static) & (fine_best - fine_second > _TIE)
                     code = fine_code if (is_static & fine_ok) else code
                     code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code
-                    sb[17920 + l] = p_f
-                    sb[18176 + l] = p_i
-                    sb[18432 + l] = p_u
-                    sb[18688 + l] = p_s
-                    sb[18944 + l] = p_m
-                    sb[19200 + l] = fo
-                    sb[19456 + l] = of
-                    sb[19712 + l] = other
-                    sb[19968 + l] = code
+                    sb[8448 + l] = p_f
+                    sb[8704 + l] = p_i
+                    sb[8960 + l] = p_u
+                    sb[9216 + l] = p_s
+                    sb[9472 + l] = p_m
+                    sb[9728 + l] = fo
+                    sb[9984 + l] = of
+                    sb[10240 + l] = other
+                    sb[10496 + l] = code
                     rest = (((((c0 + c1) + (c2 + c3)) + ((c4 + c5) + (c6 + c7))) + (((c8 + c9) + (c10 + c11)) + ((c12 + c13) + (c14 + c15)))) + ((((c16 + c17) + (c18 + c19)) + ((c20 + c21) + (c22 + c23))) + (((c24 + c25) + (c26 + c27)) + ((c28 + c29) + c30))))
-                    sb[20224 + l] = _1 if ((c31 == _1) & (rest == _0) & (z == _0)) else _0
+                    sb[10752 + l] = _1 if ((c31 == _1) & (rest == _0) & (z == _0)) else _0
             for seg in range(2):
                 a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
                 a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
@@ -1635,19 +1637,19 @@ def step_stored(state, zeta, flags, off_r, off_c, dr, dc, free, occ, labels, obs
                 if w > 0:
                     for a in range(32):
                         to = state[a, buf_row, a0 + shift:a1 + shift]
-                        fro = buf[(37 + a) * BLOCK + a0 - j0:(37 + a) * BLOCK + a1 - j0]
+                        fro = buf[(0 + a) * BLOCK + a0 - j0:(0 + a) * BLOCK + a1 - j0]
                         for t in range(w):
                             to[t] = fro[t]
                     to = zeta[buf_row, a0 + shift:a1 + shift]
-                    fro = buf[69 * BLOCK + a0 - j0:69 * BLOCK + a1 - j0]
+                    fro = buf[32 * BLOCK + a0 - j0:32 * BLOCK + a1 - j0]
                     for t in range(w):
                         to[t] = fro[t]
                     to = flags[buf_row, a0 + shift:a1 + shift]
-                    fro = buf[79 * BLOCK + a0 - j0:79 * BLOCK + a1 - j0]
+                    fro = buf[42 * BLOCK + a0 - j0:42 * BLOCK + a1 - j0]
                     for t in range(w):
                         to[t] = np.uint8(fro[t])
             for a in range(32):
-                values = buf[(37 + a) * BLOCK + l0:(37 + a) * BLOCK + l1]
+                values = buf[(0 + a) * BLOCK + l0:(0 + a) * BLOCK + l1]
                 row = q_masses[a, r, j0 + l0:j0 + l1]
                 for t in range(l1 - l0):
                     v = values[t]
@@ -1655,7 +1657,7 @@ def step_stored(state, zeta, flags, off_r, off_c, dr, dc, free, occ, labels, obs
                     v = v if v < _1 else _1
                     row[t] = np.uint8(np.int32(v * _255 + _HALF))
             for k in range(5):
-                values = buf[(70 + k) * BLOCK + l0:(70 + k) * BLOCK + l1]
+                values = buf[(33 + k) * BLOCK + l0:(33 + k) * BLOCK + l1]
                 row = q_betp[k, r, j0 + l0:j0 + l1]
                 for t in range(l1 - l0):
                     v = values[t]
@@ -1663,21 +1665,21 @@ def step_stored(state, zeta, flags, off_r, off_c, dr, dc, free, occ, labels, obs
                     v = v if v < _1 else _1
                     row[t] = np.uint8(np.int32(v * _255 + _HALF))
             for k in range(3):
-                values = buf[(75 + k) * BLOCK + l0:(75 + k) * BLOCK + l1]
+                values = buf[(38 + k) * BLOCK + l0:(38 + k) * BLOCK + l1]
                 row = q_conflict[k, r, j0 + l0:j0 + l1]
                 for t in range(l1 - l0):
                     v = values[t]
                     v = v if v > _0 else _0
                     v = v if v < _1 else _1
                     row[t] = np.uint8(np.int32(v * _255 + _HALF))
-            values = buf[(69) * BLOCK + l0:(69) * BLOCK + l1]
+            values = buf[(32) * BLOCK + l0:(32) * BLOCK + l1]
             row = q_zeta[r, j0 + l0:j0 + l1]
             for t in range(l1 - l0):
                 v = values[t]
                 v = v if v > _0 else _0
                 v = v if v < _1 else _1
                 row[t] = np.uint8(np.int32(v * _255 + _HALF))
-            codes = buf[(78) * BLOCK + l0:(78) * BLOCK + l1]
+            codes = buf[(41) * BLOCK + l0:(41) * BLOCK + l1]
             row = q_decision[r, j0 + l0:j0 + l1]
             for t in range(l1 - l0):
                 row[t] = np.uint8(codes[t])
