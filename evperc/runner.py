@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from evperc.errors import GeoreferenceError, OutputError
+from evperc.errors import GeoreferenceError, OutputError, PoseError
 from evperc.fused import StoredOutputs, fused_step, vacuous_flags
 from evperc.geo import georef as georef_mod
 from evperc.geo.crs import working_crs
@@ -377,6 +377,12 @@ def run(request: RunRequest, resume: bool = False,
     finally:
         bar.close()
         scans.close()  # stops and joins the decode thread
+    if state.frames == 0:
+        writer.abort()
+        reasons = ", ".join(f"{k} {v}" for k, v in sorted(pipeline.reader.stats.items()))
+        raise PoseError(f"{request.log_path}: no scan could be fused"
+                        + (f" (skipped scans: {reasons})" if reasons else
+                           " (no scan in the requested span)"))
     finishing[0] = True
     writer.finish()
     clock.lap("write")

@@ -211,6 +211,29 @@ def test_unsupported_message_encoding(tmp_path: Path) -> None:
     assert_not_complete(tmp_path / "o")
 
 
+def test_undecodable_pose_messages_are_counted_and_no_frame_is_an_error(drive: Path,
+                                                                         tmp_path: Path) -> None:
+    """The Odometry schema names a type it does not define (found by the fuzz test): each
+    pose message fails to decode; they are skipped and counted, and a run that could fuse no
+    scan is a one-line error, not an empty output that says complete."""
+    data = drive.read_bytes()
+    name = b"MSG: geometry_msgs/PoseWithCovariance\n"
+    assert data.count(name) == 1
+    log = tmp_path / "broken.mcap"
+    log.write_bytes(data.replace(name, b"MSG: geometry_msgs/PoseWithCovariancX\n"))
+    out = tmp_path / "o"
+    code, text = run_cli(str(log), "--no-map", "--out", str(out))
+    assert_one_line_error(code, text, str(log), "no scan could be fused", "pose_undecodable")
+    assert_not_complete(out)
+
+
+def test_span_without_scans_is_an_error(drive: Path, tmp_path: Path) -> None:
+    out = tmp_path / "o"
+    code, text = run_cli(str(drive), "--no-map", "--start", "500", "--out", str(out))
+    assert_one_line_error(code, text, str(drive), "no scan in the requested span")
+    assert_not_complete(out)
+
+
 def test_empty_and_non_finite_scans_run(tmp_path: Path) -> None:
     """Empty clouds and NaN/inf points are data, not errors: the run completes."""
     nan_cloud = np.array([[np.nan, 1, 0], [np.inf, 0, 0], [5, 0, 0]], dtype=np.float32)
