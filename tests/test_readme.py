@@ -40,3 +40,26 @@ def test_every_usage_command_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
         assert words[0] == "evperc", command
         result = CliRunner().invoke(cli, words[1:])
         assert result.exit_code == 0, f"{command}\n{result.output}"
+
+
+@pytest.mark.slow
+def test_make_run_can_be_run_twice(tmp_path: Path) -> None:
+    """`make run` is the README's first command: running it again over its own output works
+    (the render of the second run replaces the first one's pictures)."""
+    import shutil
+    import subprocess
+    import sys
+
+    make = shutil.which("make")
+    if make is None:
+        pytest.skip("make is not installed")
+    bin_dir = Path(sys.executable).parent
+    out = tmp_path / "out"
+    # -o: take the installed package as is (this test runs inside the installed venv)
+    cmd = [make, "-C", str(ROOT), "run", "-o", ".venv/.installed", f"BIN={bin_dir}",
+           f"OUT={out}"]
+    for _ in range(2):
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stdout + done.stderr
+    assert (out / "sample.gif").is_file()
+    assert len(list((out / "sample-png").glob("*.png"))) == 200
