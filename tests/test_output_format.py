@@ -118,3 +118,26 @@ def test_a_frame_of_the_wrong_shape_is_refused(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="window"):
         writer.add(0, np.zeros(3), (0, 0), masses, betp, decision[:2], zeta, conflict)
     writer.abort()
+
+
+def test_manifest_size_does_not_grow_with_frames(tmp_path: Path) -> None:
+    """Per-frame metadata lives in the chunks: the manifest of 3 frames and of 90 frames (one
+    chunk each) are the same size, and decision counts come back per frame from the chunk."""
+    rng = np.random.default_rng(2)
+    sizes = []
+    for n in (3, 90):
+        out = tmp_path / f"out{n}"
+        writer = make_writer(out, chunk_frames=100)
+        for k in range(n):
+            writer.add(10**18 + k, np.array([k, 0.0, 0.0]), (0, 0), *frame_arrays(rng))
+        writer.close({"frames": n})
+        manifest = json.loads((out / "manifest.json").read_text())
+        assert manifest["frame_count"] == n and manifest["first_stamp_ns"] == 10**18
+        manifest.pop("frame_count")
+        manifest["chunks"][0].pop("frame_count")
+        manifest.pop("summary")
+        sizes.append(len(json.dumps(manifest)))
+        for frame in evperc.load(out).frames:
+            want = np.bincount(frame.decision.ravel(), minlength=len(DECISION_CODES))
+            np.testing.assert_array_equal(frame.decision_counts, want)
+    assert sizes[0] == sizes[1]

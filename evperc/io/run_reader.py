@@ -30,6 +30,7 @@ class Frame:
     zeta: np.ndarray          # (rows, cols) float32
     conflict: np.ndarray      # (rows, cols, 3) float32: ∅_FO, ∅_OF, ∅_other
     masses: np.ndarray        # (rows, cols, 32) float32
+    decision_counts: np.ndarray  # (n_codes,) int64: cells per decision code
 
 
 class Run:
@@ -81,7 +82,8 @@ class Run:
                 window=Window(self.resolution_m, rows, cols, row0, col0),
                 decision=arrays["decision"][k], betp=_interleaved(arrays["betp"][k]),
                 zeta=dequantise(arrays["zeta"][k]),
-                conflict=_interleaved(arrays["conflict"][k]), masses=masses)
+                conflict=_interleaved(arrays["conflict"][k]), masses=masses,
+                decision_counts=arrays["decision_counts"][k])
 
 
 def _interleaved(planar: np.ndarray) -> np.ndarray:

@@ -34,7 +34,7 @@ from evperc.io.quantise import quantise, quantise_planar
 
 log = logging.getLogger(__name__)
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 MANIFEST = "manifest.json"
 FRAMES_DIR = "frames"
 
@@ -101,7 +101,7 @@ class _Chunk:
     """Preallocated uint8 layers of up to ``capacity`` frames; frames are quantised straight
     into them (no per-frame arrays, no stacking copy)."""
 
-    def __init__(self, capacity: int, shape: tuple[int, int]) -> None:
+    def __init__(self, capacity: int, shape: tuple[int, int], n_codes: int) -> None:
         rows, cols = shape
         self.capacity = capacity
         self.shape = shape
@@ -114,6 +114,7 @@ class _Chunk:
         self.decision = np.empty((capacity, rows, cols), np.uint8)
         self.zeta = np.empty((capacity, rows, cols), np.uint8)
         self.conflict = np.empty((capacity, 3, rows, cols), np.uint8)
+        self.decision_counts = np.zeros((capacity, n_codes), np.int64)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The NPZ members of the frames held (views where possible)."""
@@ -127,7 +128,8 @@ class _Chunk:
         return {"stamp_ns": self.stamp_ns[:k], "pose": self.pose[:k],
                 "origin": self.origin[:k], "focal_masks": used.astype(np.uint8),
                 "masses": stored, "betp": self.betp[:k], "decision": self.decision[:k],
-                "zeta": self.zeta[:k], "conflict": self.conflict[:k]}
+                "zeta": self.zeta[:k], "conflict": self.conflict[:k],
+                "decision_counts": self.decision_counts[:k]}
 
 
 class RunWriter:
@@ -141,7 +143,7 @@ class RunWriter:
         self.compress = bool(config["output"]["compress"])
         self.manifest: dict[str, Any] = {
             "format_version": FORMAT_VERSION, "complete": False, "frame_count": 0,
-            "chunk_frames": self.chunk_frames, "chunks": [], "frames": [],
+            "chunk_frames": self.chunk_frames, "chunks": [], "first_stamp_ns": None,
             "config": config, **meta}
         try:
             atomic_write_bytes(self.out_dir / "config.toml", config_mod.dumps(config).encode())
@@ -153,9 +155,11 @@ class RunWriter:
     def _start(self) -> None:
         shape = (int(self.manifest["rows"]), int(self.manifest["cols"]))
         # two buffers: one filling while the writer thread writes the other
-        self._buffers = [_Chunk(self.chunk_frames, shape), _Chunk(self.chunk_frames, shape)]
+        n_codes = len(self.manifest["decision_codes"])
+        self._buffers = [_Chunk(self.chunk_frames, shape, n_codes),
+                         _Chunk(self.chunk_frames, shape, n_codes)]
         self._chunk = self._buffers[0]
-        self._frames: list[dict[str, Any]] = list(self.manifest["frames"])
+        self._received = self.manifest["frame_count"]  # frames received (written or queued)
         self._queued = self.manifest["frame_count"]   # frames handed to the writer thread
         self._chunks_queued = len(self.manifest["chunks"])
         self._lock = threading.Lock()
@@ -182,7 +186,6 @@ class RunWriter:
         writer.manifest = manifest
         writer.chunk_frames = int(manifest["chunk_frames"])
         writer.compress = bool(manifest["config"]["output"]["compress"])
-        manifest["frames"] = manifest["frames"][:manifest["frame_count"]]
         listed = {c["file"] for c in manifest["chunks"]}
         for path in (out_dir / FRAMES_DIR).iterdir():
             if f"{FRAMES_DIR}/{path.name}" not in listed:
@@ -193,7 +196,7 @@ class RunWriter:
     @property
     def frame_count(self) -> int:
         """Frames received so far (written or queued)."""
-        return len(self._frames)
+        return self._received
 
     def frame_slot(self) -> tuple[np.ndarray, ...]:
         """uint8 views of the next frame's layers in the chunk buffer: ``masses (32, rows,
@@ -212,12 +215,14 @@ class RunWriter:
         c.stamp_ns[k] = int(stamp_ns)
         c.pose[k] = pose
         c.origin[k] = origin
+        if decision_counts is None:
+            decision_counts = np.bincount(c.decision[k].ravel(),
+                                          minlength=c.decision_counts.shape[1])
+        c.decision_counts[k] = decision_counts
         c.count = k + 1
-        entry = {"stamp_ns": int(stamp_ns), "pose": [float(v) for v in pose],
-                 "origin": [int(origin[0]), int(origin[1])]}
-        if decision_counts is not None:
-            entry["decision_counts"] = [int(n) for n in decision_counts]
-        self._frames.append(entry)
+        if self.manifest["first_stamp_ns"] is None:
+            self.manifest["first_stamp_ns"] = int(stamp_ns)
+        self._received += 1
         if c.count >= self.chunk_frames:
             self._flush()
             return True
@@ -256,10 +261,9 @@ class RunWriter:
         self._chunks_queued += 1
         self._queued += c.count
         commit = self.on_chunk(self._queued) if self.on_chunk is not None else None
-        frames = list(self._frames[:self._queued])
-        self._pending = self._pool.submit(self._write_chunk, c, index, first, frames, commit)
+        self._pending = self._pool.submit(self._write_chunk, c, index, first, commit)
 
-    def _write_chunk(self, c: _Chunk, index: int, first: int, frames: list[dict[str, Any]],
+    def _write_chunk(self, c: _Chunk, index: int, first: int,
                      commit: Callable[[], None] | None) -> None:
         t0 = time.perf_counter()
         name = f"chunk_{index:05d}.npz"
@@ -277,7 +281,6 @@ class RunWriter:
             with self._lock:
                 self.manifest["chunks"] = list(self._written)
                 self.manifest["frame_count"] = first + c.count
-                self.manifest["frames"] = frames
                 write_json(self.out_dir / MANIFEST, self.manifest)
         except OSError as err:
             raise OutputError(f"{path}: cannot write chunk ({err.strerror or err})") from err
@@ -295,8 +298,7 @@ class RunWriter:
         try:
             self.finish()
             self.manifest["chunks"] = list(self._written)
-            self.manifest["frame_count"] = len(self._frames)
-            self.manifest["frames"] = self._frames
+            self.manifest["frame_count"] = self._received
             self.manifest["summary"] = summary
             self.manifest["complete"] = True
             write_json(self.out_dir / MANIFEST, self.manifest)

@@ -127,8 +127,8 @@ def _label(run: Any) -> str:
 
 
 def _first_stamp(run: Any) -> int | None:
-    frames = (getattr(run, "manifest", None) or {}).get("frames") or []
-    return int(frames[0]["stamp_ns"]) if frames else None
+    stamp = (getattr(run, "manifest", None) or {}).get("first_stamp_ns")
+    return int(stamp) if stamp is not None else None
 
 
 def prepare_dest(dest: Path, overwrite: bool) -> None:
