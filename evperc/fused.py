@@ -39,6 +39,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from evperc import fused_kernel
@@ -179,6 +180,22 @@ def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
     kernel(pg, zeta, flags, off_r, off_c, int(shift[0]), int(shift[1]), free32, occ32, lab, obs,
            *scalars, *out.arrays())
     return out
+
+
+def count_codes(decision: np.ndarray, n_codes: int) -> np.ndarray:
+    """Cells per decision code of a uint8 grid (``np.bincount`` without its conversion of
+    the 160,000 codes to intp, ~5× faster)."""
+    counts = np.zeros(max(n_codes, 256), np.int64)
+    _count(np.ascontiguousarray(decision).reshape(-1), counts)
+    if counts[n_codes:].any():
+        raise ValueError(f"decision codes beyond {n_codes - 1}")
+    return counts[:n_codes]
+
+
+@numba.njit(cache=True, nogil=True)
+def _count(codes: np.ndarray, counts: np.ndarray) -> None:  # pragma: no cover - compiled
+    for code in codes:
+        counts[code] += 1
 
 
 def vacuous_flags(pg: np.ndarray, zeta: np.ndarray) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from evperc.errors import GeoreferenceError, OutputError, PoseError
-from evperc.fused import StoredOutputs, fused_step, vacuous_flags
+from evperc.fused import StoredOutputs, count_codes, fused_step, vacuous_flags
 from evperc.geo import georef as georef_mod
 from evperc.geo.crs import working_crs
 from evperc.geo.prior import PriorRasteriser
@@ -298,7 +298,7 @@ class Pipeline:
                    out=out, flags=state.flags, offset=state.offset, shift=shift)
         clock.lap("fusion")
         state.frames += 1
-        counts = np.bincount(out.decision.ravel(), minlength=len(state.decision_counts))
+        counts = count_codes(out.decision, len(state.decision_counts))
         state.decision_counts += counts
         return {"stamp_ns": scan.stamp_ns, "pose": pose, "origin": (window.row0, window.col0),
                 "decision_counts": counts}

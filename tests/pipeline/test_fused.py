@@ -513,3 +513,15 @@ def test_generated_kernel_is_up_to_date() -> None:
     """evperc/fused_kernel.py is what evperc/fused_codegen.py writes (regenerate with
     ``python -m evperc.fused_codegen``)."""
     assert fused_codegen.TARGET.read_text() == fused_codegen.source()
+
+
+def test_count_codes_equals_bincount() -> None:
+    from evperc.fused import count_codes
+
+    rng = np.random.default_rng(5)
+    for shape in ((400, 400), (7, 3), (0, 5)):
+        decision = rng.integers(0, 7, shape).astype(np.uint8)
+        np.testing.assert_array_equal(count_codes(decision, 7),
+                                      np.bincount(decision.ravel(), minlength=7))
+    with pytest.raises(ValueError, match="beyond 6"):
+        count_codes(np.full((2, 2), 9, np.uint8), 7)
