@@ -231,7 +231,7 @@ def in_process(sim: Path, config_path: Path, stored: Path) -> dict:
     for (_, scan), saved in zip(scans, run.frames, strict=False):
         if out is None:
             out = StoredOutputs.empty(saved.decision.shape)
-        pipeline.step(state, scan, out)
+        pipeline.step(state, pipeline.prepare(scan), out)
         # the float32 state in memory against what the run stored (uint8 steps of 1/255)
         masses = np.moveaxis(window_order(state.pg, state.offset), 0, -1)
         betp, decision = decide(masses, pipeline.params)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -50,6 +50,19 @@ class RunRequest:
     every: int = 1
     lidar_topic: str | None = None
     pose_topic: str | None = None
+
+
+@dataclass(frozen=True)
+class FrameInputs:
+    """One scan made ready for the fusion step (:meth:`Pipeline.prepare`)."""
+
+    stamp_ns: int
+    pose: np.ndarray              # x_m, y_m, yaw_rad of the sensor in the working CRS
+    window: Window
+    free: np.ndarray              # sensor grid m({F}), float32 window.shape
+    occupied: np.ndarray          # sensor grid m({O})
+    labels: np.ndarray | None     # map context labels, None without a map
+    seconds: dict[str, float]     # time spent preparing it, per stage
 
 
 def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
@@ -109,6 +122,11 @@ class StageClock:
         now = time.perf_counter()
         self.seconds[stage] = self.seconds.get(stage, 0.0) + now - self._last
         self._last = now
+
+    def add(self, seconds: dict[str, float]) -> None:
+        """Charge time measured elsewhere (another thread) to its stages."""
+        for stage, value in seconds.items():
+            self.seconds[stage] = self.seconds.get(stage, 0.0) + value
 
     def per_frame_ms(self, frames: int) -> dict[str, float]:
         return {k: round(1e3 * v / max(frames, 1), 3) for k, v in self.seconds.items()}
@@ -261,11 +279,11 @@ class Pipeline:
             if index > after_index and index % r.every == 0:
                 yield index, scan
 
-    def step(self, state: FusionState, scan: PosedScan, out: StoredOutputs) -> dict[str, Any]:
-        """Fuse one scan into ``state`` (updated in place); the frame's layers go to ``out``
-        (the writer's chunk buffer); returns the frame's metadata."""
-        clock = self.clock
-        clock.lap("read")  # time since the last frame was handed out: reading, decoding
+    def prepare(self, scan: PosedScan) -> FrameInputs:
+        """What the fusion step needs from one scan, which does not depend on the fusion
+        state: pose, window, sensor grid (SPEC §3) and map labels. The runner calls this in
+        the decode thread, one or two scans ahead of the fusion."""
+        t0 = time.perf_counter()
         t_crs = (self.georef.apply(scan.T_world_sensor) if self.georef is not None
                  else scan.T_world_sensor)
         pose = pose_xy_yaw(t_crs)
@@ -273,6 +291,28 @@ class Pipeline:
         if self.map_data is not None and not self._overlap_checked:
             check_overlap(self.map_data, window.bounds)
             self._overlap_checked = True
+        t1 = time.perf_counter()
+        free, occupied = sensor_grid(scan.points, scan.planar, t_crs, window,
+                                     self.sensor_params)
+        t2 = time.perf_counter()
+        labels = self.rasteriser.labels(window) if self.rasteriser is not None else None
+        t3 = time.perf_counter()
+        return FrameInputs(scan.stamp_ns, pose, window, free, occupied, labels,
+                           {"geometry": t1 - t0, "sensor": t2 - t1, "prior": t3 - t2})
+
+    def inputs(self, after_index: int) -> Iterator[tuple[int, FrameInputs]]:
+        """:meth:`prepare` of each scan of :meth:`scans`."""
+        for index, scan in self.scans(after_index):
+            yield index, self.prepare(scan)
+
+    def step(self, state: FusionState, inputs: FrameInputs, out: StoredOutputs
+             ) -> dict[str, Any]:
+        """Fuse one prepared scan into ``state`` (updated in place); the frame's layers go to
+        ``out`` (the writer's chunk buffer); returns the frame's metadata."""
+        clock = self.clock
+        clock.lap("read")  # waiting for the decode thread (reading, decoding, sensor grid)
+        clock.add(inputs.seconds)  # the decode thread's time, overlapped with this one
+        window = inputs.window
         shift = (0, 0)
         if state.window is None:
             fresh = FusionState.fresh(window)
@@ -284,24 +324,19 @@ class Pipeline:
             state.offset = ((state.offset[0] + shift[0]) % window.rows,
                             (state.offset[1] + shift[1]) % window.cols)
         state.window = window
-        clock.lap("geometry")
-        free, occupied = sensor_grid(scan.points, scan.planar, t_crs, window,
-                                     self.sensor_params)
-        clock.lap("sensor")
-        labels = self.rasteriser.labels(window) if self.rasteriser is not None else None
-        clock.lap("prior")
-        dt_s = 0.0 if state.prev_ns is None else (scan.stamp_ns - state.prev_ns) * 1e-9
-        state.prev_ns = scan.stamp_ns
+        dt_s = 0.0 if state.prev_ns is None else (inputs.stamp_ns - state.prev_ns) * 1e-9
+        state.prev_ns = inputs.stamp_ns
         # SPEC §5 and §6 in one compiled pass, quantised straight into the chunk buffer;
         # evperc.pipeline is the numpy twin it is tested on
-        fused_step(state.pg, state.zeta, free, occupied, labels, self.betas, dt_s, self.params,
-                   out=out, flags=state.flags, offset=state.offset, shift=shift)
-        clock.lap("fusion")
+        fused_step(state.pg, state.zeta, inputs.free, inputs.occupied, inputs.labels,
+                   self.betas, dt_s, self.params, out=out, flags=state.flags,
+                   offset=state.offset, shift=shift)
         state.frames += 1
         counts = count_codes(out.decision, len(state.decision_counts))
         state.decision_counts += counts
-        return {"stamp_ns": scan.stamp_ns, "pose": pose, "origin": (window.row0, window.col0),
-                "decision_counts": counts}
+        clock.lap("fusion")
+        return {"stamp_ns": inputs.stamp_ns, "pose": inputs.pose,
+                "origin": (window.row0, window.col0), "decision_counts": counts}
 
 
 def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:
@@ -353,17 +388,18 @@ def run(request: RunRequest, resume: bool = False,
     writer.on_chunk = on_chunk
     t0 = time.perf_counter()
     new_frames = 0
-    # scans are read and decoded in a thread (the second core) while this one fuses
-    scans = prefetched(pipeline.scans(state.scan_index), depth=2, name="evperc-decode")
+    # scans are read, decoded and turned into sensor grids in a thread (the second core)
+    # while this one fuses
+    scans = prefetched(pipeline.inputs(state.scan_index), depth=2, name="evperc-decode")
     bar = tqdm(scans, unit="frame", desc=request.log_path.name,
                disable=None if progress is None else not progress, leave=False,
                initial=state.frames)
     clock = pipeline.clock
     clock.restart()
     try:
-        for index, scan in bar:
+        for index, inputs in bar:
             out = StoredOutputs(*writer.frame_slot())
-            frame = pipeline.step(state, scan, out)
+            frame = pipeline.step(state, inputs, out)
             state.scan_index = index
             new_frames += 1
             if on_frame is not None:

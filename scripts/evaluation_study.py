@@ -420,23 +420,16 @@ _DRIVES: list[tuple[str, Any, Any]] = []  # per worker: (name, prepared frames, 
 def _prepare_drive(directory: Path) -> tuple[Any, Any]:
     """Sensor grids, context labels and windows of every scan, and the truth in memory."""
     from evperc.config import load_config
-    from evperc.geo.window import Window
-    from evperc.runner import Pipeline, RunRequest, pose_xy_yaw
-    from evperc.sensor import sensor_grid
+    from evperc.runner import Pipeline, RunRequest
     from evperc.sim.truth import load_truth
 
     config = load_config(None)
     pipe = Pipeline(RunRequest(log_path=directory / "drive.mcap", out_dir=directory / "unused",
                                config=config, map_path=directory / "map.geojson"))
     frames = []
-    for _, scan in pipe.scans(-1):
-        t_crs = pipe.georef.apply(scan.T_world_sensor)
-        x, y, _ = pose_xy_yaw(t_crs)
-        window = Window.centred_on(x, y, pipe.window_size, pipe.resolution)
-        free, occupied = sensor_grid(scan.points, scan.planar, t_crs, window, pipe.sensor_params)
-        frames.append((scan.stamp_ns, window, np.ascontiguousarray(free, np.float32),
-                       np.ascontiguousarray(occupied, np.float32),
-                       np.ascontiguousarray(pipe.rasteriser.labels(window), np.uint8)))
+    for _, inputs in pipe.inputs(-1):
+        frames.append((inputs.stamp_ns, inputs.window, inputs.free, inputs.occupied,
+                       inputs.labels))
     prepared = types.SimpleNamespace(frames=frames, betas=pipe.betas,
                                      resolution_m=pipe.resolution, base=config)
     truth = load_truth(directory / "truth")

@@ -35,17 +35,18 @@ streaming API (whole members in memory) and is slower on these planes. ``isal`` 
 wheels for CPython 3.11 on Linux x86_64/aarch64 and macOS x86_64/arm64, and releases the
 GIL while compressing (the run's writer thread overlaps the main thread).
 
-How the compressor gets into ``zipfile``: ``ZipFile.open(name, "w")`` returns a member
-writer that holds its compressor in the attribute ``_compressor`` (CPython since 3.6, set
-in ``__init__``, used only by its ``write``/``close``); it is replaced by an ISA-L
-compressor before the first byte is written. This is one private attribute of one object
-(no global monkey-patching, other threads' ``zipfile`` use is untouched), and ``zipfile``
-keeps doing everything else: headers, CRC-32, data descriptors, zip64, the central
-directory. The alternative, a hand-written ZIP writer, would be ~100 lines of format code
-to maintain for a further ~0.7 ms/frame (ISA-L's CRC-32, 0.22 ms/frame, instead of
-zlib's, 0.94 ms/frame). Should a
-future Python rename the attribute, the member falls back to zlib (a warning is logged,
-the file is still valid) and ``tests/io/test_npz.py`` fails.
+How ISA-L gets into ``zipfile``: ``ZipFile.open(name, "w")`` returns a member writer that
+holds its compressor in ``_compressor`` and its running CRC-32 and sizes in ``_crc``,
+``_file_size``, ``_compress_size`` (CPython since 3.6); its compressor is replaced by an
+ISA-L one and its ``write`` (eight lines: count, CRC, compress, write) by the same steps
+with ISA-L's CRC-32 (identical values, 0.22 instead of 0.94 ms per frame of (a); on two
+shared cores it raised the whole run of (a) by 9–27 % in paired runs). Only that one
+member object changes (no global monkey-patching, other threads' ``zipfile`` use is
+untouched), and ``zipfile`` keeps doing everything else: headers, data descriptors, zip64,
+the central directory, closing. The alternative, a hand-written ZIP writer, would be ~100
+lines of format code to maintain. Should a future Python change these attributes, members
+are written by plain ``zipfile`` + zlib (a warning is logged, the file is still valid) and
+``tests/io/test_npz.py`` fails.
 
 The array bytes are handed to the member as views in pieces of ``_PIECE`` bytes
 without the copy ``np.lib.format.write_array`` makes (``tobytes`` of 16 MiB buffers); the
@@ -100,16 +101,34 @@ def write_npz(path: Path, arrays: dict[str, np.ndarray], compress: bool) -> None
         raise
 
 
+#: the member writer's state that :func:`_use_isal` relies on (CPython 3.6 to 3.13)
+_MEMBER_STATE = ("_compressor", "_file_size", "_crc", "_compress_size", "_fileobj")
+
+
 def _use_isal(member: object) -> None:
-    """Make a ``zipfile`` member writer deflate with ISA-L (see the module docstring)."""
+    """Make a ``zipfile`` member writer deflate and checksum with ISA-L (see the module
+    docstring)."""
     global _warned
-    if not hasattr(member, "_compressor"):
+    if not all(hasattr(member, name) for name in _MEMBER_STATE):
         if not _warned:
-            log.warning("zipfile has no _compressor on its member writer: NPZ members are "
-                        "deflated with zlib (slower)")
+            log.warning("zipfile's member writer has changed: NPZ members are deflated with "
+                        "zlib (slower)")
             _warned = True
         return
     member._compressor = isal_zlib.compressobj(DEFLATE_LEVEL, isal_zlib.DEFLATED, -15)
+
+    def write(data: object) -> int:
+        """``zipfile._ZipWriteFile.write`` with ISA-L's CRC-32 (the same value, ~4× faster
+        than zlib's: 0.22 against 0.94 ms per frame of workload (a))."""
+        view = memoryview(data).cast("B")
+        member._file_size += view.nbytes
+        member._crc = isal_zlib.crc32(view, member._crc)
+        packed = member._compressor.compress(view)
+        member._compress_size += len(packed)
+        member._fileobj.write(packed)
+        return view.nbytes
+
+    member.write = write
 
 
 def _write_npy(fp: object, array: np.ndarray) -> None:

@@ -222,3 +222,18 @@ def test_views_are_written_without_a_whole_copy_and_read_back_equal(
     np.save(buffer, view)
     with zipfile.ZipFile(tmp_path / "v.npz") as archive:
         assert archive.read("masses.npy") == buffer.getvalue()
+
+
+def test_crcs_written_with_isal_are_zlibs(tmp_path: Path) -> None:
+    """The member CRC-32s come from ISA-L: zipfile's own check (testzip re-reads every
+    member with zlib's CRC-32) finds them right, and they equal zlib.crc32 of the .npy
+    bytes that np.save writes."""
+    arrays = {**chunk_arrays(), "big": planes(2, 3, 700, seed=9)}  # several pieces
+    path = tmp_path / "c.npz"
+    write_npz(path, arrays, compress=True)
+    with zipfile.ZipFile(path) as archive:
+        assert archive.testzip() is None
+        for name, array in arrays.items():
+            buffer = io.BytesIO()
+            np.save(buffer, array)
+            assert archive.getinfo(f"{name}.npy").CRC == zlib.crc32(buffer.getvalue())
