@@ -444,14 +444,14 @@ def planar_random_state(rng: np.random.Generator, shape: tuple[int, int]
     return np.ascontiguousarray(np.moveaxis(pg, -1, 0)), zeta
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_circular_buffer_equals_scroll_then_step(seed: int) -> None:
+@pytest.mark.parametrize(("seed", "shape"), [(s, (70, 150)) for s in range(5)]
+                         + [(5, (12, 600)), (6, (9, 257))])
+def test_circular_buffer_equals_scroll_then_step(seed: int, shape: tuple[int, int]) -> None:
     """The step on a circular buffer (offset, shift) equals scrolling the window-order
     state with geo.window.scroll and stepping it unshifted: bit for bit, outputs and state,
-    over several frames, with moves smaller and larger than the window and blocks (64
-    cells) cut by the wrap."""
+    over several frames, with moves smaller and larger than the window, blocks (256 cells)
+    cut by the wrap and rows of several blocks."""
     rng = np.random.default_rng(300 + seed)
-    shape = (70, 150)
     params = FusionParams()
     pg, zeta = planar_random_state(rng, shape)
     labels = rng.choice(np.array([0, 1, 2, NO_MAP], np.uint8), size=shape)
@@ -525,3 +525,23 @@ def test_count_codes_equals_bincount() -> None:
                                       np.bincount(decision.ravel(), minlength=7))
     with pytest.raises(ValueError, match="beyond 6"):
         count_codes(np.full((2, 2), 9, np.uint8), 7)
+
+
+def test_rows_of_several_blocks_match_numpy() -> None:
+    """Rows longer than a block (256 cells) against numpy fusion_step + decide."""
+    rng = np.random.default_rng(41)
+    shape = (5, 600)
+    params = FusionParams()
+    pg, zeta = random_state(rng, shape, with_empty=False)
+    labels = rng.choice(np.array([0, 1, 2, NO_MAP], np.uint8), size=shape)
+    prior = numpy_prior(labels, (0.9, 0.9, 0.8), shape)
+    flips = differences = 0
+    for _ in range(3):
+        free, occ = random_scan(rng, shape)
+        observed = (free > 0) | (occ > 0)
+        want = numpy_step(pg, zeta, free, occ, prior, observed, 0.1, params)
+        near = near_zeta_threshold(pg, zeta, free, occ, prior, observed, 0.1, params)
+        out = fused_step(pg, zeta, free, occ, labels, (0.9, 0.9, 0.8), 0.1, params)
+        f, d = compare((pg, zeta), out, want, near, params)
+        flips, differences = flips + f, differences + d
+    assert flips + differences <= 0.01 * 3 * shape[0] * shape[1]
