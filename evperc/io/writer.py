@@ -159,7 +159,6 @@ class RunWriter:
         self._buffers = [_Chunk(self.chunk_frames, shape, n_codes),
                          _Chunk(self.chunk_frames, shape, n_codes)]
         self._chunk = self._buffers[0]
-        self._received = self.manifest["frame_count"]  # frames received (written or queued)
         self._queued = self.manifest["frame_count"]   # frames handed to the writer thread
         self._chunks_queued = len(self.manifest["chunks"])
         self._lock = threading.Lock()
@@ -196,7 +195,7 @@ class RunWriter:
     @property
     def frame_count(self) -> int:
         """Frames received so far (written or queued)."""
-        return self._received
+        return self._queued + self._chunk.count
 
     def frame_slot(self) -> tuple[np.ndarray, ...]:
         """uint8 views of the next frame's layers in the chunk buffer: ``masses (32, rows,
@@ -222,7 +221,6 @@ class RunWriter:
         c.count = k + 1
         if self.manifest["first_stamp_ns"] is None:
             self.manifest["first_stamp_ns"] = int(stamp_ns)
-        self._received += 1
         if c.count >= self.chunk_frames:
             self._flush()
             return True
@@ -298,7 +296,7 @@ class RunWriter:
         try:
             self.finish()
             self.manifest["chunks"] = list(self._written)
-            self.manifest["frame_count"] = self._received
+            self.manifest["frame_count"] = self._queued
             self.manifest["summary"] = summary
             self.manifest["complete"] = True
             write_json(self.out_dir / MANIFEST, self.manifest)
