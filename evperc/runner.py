@@ -165,6 +165,23 @@ class FusionState:
         return FusionState(window, pg, np.zeros(window.shape, np.float32),
                            np.ones(window.shape, np.uint8))
 
+    def move_to(self, window: Window) -> tuple[int, int]:
+        """Make ``window`` the state's window; returns the shift ``(dr, dc)`` that
+        :func:`evperc.fused.fused_step` reads the previous cells with. The first window
+        starts vacuous; a moved one keeps its cells in the circular buffers (the offset
+        follows the move)."""
+        shift = (0, 0)
+        if self.window is None:
+            fresh = FusionState.fresh(window)
+            self.pg, self.zeta, self.flags, self.offset = (fresh.pg, fresh.zeta, fresh.flags,
+                                                           (0, 0))
+        elif window != self.window:
+            shift = (window.row0 - self.window.row0, window.col0 - self.window.col0)
+            self.offset = ((self.offset[0] + shift[0]) % window.rows,
+                           (self.offset[1] + shift[1]) % window.cols)
+        self.window = window
+        return shift
+
     def snapshot(self, into: FusionState | None = None) -> FusionState:
         """A copy that later frames do not change (saved by the writer thread); reuses the
         buffers of ``into`` (an earlier snapshot already saved) when they fit."""
@@ -313,17 +330,7 @@ class Pipeline:
         clock.lap("read")  # waiting for the decode thread (reading, decoding, sensor grid)
         clock.add(inputs.seconds)  # the decode thread's time, overlapped with this one
         window = inputs.window
-        shift = (0, 0)
-        if state.window is None:
-            fresh = FusionState.fresh(window)
-            state.pg, state.zeta, state.flags = fresh.pg, fresh.zeta, fresh.flags
-            state.offset = (0, 0)
-        elif window != state.window:
-            # the state stays in its circular buffer; the step reads it shifted
-            shift = (window.row0 - state.window.row0, window.col0 - state.window.col0)
-            state.offset = ((state.offset[0] + shift[0]) % window.rows,
-                            (state.offset[1] + shift[1]) % window.cols)
-        state.window = window
+        shift = state.move_to(window)
         dt_s = 0.0 if state.prev_ns is None else (inputs.stamp_ns - state.prev_ns) * 1e-9
         state.prev_ns = inputs.stamp_ns
         # SPEC §5 and §6 in one compiled pass, quantised straight into the chunk buffer;

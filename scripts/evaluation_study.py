@@ -454,17 +454,11 @@ def replay(prepared: Any, overrides: dict[str, dict[str, float]], with_map: bool
     for section, keys in overrides.items():
         config[section].update(keys)
     params = FusionParams.from_config(config)
-    window = prev = state = None
+    prev = None
+    state = FusionState()
     out = []
     for stamp, w, free, occupied, labels in prepared.frames:
-        shift = (0, 0)
-        if window is None:
-            state = FusionState.fresh(w)
-        elif w != window:  # the runner's circular buffer
-            shift = (w.row0 - window.row0, w.col0 - window.col0)
-            state.offset = ((state.offset[0] + shift[0]) % w.rows,
-                            (state.offset[1] + shift[1]) % w.cols)
-        window = w
+        shift = state.move_to(w)  # the runner's circular buffer
         dt = 0.0 if prev is None else (stamp - prev) * 1e-9
         prev = stamp
         res = fused_step(state.pg, state.zeta, free, occupied, labels if with_map else None,
