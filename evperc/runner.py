@@ -25,7 +25,7 @@ from evperc.io.log import PosedScan, open_log
 from evperc.io.maps import MapData, check_overlap, load_map
 from evperc.io.npz import write_npz
 from evperc.io.prefetch import prefetched
-from evperc.io.quantise import dequantise
+from evperc.io.quantise import dequantise, dequantise_planar
 from evperc.io.run_reader import read_manifest
 from evperc.io.transforms import extrinsic_matrix
 from evperc.io.writer import RunWriter
@@ -349,10 +349,9 @@ class Pipeline:
 def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:
     """The stored layers of a frame as float arrays, interleaved ``(rows, cols, k)`` as
     :func:`evperc.load` gives them (for ``on_frame`` consumers such as live rendering)."""
-    return {"masses": dequantise(np.moveaxis(out.masses, 0, -1)),
-            "betp": dequantise(np.moveaxis(out.betp, 0, -1)), "decision": out.decision.copy(),
-            "zeta": dequantise(out.zeta),
-            "conflict": dequantise(np.moveaxis(out.conflict, 0, -1))}
+    return {"masses": dequantise_planar(out.masses), "betp": dequantise_planar(out.betp),
+            "decision": out.decision.copy(), "zeta": dequantise(out.zeta),
+            "conflict": dequantise_planar(out.conflict)}
 
 
 def run(request: RunRequest, resume: bool = False,

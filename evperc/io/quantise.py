@@ -45,3 +45,9 @@ def quantise(values: np.ndarray) -> np.ndarray:
 def dequantise(q: np.ndarray) -> np.ndarray:
     """uint8 steps → float32 values."""
     return q.astype(np.float32) * np.float32(1.0 / SCALE)
+
+
+def dequantise_planar(q: np.ndarray) -> np.ndarray:
+    """Stored ``(channels, rows, cols)`` uint8 → ``(rows, cols, channels)`` float32 (the
+    inverse of :func:`quantise_planar`, to 1/510)."""
+    return dequantise(np.moveaxis(q, 0, -1))

@@ -12,7 +12,7 @@ import numpy as np
 
 from evperc.errors import OutputError
 from evperc.geo.window import Window
-from evperc.io.quantise import dequantise
+from evperc.io.quantise import dequantise, dequantise_planar
 from evperc.io.writer import FORMAT_VERSION, MANIFEST
 
 
@@ -74,21 +74,16 @@ class Run:
         rows, cols = self.shape
         for k in range(len(arrays["stamp_ns"])):
             masses = np.zeros((rows, cols, 32), dtype=np.float32)
-            masses[..., masks] = _interleaved(arrays["masses"][k])
+            masses[..., masks] = dequantise_planar(arrays["masses"][k])
             row0, col0 = (int(v) for v in arrays["origin"][k])
             yield Frame(
                 index=chunk["first_frame"] + k, stamp_ns=int(arrays["stamp_ns"][k]),
                 pose=arrays["pose"][k], origin=(row0, col0),
                 window=Window(self.resolution_m, rows, cols, row0, col0),
-                decision=arrays["decision"][k], betp=_interleaved(arrays["betp"][k]),
+                decision=arrays["decision"][k], betp=dequantise_planar(arrays["betp"][k]),
                 zeta=dequantise(arrays["zeta"][k]),
-                conflict=_interleaved(arrays["conflict"][k]), masses=masses,
+                conflict=dequantise_planar(arrays["conflict"][k]), masses=masses,
                 decision_counts=arrays["decision_counts"][k])
-
-
-def _interleaved(planar: np.ndarray) -> np.ndarray:
-    """Stored ``(channels, rows, cols)`` uint8 → ``(rows, cols, channels)`` float32."""
-    return dequantise(np.moveaxis(planar, 0, -1))
 
 
 def read_manifest(out_dir: str | Path) -> dict[str, Any]:
