@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 from timing import best_of  # noqa: E402  (benchmarks/ is on sys.path)
 
 from evperc.config import load_config  # noqa: E402
-from evperc.fused import FusedOutputs, StoredOutputs, fused_step  # noqa: E402
+from evperc.fused import FusedOutputs, StoredOutputs, focal_sets, fused_step  # noqa: E402
 from evperc.geo.prior import prior_masses  # noqa: E402
 from evperc.pipeline import (  # noqa: E402
     FusionParams,
@@ -177,6 +177,7 @@ def bench_side(side: int, params: FusionParams, betas, n_ref: int) -> list[dict]
         buffer, as in the runner)."""
         state = (planar.copy(), zeta.copy(), None)
         flags = np.zeros((side, side), np.uint8)
+        focal = focal_sets(state[0])
         frames = iter(scans * 2)
         offset = [0, 0]
 
@@ -184,7 +185,7 @@ def bench_side(side: int, params: FusionParams, betas, n_ref: int) -> list[dict]
             f, o = next(frames)
             offset[1] = (offset[1] + 1) % side
             fused_step(state[0], state[1], f, o, labels, betas, 0.1, params, out=out,
-                       flags=flags, offset=tuple(offset), shift=(0, 1))
+                       flags=flags, focal=focal, offset=tuple(offset), shift=(0, 1))
 
         return best_of(fused_frame, REPEATS)
 

@@ -257,21 +257,22 @@ def in_process(sim: Path, config_path: Path, stored: Path) -> dict:
     labels = pipeline.rasteriser.labels(window)
     betas, params = pipeline.betas, pipeline.params
     floats = FusedOutputs.empty(window.shape)
-    pg, zeta, flags = state.pg.copy(), state.zeta.copy(), state.flags.copy()
+    pg, zeta, flags, focal = (state.pg.copy(), state.zeta.copy(), state.flags.copy(),
+                              state.focal.copy())
     offset = [state.offset[0], state.offset[1]]
 
     def step(out: FusedOutputs | StoredOutputs) -> None:
         """the next frame, the window moved by one cell (as when driving)"""
         offset[1] = (offset[1] + 1) % window.cols
         fused_step(pg, zeta, free, occ, labels, betas, 0.1, params, out=out, flags=flags,
-                   offset=tuple(offset), shift=(0, 1))
+                   focal=focal, offset=tuple(offset), shift=(0, 1))
 
     ours_fusion = best_of(lambda: step(floats), 5)
     ours_stored = best_of(lambda: step(out), 5)
     # the stored kind once more from the state of the naive comparison
-    pg[...], zeta[...], flags[...] = state.pg, state.zeta, state.flags
+    pg[...], zeta[...], flags[...], focal[...] = state.pg, state.zeta, state.flags, state.focal
     fused_step(pg, zeta, free, occ, labels, betas, 0.1, params, out=floats, flags=flags,
-               offset=state.offset)
+               focal=focal, offset=state.offset)
     after = np.moveaxis(window_order(pg, state.offset), 0, -1).reshape(-1, 32)
     copy_s = best_of(lambda: np.copyto(pg, state.pg), 5)
     n_cells = window.rows * window.cols

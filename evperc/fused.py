@@ -29,7 +29,14 @@ twin to float32 round-off (~1e-6), not bit for bit. The kernels are compiled onc
 cached (``cache=True``, ~7 s each on first use).
 
 Reachable focal sets (:func:`reachable_focal_sets`): all 31 non-empty subsets with
-contextual discounting, 15 with classical discounting; the kernel keeps all 32 entries.
+contextual discounting, 15 with classical discounting, so the state keeps all 32 planes;
+but a cell uses few of them (9 on average on a 200 m window of a drive: a road cell never
+has mass on a set with I but Ω), and a map region few more. **Compact layout** (SPEC §1):
+each buffer cell carries its focal sets as a uint32 bitmask (``focal``, bit A set where
+m(A) ≠ 0); a block of 256 cells reads only the planes in the union of its cells' masks
+(the others are zero: filled, not read) and writes only those it or its previous cells use
+(15 of 32 planes on that window). Exactly the dense step, bit for bit (tested against
+all-set masks); the planes stay a valid dense state (zeros are written, never left stale).
 
 Context labels are those of :mod:`evperc.geo.prior` (0 other, 1 road, 2 building) plus
 :data:`NO_MAP` (255): no prior in that cell (``--no-map``: pass ``labels=None``).
@@ -109,7 +116,8 @@ def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
                labels: np.ndarray | None, betas: tuple[float, float, float], dt_s: float,
                params: FusionParams, *, observed: np.ndarray | None = None,
                out: FusedOutputs | StoredOutputs | None = None,
-               flags: np.ndarray | None = None, offset: tuple[int, int] = (0, 0),
+               flags: np.ndarray | None = None, focal: np.ndarray | None = None,
+               offset: tuple[int, int] = (0, 0),
                shift: tuple[int, int] = (0, 0)) -> FusedOutputs | StoredOutputs:
     """One frame, in place: ``pg``, ``zeta`` ← PG_t, ζ_t (SPEC §5 steps 2–8); the SPEC §6
     outputs into ``out``.
@@ -123,6 +131,9 @@ def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
     ``flags``: uint8 ``(rows, cols)`` buffer cells known to be exactly vacuous with ζ = 0,
     kept up to date by the step (``None``: derived from ``pg``, ``zeta`` — slower); blocks
     of such cells that the scan did not touch are skipped (when no prior applies there).
+    ``focal``: uint32 ``(rows, cols)`` focal sets of each buffer cell (:func:`focal_sets`;
+    bit A clear ⇒ m(A) = 0 exactly), kept up to date by the step (``None``: derived from
+    ``pg``); a block reads and writes only the planes some of its cells use.
 
     ``free``, ``occupied``: the sensor grid m({F}), m({O}) (SPEC §3), window order;
     ``labels``: uint8 context labels (0 other, 1 road, 2 building, :data:`NO_MAP`) or
@@ -137,6 +148,10 @@ def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
         flags = vacuous_flags(pg, zeta)
     elif flags.shape != shape or flags.dtype != np.uint8 or not flags.flags.c_contiguous:
         raise ValueError(f"flags must be a C-contiguous uint8 {shape} array")
+    if focal is None:
+        focal = focal_sets(pg)
+    elif focal.shape != shape or focal.dtype != np.uint32 or not focal.flags.c_contiguous:
+        raise ValueError(f"focal must be a C-contiguous uint32 {shape} array")
     off_r, off_c = (int(v) for v in offset)
     if not (0 <= off_r < shape[0] and 0 <= off_c < shape[1]):
         raise ValueError(f"offset {offset} outside the {shape} buffer")
@@ -178,8 +193,8 @@ def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
         derive_obs and not everywhere and params.gamma_occupied > 0)
     kernel = (fused_kernel.step_float if isinstance(out, FusedOutputs)
               else fused_kernel.step_stored)
-    kernel(pg, zeta, flags, off_r, off_c, int(shift[0]), int(shift[1]), free32, occ32, lab, obs,
-           *scalars, *out.arrays())
+    kernel(pg, zeta, flags, focal, off_r, off_c, int(shift[0]), int(shift[1]), free32, occ32,
+           lab, obs, *scalars, *out.arrays())
     return out
 
 
@@ -202,6 +217,14 @@ def _count(codes: np.ndarray, counts: np.ndarray) -> None:  # pragma: no cover -
 def vacuous_flags(pg: np.ndarray, zeta: np.ndarray) -> np.ndarray:
     """uint8 ``(rows, cols)``: 1 where the cell is exactly vacuous (m(Ω) = 1) with ζ = 0."""
     return ((pg[_OMEGA] == 1.0) & ~pg[:_OMEGA].any(axis=0) & (zeta == 0.0)).astype(np.uint8)
+
+
+def focal_sets(pg: np.ndarray) -> np.ndarray:
+    """uint32 ``(rows, cols)``: bit A set where ``pg[A] ≠ 0`` (the cell's focal sets)."""
+    focal = np.zeros(pg.shape[1:], np.uint32)
+    for a in range(pg.shape[0]):
+        focal |= (pg[a] != 0).astype(np.uint32) << np.uint32(a)
+    return focal
 
 
 def window_order(buffer: np.ndarray, offset: tuple[int, int]) -> np.ndarray:

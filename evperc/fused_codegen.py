@@ -24,6 +24,13 @@ S = 8, M = 16, O = 30, Ω = 31):
   keeps SG (β' = 0), as the numpy twin.
 - SG'({F}) = f (1 − β'_building) / (1 − e), Bel_SG'(O) = (o + u β'_building) / (1 − e),
   so ∅_FO = m(F) Bel_SG'(O), ∅_OF = Bel_m(O) SG'({F}) (SPEC §5.4).
+
+Around the body, per block of 256 cells of a window row: trim to the active lanes, read the
+planes in the union of the cells' focal-set masks (compact layout, :mod:`evperc.fused`),
+run the body, write back the planes used before or after, and the outputs. Arrays are
+flattened once and indexed with unsigned integers: a signed index gets numba's
+negative-index fix-up (vector copies become scatters) and an array view costs two atomic
+reference-count updates (12 % of the step's time under perf before they went).
 """
 
 from __future__ import annotations
@@ -56,12 +63,14 @@ _INV3 = np.float32(1.0 / 3.0)
 _INV4 = np.float32(1.0 / 4.0)
 _INV5 = np.float32(1.0 / 5.0)
 _2 = np.float32(2.0)
-'''
+_ONE = np.uint32(1)
+_OMEGA_BIT = np.uint32(1 << 31)
+''' + "".join(f"_P{a} = np.float32({2 ** a})\n" for a in range(16))
 
 
 #: cells per block: the body runs over a block held in one local buffer ``buf`` of planes of
-#: BLOCK float32 (inputs, then outputs), so every access is ``buf[constant + l]`` and LLVM
-#: proves without run-time checks that the planes do not overlap
+#: BLOCK float32 (inputs, then outputs), so every access is ``buf[sbase + constant + l]``
+#: and LLVM proves without run-time checks that the planes do not overlap
 BLOCK = 256
 #: lanes per run of the body (whole sub-blocks within [l0, l1) are computed)
 SUB = 16
@@ -74,12 +83,15 @@ OUT_BETP = 33
 OUT_CONFLICT = OUT_BETP + 5
 OUT_CODE = OUT_CONFLICT + 3
 OUT_VACUOUS = OUT_CODE + 1
-PLANES = OUT_VACUOUS + 1
+#: the cell's focal sets (bit A set where c(A) ≠ 0), bits 0–15 and 16–31 as two exact floats
+OUT_FOCAL_LO = OUT_VACUOUS + 1
+OUT_FOCAL_HI = OUT_FOCAL_LO + 1
+PLANES = OUT_FOCAL_HI + 1
 
 
 def _at(plane: int) -> str:
-    """Lane ``l`` of ``plane`` in the body's view ``sb`` of the block buffer."""
-    return f"{plane * BLOCK} + l"
+    """Lane ``l`` of ``plane`` in the sub-block at ``sbase`` of the block buffer."""
+    return f"sbase + np.uint64({plane * BLOCK} + l)"
 
 
 def _sum(terms: list[str]) -> str:
@@ -97,13 +109,13 @@ def _body() -> list[str]:
     s: list[str] = []
     add = s.append
     for a in range(32):
-        add(f"m{a} = sb[{_at(a)}]")
-    add(f"z = sb[{_at(IN_ZETA)}]")
-    add(f"f = sb[{_at(IN_FREE)}]")
-    add(f"o = sb[{_at(IN_OCC)}]")
+        add(f"m{a} = buf[{_at(a)}]")
+    add(f"z = buf[{_at(IN_ZETA)}]")
+    add(f"f = buf[{_at(IN_FREE)}]")
+    add(f"o = buf[{_at(IN_OCC)}]")
     add("u = _1 - f - o")
-    add(f"lab = sb[{_at(IN_LABEL)}]")
-    add(f"ob = sb[{_at(IN_OBSERVED)}]")
+    add(f"lab = buf[{_at(IN_LABEL)}]")
+    add(f"ob = buf[{_at(IN_OBSERVED)}]")
     add("obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)")
     add("is_b = lab == _2")
     add("is_r = lab == _1")
@@ -194,8 +206,8 @@ def _body() -> list[str]:
     add("c0 += _0 if to_s else g")
     # 8. store
     for a in range(32):
-        add(f"sb[{_at(OUT_MASS + a)}] = c{a}")
-    add(f"sb[{_at(OUT_ZETA)}] = z")
+        add(f"buf[{_at(OUT_MASS + a)}] = c{a}")
+    add(f"buf[{_at(OUT_ZETA)}] = z")
     # SPEC §6: betP on the stored masses, then the decision
     add("norm = " + _sum([f"c{a}" for a in range(1, 32)]))
     add("inv_norm = (_1 / norm) if norm > tol else _0")
@@ -227,55 +239,63 @@ def _body() -> list[str]:
     add("code = fine_code if (is_static & fine_ok) else code")
     add("code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code")
     for k, name in enumerate(("p_f", "p_i", "p_u", "p_s", "p_m")):
-        add(f"sb[{_at(OUT_BETP + k)}] = {name}")
+        add(f"buf[{_at(OUT_BETP + k)}] = {name}")
     for k, name in enumerate(("fo", "of", "other")):
-        add(f"sb[{_at(OUT_CONFLICT + k)}] = {name}")
-    add(f"sb[{_at(OUT_CODE)}] = code")
+        add(f"buf[{_at(OUT_CONFLICT + k)}] = {name}")
+    add(f"buf[{_at(OUT_CODE)}] = code")
     # the cell is exactly vacuous with ζ = 0: a later frame may skip it
     add("rest = " + _sum([f"c{a}" for a in range(31)]))
-    add(f"sb[{_at(OUT_VACUOUS)}] = _1 if ((c31 == _1) & (rest == _0) & (z == _0)) else _0")
+    add(f"buf[{_at(OUT_VACUOUS)}] = _1 if ((c31 == _1) & (rest == _0) & (z == _0)) else _0")
+    for name, part in ((OUT_FOCAL_LO, range(16)), (OUT_FOCAL_HI, range(16, 32))):
+        bits = [f"(_P{a - part.start} if c{a} != _0 else _0)" for a in part]
+        add(f"buf[{_at(name)}] = " + _sum(bits))
     return s
 
 
-def _plane(p: str, first: str = "l0", last: str = "l1") -> str:
-    """Lanes [first, last) of plane ``p`` of the block buffer."""
-    return f"buf[({p}) * BLOCK + {first}:({p}) * BLOCK + {last}]"
-
-
-def _copy(target: str, source: str, width: str, indent: str) -> list[str]:
-    """An element loop over views indexed from 0 (numba's negative-index fix-up on other
-    index expressions turns vector copies into gathers)."""
-    return [f"{indent}to = {target}", f"{indent}fro = {source}",
-            f"{indent}for t in range({width}):", f"{indent}    to[t] = fro[t]"]
+def _loop(width: str, target: str, value: str, indent: str = "") -> list[str]:
+    """``target`` ← ``value`` for t in [0, width); ``{i}`` in them stands for the element
+    index ``base + t``. Flat arrays indexed by unsigned integers: no per-element
+    negative-index fix-up (which turns vector copies into scatters) and no array views
+    (each costs two atomic reference-count updates)."""
+    i = "np.uint64(t)"
+    return [f"{indent}for t in range({width}):",
+            f"{indent}    {target.format(i=i)} = {value.format(i=i)}"]
 
 
 def _segments(lines: list[str], first: str, last: str) -> list[str]:
     """``lines`` once per part of window columns [first, last) that is contiguous in the
-    circular buffer: ``a0, a1`` window columns, ``shift`` buffer column − window column."""
+    circular buffer: ``a0, a1`` window columns, ``sc`` the flat buffer index of window
+    column ``a0`` (row ``rb``), ``lb`` its lane in the block, ``w`` the width."""
     out = ["for seg in range(2):",
            f"    a0 = {first} if seg == 0 else max({first}, wrap)",
            f"    a1 = min({last}, wrap) if seg == 0 else {last}",
-           "    shift = off_c if seg == 0 else off_c - cols",
            "    w = a1 - a0",
-           "    if w > 0:"]
+           "    if w > 0:",
+           "        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))",
+           "        lb = a0 - j0"]
     return out + ["        " + line for line in lines]
+
+
+def _buf(plane: str, lane: str = "l0") -> str:
+    """Element ``{i}`` of ``plane`` of the block buffer from lane ``lane`` on."""
+    return f"buf[np.uint64(({plane}) * BLOCK + {lane}) + {{i}}]"
 
 
 def _active_lanes() -> list[str]:
     """[l0, l1): the lanes to compute, trimmed of leading and trailing cells that are
     exactly vacuous (ζ = 0), untouched by the scan and without prior (then the step leaves
     them vacuous), to whole vectors of 16 lanes; all of [0, n) unless ``may_skip``."""
-    flags_in = ["to = act[a0 - j0:a1 - j0]", "fro = flags[buf_row, a0 + shift:a1 + shift]",
-                "for t in range(w):", "    to[t] = fro[t]"]
     return [
         "l0 = 0",
         "l1 = n",
         "if may_skip:",
         "    for t in range(n):",
         "        act[t] = 1  # cells entering the window are vacuous",
-        *["    " + line for line in _segments(flags_in, "s0", "s1")],
+        *["    " + line for line in _segments(
+            _loop("w", "act[np.uint64(lb) + {i}]", "fl[sc + {i}]"), "s0", "s1")],
         "    for t in range(n):",
-        "        act[t] = act[t] & np.uint8((free_row[t] == _0) & (occ_row[t] == _0))",
+        "        act[t] = act[t] & np.uint8((fr[wb + np.uint64(t)] == _0) & "
+        "(oc[wb + np.uint64(t)] == _0))",
         "    while l0 < n and act[l0] == 1:",
         "        l0 += 1",
         "    while l1 > l0 and act[l1 - 1] == 1:",
@@ -288,50 +308,57 @@ def _active_lanes() -> list[str]:
 
 def _load() -> list[str]:
     """Lanes [l0, l1) of the block into ``buf``: the previous state (vacuous outside the
-    previous window), ζ, the sensor grid, labels and observed cells."""
-    state = ["for a in range(32):",
-             *_copy("buf[a * BLOCK + a0 - j0:a * BLOCK + a1 - j0]",
-                    "state[a, buf_row, a0 + shift:a1 + shift]", "w", "    "),
-             *_copy(f"buf[{IN_ZETA} * BLOCK + a0 - j0:{IN_ZETA} * BLOCK + a1 - j0]",
-                    "zeta[buf_row, a0 + shift:a1 + shift]", "w", "")]
+    previous window), ζ, the sensor grid, labels and observed cells. Compact layout: a
+    plane that is zero in every buffer cell of the lanes (``old_mask``, the union of their
+    focal sets) is not read."""
+    inside = ("max(s0, j0 + l0)", "min(s1, j0 + l1)")
     return [
-        "if s0 > j0 + l0 or s1 < j0 + l1:  # some lanes entered the window: vacuous",
+        "old_mask = np.uint32(0)",
+        *_segments(["for t in range(w):", "    old_mask |= fc[sc + np.uint64(t)]"],
+                   "j0 + l0", "j0 + l1"),
+        "entering = s0 > j0 + l0 or s1 < j0 + l1",
+        "if entering:  # some lanes entered the window: vacuous",
         "    for a in range(31):",
-        "        for l in range(l0, l1):",
-        "            buf[a * BLOCK + l] = _0",
-        "    for l in range(l0, l1):",
-        "        buf[31 * BLOCK + l] = _1",
-        f"        buf[{IN_ZETA} * BLOCK + l] = _0",
-        *_segments(state, "max(s0, j0 + l0)", "min(s1, j0 + l1)"),
-        f"frees = {_plane(str(IN_FREE))}",
-        f"occs = {_plane(str(IN_OCC))}",
-        f"labs = {_plane(str(IN_LABEL))}",
-        f"obss = {_plane(str(IN_OBSERVED))}",
-        "lab_row = labels[r, j0 + l0:j0 + l1]",
-        "obs_row = observed[r, j0 + l0:j0 + l1]",
-        "free_part = free_row[l0:l1]",
-        "occ_part = occ_row[l0:l1]",
-        "for t in range(l1 - l0):",
-        "    frees[t] = free_part[t]",
-        "    occs[t] = occ_part[t]",
-        "    labs[t] = np.float32(lab_row[t])",
-        "    obss[t] = np.float32(obs_row[t])",
+        *_loop("l1 - l0", _buf("a"), "_0", "        "),
+        *_loop("l1 - l0", _buf("31"), "_1", "    "),
+        *_loop("l1 - l0", _buf(str(IN_ZETA)), "_0", "    "),
+        "for a in range(32):",
+        "    if (old_mask >> np.uint32(a)) & _ONE:",
+        *["        " + line for line in _segments(
+            _loop("w", _buf("a", "lb"), "st[np.uint64(a), sc + {i}]"), *inside)],
+        "    elif not entering:",
+        *_loop("l1 - l0", _buf("a"), "_0", "        "),
+        *_segments(_loop("w", _buf(str(IN_ZETA), "lb"), "zt[sc + {i}]"), *inside),
+        "wl = wb + np.uint64(l0)",
+        *_loop("l1 - l0", _buf(str(IN_FREE)), "fr[wl + {i}]"),
+        *_loop("l1 - l0", _buf(str(IN_OCC)), "oc[wl + {i}]"),
+        *_loop("l1 - l0", _buf(str(IN_LABEL)), "np.float32(lbl[wl + {i}])"),
+        *_loop("l1 - l0", _buf(str(IN_OBSERVED)), "np.float32(obs_f[wl + {i}])"),
     ]
 
 
 def _store_state() -> list[str]:
-    """The new state, ζ and vacuous flags of lanes [l0, l1) back into the circular buffer."""
-    lines = ["for a in range(32):",
-             *_copy("state[a, buf_row, a0 + shift:a1 + shift]",
-                    f"buf[({OUT_MASS} + a) * BLOCK + a0 - j0:({OUT_MASS} + a) * BLOCK + a1 - j0]",
-                    "w", "    "),
-             *_copy("zeta[buf_row, a0 + shift:a1 + shift]",
-                    f"buf[{OUT_ZETA} * BLOCK + a0 - j0:{OUT_ZETA} * BLOCK + a1 - j0]", "w", ""),
-             "to = flags[buf_row, a0 + shift:a1 + shift]",
-             f"fro = buf[{OUT_VACUOUS} * BLOCK + a0 - j0:{OUT_VACUOUS} * BLOCK + a1 - j0]",
-             "for t in range(w):",
-             "    to[t] = np.uint8(fro[t])"]
-    return _segments(lines, "j0 + l0", "j0 + l1")
+    """The new state, ζ, vacuous flags and focal sets of lanes [l0, l1) back into the
+    circular buffer; a plane is written where some lane's cell had or has mass on it."""
+    masks = ["for t in range(w):",
+             f"    v = np.uint32({_buf(str(OUT_FOCAL_LO), 'lb').format(i='np.uint64(t)')})",
+             f"    v |= np.uint32({_buf(str(OUT_FOCAL_HI), 'lb').format(i='np.uint64(t)')})"
+             " << np.uint32(16)",
+             "    fc[sc + np.uint64(t)] = v",
+             "    new_mask |= v"]
+    return [
+        "new_mask = np.uint32(0)",
+        *_segments(masks, "j0 + l0", "j0 + l1"),
+        "write_mask = old_mask | new_mask",
+        "for a in range(32):",
+        "    if (write_mask >> np.uint32(a)) & _ONE:",
+        *["        " + line for line in _segments(
+            _loop("w", "st[np.uint64(a), sc + {i}]", _buf(f"{OUT_MASS} + a", "lb")),
+            "j0 + l0", "j0 + l1")],
+        *_segments(_loop("w", "zt[sc + {i}]", _buf(str(OUT_ZETA), "lb"))
+                   + _loop("w", "fl[sc + {i}]", f"np.uint8({_buf(str(OUT_VACUOUS), 'lb')})"),
+                   "j0 + l0", "j0 + l1"),
+    ]
 
 
 def _skipped(kind: str, first: str, last: str) -> list[str]:
@@ -339,68 +366,59 @@ def _skipped(kind: str, first: str, last: str) -> list[str]:
     become vacuous in the buffer (the others are vacuous already); outputs of a vacuous
     cell (betP 1/5, no conflict)."""
     clear = ["for a in range(31):",
-             "    row = state[a, buf_row, a0 + shift:a1 + shift]",
-             "    for t in range(w):",
-             "        row[t] = _0",
-             "row = state[31, buf_row, a0 + shift:a1 + shift]",
-             "zrow = zeta[buf_row, a0 + shift:a1 + shift]",
-             "frow = flags[buf_row, a0 + shift:a1 + shift]",
-             "for t in range(w):",
-             "    row[t] = _1",
-             "    zrow[t] = _0",
-             "    frow[t] = np.uint8(1)"]
+             *_loop("w", "st[np.uint64(a), sc + {i}]", "_0", "    "),
+             *_loop("w", "st[np.uint64(31), sc + {i}]", "_1"),
+             *_loop("w", "zt[sc + {i}]", "_0"),
+             *_loop("w", "fl[sc + {i}]", "np.uint8(1)"),
+             *_loop("w", "fc[sc + {i}]", "_OMEGA_BIT")]
     lines = (_segments(clear, f"j0 + {first}", f"min(s0, j0 + {last})")
              + _segments(clear, f"max(s1, j0 + {first})", f"j0 + {last}"))
-    window = f"r, j0 + {first}:j0 + {last}"
     width = f"{last} - {first}"
-
-    def fill(target: str, value: str, indent: str = "    ") -> list[str]:
-        return [f"{indent}row = {target}", f"{indent}for t in range({width}):",
-                f"{indent}    row[t] = {value}"]
+    lines.append(f"ws = wb + np.uint64({first})")
     if kind == "float":
-        return lines + ["for k in range(5):", *fill(f"betp[k, {window}]", "_INV5"),
-                        "for k in range(3):", *fill(f"conflict[k, {window}]", "_0"),
-                        *fill(f"decision[{window}]", "vac_code", "")]
+        return lines + ["for k in range(5):",
+                        *_loop(width, "bp[np.uint64(k), ws + {i}]", "_INV5", "    "),
+                        "for k in range(3):",
+                        *_loop(width, "cf[np.uint64(k), ws + {i}]", "_0", "    "),
+                        *_loop(width, "dc[ws + {i}]", "vac_code")]
     return lines + ["for a in range(32):",
                     "    value = np.uint8(255) if a == 31 else np.uint8(0)",
-                    *fill(f"q_masses[a, {window}]", "value"),
-                    "for k in range(5):", *fill(f"q_betp[k, {window}]", "np.uint8(51)"),
-                    "for k in range(3):", *fill(f"q_conflict[k, {window}]", "np.uint8(0)"),
-                    *fill(f"q_zeta[{window}]", "np.uint8(0)", ""),
-                    *fill(f"q_decision[{window}]", "vac_code", "")]
+                    *_loop(width, "qm[np.uint64(a), ws + {i}]", "value", "    "),
+                    "for k in range(5):",
+                    *_loop(width, "qb[np.uint64(k), ws + {i}]", "np.uint8(51)", "    "),
+                    "for k in range(3):",
+                    *_loop(width, "qc[np.uint64(k), ws + {i}]", "np.uint8(0)", "    "),
+                    *_loop(width, "qz[ws + {i}]", "np.uint8(0)"),
+                    *_loop(width, "qd[ws + {i}]", "vac_code")]
 
 
 def _store_outputs(kind: str) -> list[str]:
     """Lanes [l0, l1) of the block's outputs into row ``r`` of the output arrays."""
-    window = "r, j0 + l0:j0 + l1"
-
-    def copy(target: str, plane: str, indent: str = "    ") -> list[str]:
-        return _copy(target, _plane(plane), "l1 - l0", indent)
+    width = "l1 - l0"
+    code = f"np.uint8({_buf(str(OUT_CODE))})"
     if kind == "float":
-        return ["for k in range(5):", *copy(f"betp[k, {window}]", f"{OUT_BETP} + k"),
-                "for k in range(3):", *copy(f"conflict[k, {window}]", f"{OUT_CONFLICT} + k"),
-                f"codes = {_plane(str(OUT_CODE))}",
-                f"row = decision[{window}]",
-                "for t in range(l1 - l0):",
-                "    row[t] = np.uint8(codes[t])"]
+        return ["for k in range(5):",
+                *_loop(width, "bp[np.uint64(k), wl + {i}]", _buf(f"{OUT_BETP} + k"), "    "),
+                "for k in range(3):",
+                *_loop(width, "cf[np.uint64(k), wl + {i}]", _buf(f"{OUT_CONFLICT} + k"),
+                       "    "),
+                *_loop(width, "dc[wl + {i}]", code)]
 
-    def quantised(target: str, p: str, indent: str = "    ") -> list[str]:
+    def quantised(target: str, plane: str, indent: str = "    ") -> list[str]:
         """round(255 · clip(x, 0, 1)), as evperc.io.quantise"""
-        return [f"{indent}values = {_plane(p)}",
-                f"{indent}row = {target}",
-                f"{indent}for t in range(l1 - l0):",
-                f"{indent}    v = values[t]",
+        return [f"{indent}for t in range({width}):",
+                f"{indent}    v = {_buf(plane).format(i='np.uint64(t)')}",
                 f"{indent}    v = v if v > _0 else _0",
                 f"{indent}    v = v if v < _1 else _1",
-                f"{indent}    row[t] = np.uint8(np.int32(v * _255 + _HALF))"]
-    return ["for a in range(32):", *quantised(f"q_masses[a, {window}]", f"{OUT_MASS} + a"),
-            "for k in range(5):", *quantised(f"q_betp[k, {window}]", f"{OUT_BETP} + k"),
-            "for k in range(3):", *quantised(f"q_conflict[k, {window}]", f"{OUT_CONFLICT} + k"),
-            *quantised(f"q_zeta[{window}]", str(OUT_ZETA), indent=""),
-            f"codes = {_plane(str(OUT_CODE))}",
-            f"row = q_decision[{window}]",
-            "for t in range(l1 - l0):",
-            "    row[t] = np.uint8(codes[t])"]
+                f"{indent}    {target.format(i='np.uint64(t)')} = "
+                "np.uint8(np.int32(v * _255 + _HALF))"]
+    return ["for a in range(32):",
+            *quantised("qm[np.uint64(a), wl + {i}]", f"{OUT_MASS} + a"),
+            "for k in range(5):", *quantised("qb[np.uint64(k), wl + {i}]", f"{OUT_BETP} + k"),
+            "for k in range(3):",
+            *quantised("qc[np.uint64(k), wl + {i}]", f"{OUT_CONFLICT} + k"),
+            *quantised("qz[wl + {i}]", str(OUT_ZETA), indent=""),
+            *_loop(width, "qd[wl + {i}]", code)]
 
 
 PARAMS = ("derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, "
@@ -412,12 +430,16 @@ PARAMS = ("derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a
 def _kernel(kind: str) -> list[str]:
     outs = ("betp, conflict, decision" if kind == "float"
             else "q_masses, q_betp, q_conflict, q_zeta, q_decision")
+    flat = ["bp = betp.reshape(5, n_cells)", "cf = conflict.reshape(3, n_cells)",
+            "dc = decision.reshape(n_cells)"] if kind == "float" else [
+            "qm = q_masses.reshape(32, n_cells)", "qb = q_betp.reshape(5, n_cells)",
+            "qc = q_conflict.reshape(3, n_cells)", "qz = q_zeta.reshape(n_cells)",
+            "qd = q_decision.reshape(n_cells)"]
     block = [
         "n = min(BLOCK, cols - j0)",
         "s0 = max(lo, j0)  # [s0, s1): cells of the block inside the previous window",
         "s1 = min(hi, j0 + n)",
-        "free_row = free[r, j0:j0 + n]",
-        "occ_row = occ[r, j0:j0 + n]",
+        "wb = np.uint64(r * cols + j0)  # flat window index of the block's lane 0",
         *_active_lanes(),
         "if l1 <= l0:",
         "    l0 = l1 = n",
@@ -433,26 +455,37 @@ def _kernel(kind: str) -> list[str]:
         "",
         "",
         "@numba.njit(cache=True, nogil=True, fastmath=True, error_model=\"numpy\")",
-        f"def step_{kind}(state, zeta, flags, off_r, off_c, dr, dc, free, occ, labels, observed,",
-        f"               {PARAMS}, {outs}):  # pragma: no cover - compiled",
+        f"def step_{kind}(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,",
+        f"               observed, {PARAMS}, {outs}):  # pragma: no cover - compiled",
         "    rows, cols = state.shape[1], state.shape[2]",
+        "    n_cells = rows * cols",
+        "    st = state.reshape(32, n_cells)",
+        "    zt = zeta.reshape(n_cells)",
+        "    fl = flags.reshape(n_cells)",
+        "    fc = focal.reshape(n_cells)",
+        "    fr = free.reshape(n_cells)",
+        "    oc = occ.reshape(n_cells)",
+        "    lbl = labels.reshape(n_cells)",
+        "    obs_f = observed.reshape(n_cells)",
+        *["    " + line for line in flat],
         "    wrap = cols - off_c  # window columns from here on wrap to the buffer's start",
         "    buf = np.zeros(PLANES * BLOCK, np.float32)",
         "    act = np.zeros(BLOCK, np.uint8)",
         "    for r in range(rows):",
         "        buf_row = r + off_r",
         "        buf_row = buf_row - rows if buf_row >= rows else buf_row",
-        "        lo = min(max(-dc, 0), cols)",
-        "        hi = max(min(cols - dc, cols), lo)",
+        "        rb = buf_row * cols",
+        "        lo = min(max(-dc_, 0), cols)",
+        "        hi = max(min(cols - dc_, cols), lo)",
         "        if r + dr < 0 or r + dr >= rows:",
         "            lo = hi = 0",
         "        for j0 in range(0, cols, BLOCK):",
     ]
     lines += ["            " + line for line in block]
-    # sub-blocks of SUB lanes from a view: LLVM vectorises a loop of constant trip count
-    # over constant offsets of one base pointer, not one that starts at a run-time lane
+    # sub-blocks of SUB lanes: a loop of constant trip count over constant offsets from one
+    # unsigned base, which LLVM vectorises without run-time overlap checks
     lines += ["            for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):",
-              "                sb = buf[sub * SUB:]",
+              "                sbase = np.uint64(sub * SUB)",
               "                for l in range(SUB):"]
     lines += ["                    " + line for line in _body()]
     lines += ["            " + line for line in _store_state() + _store_outputs(kind)]

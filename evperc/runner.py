@@ -16,7 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from evperc.errors import GeoreferenceError, OutputError, PoseError
-from evperc.fused import StoredOutputs, count_codes, fused_step, vacuous_flags
+from evperc.fused import StoredOutputs, count_codes, focal_sets, fused_step, vacuous_flags
 from evperc.geo import georef as georef_mod
 from evperc.geo.crs import working_crs
 from evperc.geo.prior import PriorRasteriser
@@ -144,12 +144,14 @@ class FusionState:
 
     ``pg`` (planar ``(32, rows, cols)`` masses) and ``zeta`` are circular buffers: window
     cell ``(r, c)`` is buffer cell ``((r + offset[0]) % rows, (c + offset[1]) % cols)``
-    (:func:`evperc.fused.fused_step`); ``flags`` marks the exactly vacuous cells."""
+    (:func:`evperc.fused.fused_step`); ``flags`` marks the exactly vacuous cells and
+    ``focal`` holds each cell's focal sets (bitmask), both derived from ``pg`` on load."""
 
     window: Window | None = None
     pg: np.ndarray | None = None
     zeta: np.ndarray | None = None
     flags: np.ndarray | None = None
+    focal: np.ndarray | None = None
     offset: tuple[int, int] = (0, 0)
     prev_ns: int | None = None
     scan_index: int = -1          # position in the log's scan stream of the last frame
@@ -163,7 +165,8 @@ class FusionState:
         pg = np.zeros((32, *window.shape), np.float32)
         pg[OMEGA] = 1.0
         return FusionState(window, pg, np.zeros(window.shape, np.float32),
-                           np.ones(window.shape, np.uint8))
+                           np.ones(window.shape, np.uint8),
+                           np.full(window.shape, 1 << OMEGA, np.uint32))
 
     def move_to(self, window: Window) -> tuple[int, int]:
         """Make ``window`` the state's window; returns the shift ``(dr, dc)`` that
@@ -173,8 +176,9 @@ class FusionState:
         shift = (0, 0)
         if self.window is None:
             fresh = FusionState.fresh(window)
-            self.pg, self.zeta, self.flags, self.offset = (fresh.pg, fresh.zeta, fresh.flags,
-                                                           (0, 0))
+            self.pg, self.zeta, self.flags, self.focal = (fresh.pg, fresh.zeta, fresh.flags,
+                                                          fresh.focal)
+            self.offset = (0, 0)
         elif window != self.window:
             shift = (window.row0 - self.window.row0, window.col0 - self.window.col0)
             self.offset = ((self.offset[0] + shift[0]) % window.rows,
@@ -219,7 +223,8 @@ class FusionState:
                     raise ValueError(f"offset {offset} outside the {rows} x {cols} window")
                 return FusionState(
                     window=Window(float(npz["resolution_m"]), rows, cols, row0, col0),
-                    pg=pg, zeta=zeta, flags=vacuous_flags(pg, zeta), offset=offset,
+                    pg=pg, zeta=zeta, flags=vacuous_flags(pg, zeta), focal=focal_sets(pg),
+                    offset=offset,
                     prev_ns=int(npz["prev_ns"]),
                     scan_index=int(npz["scan_index"]), frames=int(npz["frames"]),
                     decision_counts=npz["decision_counts"])
@@ -269,7 +274,8 @@ class Pipeline:
         free, occupied = sensor_grid(points, False, np.eye(4), tiny, self.sensor_params)
         state = FusionState.fresh(tiny)
         fused_step(state.pg, state.zeta, free, occupied, None, self.betas, 0.1, self.params,
-                   out=StoredOutputs.empty(tiny.shape), flags=state.flags)
+                   out=StoredOutputs.empty(tiny.shape), flags=state.flags,
+                   focal=state.focal)
 
     def meta(self) -> dict[str, Any]:
         """Manifest entries that describe the run (docs/output-format.md)."""
@@ -336,7 +342,7 @@ class Pipeline:
         # SPEC §5 and §6 in one compiled pass, quantised straight into the chunk buffer;
         # evperc.pipeline is the numpy twin it is tested on
         fused_step(state.pg, state.zeta, inputs.free, inputs.occupied, inputs.labels,
-                   self.betas, dt_s, self.params, out=out, flags=state.flags,
+                   self.betas, dt_s, self.params, out=out, flags=state.flags, focal=state.focal,
                    offset=state.offset, shift=shift)
         state.frames += 1
         counts = count_codes(out.decision, len(state.decision_counts))

@@ -13,6 +13,7 @@ from evperc.fused import (
     NO_MAP,
     FusedOutputs,
     StoredOutputs,
+    focal_sets,
     reachable_focal_sets,
     vacuous_flags,
     window_order,
@@ -460,6 +461,7 @@ def test_circular_buffer_equals_scroll_then_step(seed: int, shape: tuple[int, in
     buffer = np.ascontiguousarray(np.roll(pg, offset, axis=(1, 2)))
     zbuffer = np.ascontiguousarray(np.roll(zeta, offset, axis=(0, 1)))
     flags = vacuous_flags(buffer, zbuffer)
+    focal = focal_sets(buffer)
     vacuous_vector = np.zeros(32, np.float32)
     vacuous_vector[31] = 1
     for frame in range(6):
@@ -478,14 +480,76 @@ def test_circular_buffer_equals_scroll_then_step(seed: int, shape: tuple[int, in
         # circular
         offset = ((offset[0] + dr) % shape[0], (offset[1] + dc) % shape[1])
         got = planar_step(buffer, zbuffer, free, occ, labels, (0.9, 0.9, 0.8), 0.1, params,
-                          flags=flags, offset=offset, shift=(dr, dc))
+                          flags=flags, focal=focal, offset=offset, shift=(dr, dc))
         window = new
         for a, b in zip(got.arrays(), want.arrays(), strict=True):
             np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(window_order(buffer, offset), pg)
         np.testing.assert_array_equal(window_order(zbuffer, offset), zeta)
         np.testing.assert_array_equal(flags, vacuous_flags(buffer, zbuffer))
+        np.testing.assert_array_equal(focal, focal_sets(buffer))
     assert flags.any() and not flags.all()
+
+
+def test_focal_sets_are_the_nonzero_planes() -> None:
+    """Bit A of a cell's focal sets is set exactly where m(A) ≠ 0."""
+    pg = np.zeros((32, 2, 3), np.float32)
+    pg[31] = 1
+    pg[:, 0, 1] = 0
+    pg[[0, 5, 16], 0, 1] = (0.25, 0.5, 0.25)
+    pg[31, 1, 2], pg[1, 1, 2] = 0.5, 0.5
+    focal = focal_sets(pg)
+    assert focal.dtype == np.uint32
+    np.testing.assert_array_equal(focal, [[1 << 31, 1 | 1 << 5 | 1 << 16, 1 << 31],
+                                          [1 << 31, 1 << 31, 1 << 31 | 1 << 1]])
+
+
+def sparse_planar_state(rng: np.random.Generator, shape: tuple[int, int]
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """A planar state whose bands of rows each use a few focal sets only (as a map region
+    does), with a vacuous band: whole blocks miss most planes."""
+    pg, zeta = planar_random_state(rng, shape)
+    for band in np.array_split(np.arange(shape[0]), 4):
+        unused = rng.choice(31, size=int(rng.integers(12, 28)), replace=False)
+        part = pg[:, band]
+        part[unused] = 0
+        part[31] += 1 - part.sum(axis=0)  # the removed mass to Ω
+    return pg, zeta
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_compact_layout_equals_dense(seed: int) -> None:
+    """SPEC §1: the compact layout (a block reads and writes only the planes its cells'
+    focal sets use) is exactly the dense one (every plane read and written, focal sets all
+    set): bit for bit, state, ζ and outputs, over scrolled frames and every option."""
+    rng = np.random.default_rng(700 + seed)
+    shape = (24, 300) if seed % 2 else (40, 97)
+    params = random_params(rng)
+    pg, zeta = sparse_planar_state(rng, shape)
+    labels = rng.choice(np.array([0, 1, 2, NO_MAP], np.uint8), size=shape)
+    dense_pg, dense_zeta = pg.copy(), zeta.copy()
+    flags, dense_flags = vacuous_flags(pg, zeta), vacuous_flags(pg, zeta)
+    focal = focal_sets(pg)
+    all_sets = np.full(shape, 0xFFFFFFFF, np.uint32)
+    assert (focal != all_sets).all()  # planes to skip
+    offset = (0, 0)
+    for frame in range(5):
+        shift = (0, 0) if frame == 0 else tuple(int(v) for v in rng.integers(-7, 8, 2))
+        offset = ((offset[0] + shift[0]) % shape[0], (offset[1] + shift[1]) % shape[1])
+        free, occ = random_scan(rng, shape)
+        kind = StoredOutputs if frame % 2 else FusedOutputs
+        got = planar_step(pg, zeta, free, occ, labels, (0.9, 0.9, 0.8), 0.1, params,
+                          out=kind.empty(shape), flags=flags, focal=focal, offset=offset,
+                          shift=shift)
+        dense_focal = all_sets.copy()
+        want = planar_step(dense_pg, dense_zeta, free, occ, labels, (0.9, 0.9, 0.8), 0.1,
+                           params, out=kind.empty(shape), flags=dense_flags,
+                           focal=dense_focal, offset=offset, shift=shift)
+        for a, b in zip(got.arrays(), want.arrays(), strict=True):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(pg, dense_pg)
+        np.testing.assert_array_equal(zeta, dense_zeta)
+        np.testing.assert_array_equal(focal, focal_sets(pg))
 
 
 def test_stored_outputs_are_the_quantised_float_outputs() -> None:
