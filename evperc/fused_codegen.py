@@ -296,6 +296,11 @@ def _active_lanes() -> list[str]:
         "    for t in range(n):",
         "        act[t] = act[t] & np.uint8((fr[wb + np.uint64(t)] == _0) & "
         "(oc[wb + np.uint64(t)] == _0))",
+        "    idle = 0",
+        "    for t in range(n):",
+        "        idle += np.int32(act[t])",
+        "    if idle == n:  # the whole block stays vacuous",
+        "        l0 = l1 = n",
         "    while l0 < n and act[l0] == 1:",
         "        l0 += 1",
         "    while l1 > l0 and act[l1 - 1] == 1:",

@@ -90,6 +90,11 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                             act[np.uint64(lb) + np.uint64(t)] = fl[sc + np.uint64(t)]
                 for t in range(n):
                     act[t] = act[t] & np.uint8((fr[wb + np.uint64(t)] == _0) & (oc[wb + np.uint64(t)] == _0))
+                idle = 0
+                for t in range(n):
+                    idle += np.int32(act[t])
+                if idle == n:  # the whole block stays vacuous
+                    l0 = l1 = n
                 while l0 < n and act[l0] == 1:
                     l0 += 1
                 while l1 > l0 and act[l1 - 1] == 1:
@@ -944,6 +949,11 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                             act[np.uint64(lb) + np.uint64(t)] = fl[sc + np.uint64(t)]
                 for t in range(n):
                     act[t] = act[t] & np.uint8((fr[wb + np.uint64(t)] == _0) & (oc[wb + np.uint64(t)] == _0))
+                idle = 0
+                for t in range(n):
+                    idle += np.int32(act[t])
+                if idle == n:  # the whole block stays vacuous
+                    l0 = l1 = n
                 while l0 < n and act[l0] == 1:
                     l0 += 1
                 while l1 > l0 and act[l1 - 1] == 1:
