@@ -14,3 +14,14 @@ def best_of(fn: Callable[[], object], repeats: int = 3) -> float:
         fn()
         best = min(best, time.perf_counter() - t0)
     return best
+
+
+def best_and_median(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
+    """Best and median wall time of ``repeats`` calls of ``fn``, seconds."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    times.sort()
+    return times[0], times[len(times) // 2]

@@ -243,12 +243,14 @@ def _body() -> list[str]:
     for k, name in enumerate(("fo", "of", "other")):
         add(f"buf[{_at(OUT_CONFLICT + k)}] = {name}")
     add(f"buf[{_at(OUT_CODE)}] = code")
-    # the cell is exactly vacuous with ζ = 0: a later frame may skip it
-    add("rest = " + _sum([f"c{a}" for a in range(31)]))
-    add(f"buf[{_at(OUT_VACUOUS)}] = _1 if ((c31 == _1) & (rest == _0) & (z == _0)) else _0")
-    for name, part in ((OUT_FOCAL_LO, range(16)), (OUT_FOCAL_HI, range(16, 32))):
-        bits = [f"(_P{a - part.start} if c{a} != _0 else _0)" for a in part]
-        add(f"buf[{_at(name)}] = " + _sum(bits))
+    # the cell's focal sets: bit A where c(A) ≠ 0, bits 0–15 and 16–31 as two exact float sums
+    for name, part in (("focal_lo", range(16)), ("focal_hi", range(16, 32))):
+        add(f"{name} = " + _sum([f"(_P{a - part.start} if c{a} != _0 else _0)" for a in part]))
+    add(f"buf[{_at(OUT_FOCAL_LO)}] = focal_lo")
+    add(f"buf[{_at(OUT_FOCAL_HI)}] = focal_hi")
+    # the cell is exactly vacuous with ζ = 0 (only Ω, with mass 1): a later frame may skip it
+    add(f"buf[{_at(OUT_VACUOUS)}] = _1 if ((focal_lo == _0) & (focal_hi == _P15) & (c31 == _1) "
+        "& (z == _0)) else _0")
     return s
 
 
