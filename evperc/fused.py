@@ -31,12 +31,13 @@ cached (``cache=True``, ~7 s each on first use).
 Reachable focal sets (:func:`reachable_focal_sets`): all 31 non-empty subsets with
 contextual discounting, 15 with classical discounting, so the state keeps all 32 planes;
 but a cell uses few of them (9 on average on a 200 m window of a drive: a road cell never
-has mass on a set with I but Ω), and a map region few more. **Compact layout** (SPEC §1):
-each buffer cell carries its focal sets as a uint32 bitmask (``focal``, bit A set where
-m(A) ≠ 0); a block of 256 cells reads only the planes in the union of its cells' masks
-(the others are zero: filled, not read) and writes only those it or its previous cells use
-(15 of 32 planes on that window). Exactly the dense step, bit for bit (tested against
-all-set masks); the planes stay a valid dense state (zeros are written, never left stale).
+has mass on a set with I other than O and Ω), and a map region few more. **Compact
+layout** (SPEC §1): each buffer cell carries its focal sets as a uint32 bitmask
+(``focal``, bit A set where m(A) ≠ 0); a block of 256 cells reads only the planes in the
+union of its cells' masks (the others are zero: filled, not read) and writes only those it
+or its previous cells use (15 of 32 planes on that window). Exactly the dense step, bit
+for bit (tested against all-set masks); the planes stay a valid dense state (zeros are
+written, never left stale).
 
 Context labels are those of :mod:`evperc.geo.prior` (0 other, 1 road, 2 building) plus
 :data:`NO_MAP` (255): no prior in that cell (``--no-map``: pass ``labels=None``).

@@ -1,0 +1,140 @@
+"""The fused step of two commits, timed in alternating rounds on the same state.
+
+Host speed on a shared machine drifts by tens of percent between minutes, so a kernel change
+is judged by timing the old and the new kernel in the same run, alternating: each round
+runs ``--frames`` frames of one kernel in a fresh process (its own numba cache), then of the
+other. The state is workload (a) of ``bench_run.py`` after 10 scans (160,000 cells), saved
+once to ``bench-out/ab-state.npz``; every frame moves the window by one cell, as when
+driving. The old kernel is ``git archive REV evperc`` unpacked into a temporary folder.
+
+``python benchmarks/ab_fused.py [--base REV] [--rounds 6] [--frames 40]``
+(default base: f17e282, the kernel before the compact focal-set layout).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tarfile
+import tempfile
+from io import BytesIO
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+HERE = Path(__file__).resolve().parent
+STATE = ROOT / "bench-out" / "ab-state.npz"
+SCANS = 10
+
+#: the timing loop, run in a child process with the kernel under test first on sys.path
+CHILD = r"""
+import inspect, json, sys, time
+import numpy as np
+from evperc.fused import FusedOutputs, fused_step
+from evperc.pipeline import FusionParams
+with np.load(sys.argv[1]) as npz:
+    z = {name: npz[name] for name in npz.files}
+pg, zeta, flags = z["pg"].copy(), z["zeta"].copy(), z["flags"].copy()
+kwargs = {}
+if "focal" in inspect.signature(fused_step).parameters:
+    from evperc.fused import focal_sets
+    kwargs["focal"] = focal_sets(pg)
+shape = flags.shape
+out = FusedOutputs.empty(shape)
+params = FusionParams(**{k: tuple(v) if isinstance(v, list) else v
+                          for k, v in json.loads(str(z["params"])).items()})
+offset = [int(v) for v in z["offset"]]
+times = []
+for frame in range(int(sys.argv[2]) + 2):  # two to warm up
+    offset[1] = (offset[1] + 1) % shape[1]
+    t0 = time.perf_counter()
+    fused_step(pg, zeta, z["free"], z["occupied"], z["labels"], tuple(z["betas"]), 0.1,
+               params, out=out, flags=flags, offset=tuple(offset), shift=(0, 1), **kwargs)
+    times.append(time.perf_counter() - t0)
+print(json.dumps(times[2:]))
+"""
+
+
+def save_state() -> None:
+    """(a)'s state after SCANS scans and the next scan's inputs (default fusion config)."""
+    sys.path.insert(0, str(ROOT))
+    sys.path.insert(0, str(HERE))
+    import bench_run
+
+    from evperc.config import load_config
+    from evperc.fused import StoredOutputs
+    from evperc.runner import FusionState, Pipeline, RunRequest
+
+    sim = bench_run.simulate("sim-hdl64-10s", "hdl64", 10.0)
+    config = load_config(bench_run.config_file("window200", bench_run.WINDOW_200))
+    with tempfile.TemporaryDirectory() as unused:
+        pipeline = Pipeline(RunRequest(log_path=sim / "drive.mcap", out_dir=Path(unused),
+                                       config=config, map_path=sim / "map.geojson"))
+    state, out = FusionState(), None
+    scans = pipeline.scans(-1)
+    for _ in range(SCANS):
+        inputs = pipeline.prepare(next(scans)[1])
+        out = out or StoredOutputs.empty(inputs.free.shape)
+        pipeline.step(state, inputs, out)
+    inputs = pipeline.prepare(next(scans)[1])
+    np.savez(STATE, pg=state.pg, zeta=state.zeta, flags=state.flags,
+             offset=np.array(state.offset), free=inputs.free, occupied=inputs.occupied,
+             labels=inputs.labels, betas=np.array(pipeline.betas),
+             params=np.array(json.dumps(dataclasses.asdict(pipeline.params))))
+
+
+def unpack(rev: str, into: Path) -> Path:
+    """``evperc/`` as of ``rev`` under ``into``."""
+    tar = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "evperc"], check=True,
+                         capture_output=True).stdout
+    with tarfile.open(fileobj=BytesIO(tar)) as archive:
+        archive.extractall(into, filter="data")
+    return into
+
+
+def time_kernel(path: Path, cache: Path, frames: int) -> list[float]:
+    env = {**os.environ, "PYTHONPATH": str(path), "NUMBA_CACHE_DIR": str(cache)}
+    done = subprocess.run([sys.executable, "-c", CHILD, str(STATE), str(frames)], env=env,
+                          check=True, capture_output=True, text=True, cwd=path)
+    return json.loads(done.stdout)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--base", default="f17e282", help="the older commit (default %(default)s)")
+    parser.add_argument("--rounds", type=int, default=6)
+    parser.add_argument("--frames", type=int, default=40)
+    args = parser.parse_args()
+    if not STATE.exists():
+        save_state()
+    with tempfile.TemporaryDirectory() as tmp:
+        kernels = {args.base: unpack(args.base, Path(tmp) / "base"),
+                   "working tree": ROOT}
+        caches = {name: Path(tmp) / f"numba-{k}" for k, name in enumerate(kernels)}
+        for name, path in kernels.items():
+            time_kernel(path, caches[name], 1)  # compile its numba kernels once
+        medians: dict[str, list[float]] = {name: [] for name in kernels}
+        best = dict.fromkeys(kernels, float("inf"))
+        for _ in range(args.rounds):
+            for name, path in kernels.items():
+                times = time_kernel(path, caches[name], args.frames)
+                medians[name].append(statistics.median(times))
+                best[name] = min(best[name], min(times))
+    print(f"fused step on (a)'s state, {args.rounds} alternating rounds of {args.frames} frames")
+    print(f"{'kernel':<14} {'median of medians ms':>21} {'best frame ms':>14}  round medians")
+    for name in kernels:
+        print(f"{name:<14} {statistics.median(medians[name]) * 1e3:>21.2f} "
+              f"{best[name] * 1e3:>14.2f}  "
+              + " ".join(f"{m * 1e3:.2f}" for m in medians[name]))
+    old, new = (statistics.median(medians[name]) for name in kernels)
+    print(f"new / old (median of medians): {new / old:.2f}")
+
+
+if __name__ == "__main__":
+    main()
