@@ -7,7 +7,7 @@ other. The state is workload (a) of ``bench_run.py`` after 10 scans (160,000 cel
 once to ``bench-out/ab-state.npz``; every frame moves the window by one cell, as when
 driving. The old kernel is ``git archive REV evperc`` unpacked into a temporary folder.
 
-``python benchmarks/ab_fused.py [--base REV] [--rounds 6] [--frames 40]``
+``python benchmarks/ab_fused.py [--base REV] [--rounds 6] [--frames 40] [--stored]``
 (default base: f17e282, the kernel before the compact focal-set layout).
 """
 
@@ -36,7 +36,7 @@ SCANS = 10
 CHILD = r"""
 import inspect, json, sys, time
 import numpy as np
-from evperc.fused import FusedOutputs, fused_step
+from evperc.fused import FusedOutputs, StoredOutputs, fused_step
 from evperc.pipeline import FusionParams
 with np.load(sys.argv[1]) as npz:
     z = {name: npz[name] for name in npz.files}
@@ -46,7 +46,7 @@ if "focal" in inspect.signature(fused_step).parameters:
     from evperc.fused import focal_sets
     kwargs["focal"] = focal_sets(pg)
 shape = flags.shape
-out = FusedOutputs.empty(shape)
+out = (StoredOutputs if sys.argv[3] == "stored" else FusedOutputs).empty(shape)
 params = FusionParams(**{k: tuple(v) if isinstance(v, list) else v
                           for k, v in json.loads(str(z["params"])).items()})
 offset = [int(v) for v in z["offset"]]
@@ -98,9 +98,9 @@ def unpack(rev: str, into: Path) -> Path:
     return into
 
 
-def time_kernel(path: Path, cache: Path, frames: int) -> list[float]:
+def time_kernel(path: Path, cache: Path, frames: int, kind: str) -> list[float]:
     env = {**os.environ, "PYTHONPATH": str(path), "NUMBA_CACHE_DIR": str(cache)}
-    done = subprocess.run([sys.executable, "-c", CHILD, str(STATE), str(frames)], env=env,
+    done = subprocess.run([sys.executable, "-c", CHILD, str(STATE), str(frames), kind], env=env,
                           check=True, capture_output=True, text=True, cwd=path)
     return json.loads(done.stdout)
 
@@ -110,7 +110,10 @@ def main() -> None:
     parser.add_argument("--base", default="f17e282", help="the older commit (default %(default)s)")
     parser.add_argument("--rounds", type=int, default=6)
     parser.add_argument("--frames", type=int, default=40)
+    parser.add_argument("--stored", action="store_true",
+                        help="time the kind the runner uses (uint8 layers as stored)")
     args = parser.parse_args()
+    kind = "stored" if args.stored else "float"
     if not STATE.exists():
         save_state()
     with tempfile.TemporaryDirectory() as tmp:
@@ -118,15 +121,16 @@ def main() -> None:
                    "working tree": ROOT}
         caches = {name: Path(tmp) / f"numba-{k}" for k, name in enumerate(kernels)}
         for name, path in kernels.items():
-            time_kernel(path, caches[name], 1)  # compile its numba kernels once
+            time_kernel(path, caches[name], 1, kind)  # compile its numba kernels once
         medians: dict[str, list[float]] = {name: [] for name in kernels}
         best = dict.fromkeys(kernels, float("inf"))
         for _ in range(args.rounds):
             for name, path in kernels.items():
-                times = time_kernel(path, caches[name], args.frames)
+                times = time_kernel(path, caches[name], args.frames, kind)
                 medians[name].append(statistics.median(times))
                 best[name] = min(best[name], min(times))
-    print(f"fused step on (a)'s state, {args.rounds} alternating rounds of {args.frames} frames")
+    print(f"fused step ({kind} outputs) on (a)'s state, {args.rounds} alternating rounds of "
+          f"{args.frames} frames")
     print(f"{'kernel':<14} {'median of medians ms':>21} {'best frame ms':>14}  round medians")
     for name in kernels:
         print(f"{name:<14} {statistics.median(medians[name]) * 1e3:>21.2f} "
