@@ -155,9 +155,10 @@ def write_ros2_mcap(path: str | Path, *, clouds: Sequence[Cloud] = (),
                     pose_frame: str = "map", tf: Sequence[StampedTransform] = (),
                     tf_static: Sequence[StaticTransform] = (), fixes: Sequence[Fix] = (),
                     fix_topic: str = "/fix", extra_cloud_topics: Sequence[str] = (),
-                    chunk_size: int = 1024 * 1024) -> Path:
+                    chunk_size: int = 1024 * 1024, compression: str = "zstd") -> Path:
     """A ROS 2 MCAP written with mcap-ros2-support. Messages are logged at their stamps
-    (a cloud may carry a 4th item, its log time, to log it late).
+    (a cloud may carry a 4th item, its log time, to log it late); chunks ``compression``
+    "zstd", "lz4" or "none".
 
     ``laserscans`` items are (stamp_ns, ranges, angle_min, angle_increment, frame_id).
     ``extra_cloud_topics`` repeat every cloud on more topics (for ambiguity tests).
@@ -200,7 +201,10 @@ def write_ros2_mcap(path: str | Path, *, clouds: Sequence[Cloud] = (),
             "position_covariance": [0.0] * 9, "position_covariance_type": 0}))
     messages.sort(key=lambda m: m[0])
     with path.open("wb") as f:
-        writer = Writer(f, chunk_size=chunk_size)
+        from mcap.writer import CompressionType
+
+        writer = Writer(f, chunk_size=chunk_size,
+                        compression=CompressionType[compression.upper()])
         schemas = {}
         for ns, topic, typename, msg in messages:
             if typename not in schemas:

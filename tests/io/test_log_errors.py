@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import logging
+import zlib
 
+import mcap.stream_reader
 import numpy as np
 import pytest
+from isal import isal_zlib
 
 from evperc.errors import LogError, TopicError
 from evperc.io.log import open_log
@@ -147,3 +150,31 @@ def test_corrupt_chunk_in_indexed_file_stops_there(tmp_path, caplog):
     assert len(warnings) == 1 and "damaged" in warnings[0]
     assert 1 <= len(out) < 20
     assert [s.stamp_ns for s in out] == [c[0] for c in clouds[: len(out)]]
+
+
+def test_chunk_crc_is_checked_with_isal(tmp_path, caplog):
+    """mcap checks chunk CRC-32s with ISA-L's crc32 (evperc.io.mcap_source), the same value
+    as zlib's: an intact uncompressed log reads whole, and one flipped bit in a point of
+    cloud 12 — still a valid float, which only the CRC can catch — ends the stream there."""
+    assert mcap.stream_reader.zlib.crc32 is isal_zlib.crc32
+    data = np.random.default_rng(1).integers(0, 256, 100_000, dtype=np.uint8).tobytes()
+    assert mcap.stream_reader.zlib.crc32(data) == zlib.crc32(data)
+    clouds = _clouds(n=20, layout_points=200)
+    kwargs = {"clouds": clouds, "odometry": _odometry(23), "chunk_size": 8 * 1024,
+              "tf_static": [("base_link", "velodyne", np.eye(4))], "compression": "none"}
+    full = write_ros2_mcap(tmp_path / "full.mcap", **kwargs)
+    assert len(list(open_log(full).scans())) == 20
+    raw = bytearray(full.read_bytes())
+    point = clouds[12][1][100].astype(np.float32).tobytes()
+    at = raw.find(point)
+    assert at > 0 and raw.find(point, at + 1) == -1
+    raw[at] ^= 1  # the lowest bit of x's mantissa
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(raw))
+    with caplog.at_level(logging.WARNING):
+        out = list(open_log(bad).scans())
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(warnings) == 1 and "damaged" in warnings[0], warnings
+    assert "CRC" in warnings[0] or "crc" in warnings[0].lower(), warnings[0]
+    assert [s.stamp_ns for s in out] == [c[0] for c in clouds[:len(out)]]
+    assert 1 <= len(out) <= 12
