@@ -360,6 +360,7 @@ def rows_from(data: dict) -> list[dict]:
     out = {"measure": "output bytes/frame"}
     cores = {"measure": "cores busy (cpu s / wall s)"}
     kernel = {"measure": "kernel (sys) CPU ms/frame; minor page faults/frame"}
+    threads = {"measure": "CPU ms/frame of the frame loop: main / decode / writer thread"}
     for run_key, col in cols.items():
         run = r[run_key]
         whole[col] = f"{run['frames_per_s']:.1f}"
@@ -370,7 +371,10 @@ def rows_from(data: dict) -> list[dict]:
         cores[col] = f"{run['cpu_s'] / run['wall_s']:.2f}"
         kernel[col] = (f"{1e3 * run['sys_s'] / run['frames']:.1f}; "
                        f"{run['minor_faults'] / run['frames']:,.0f}")
-    rows += [whole, rss, out, cores, kernel]
+        cpu = run.get("cpu_ms_per_frame", {})
+        threads[col] = " / ".join(f"{cpu.get(k, float('nan')):.2f}"
+                                  for k in ("main", "decode", "writer"))
+    rows += [whole, rss, out, cores, kernel, threads]
     long_rss = r["c_long"]["peak_rss_mb"] / r["c_short"]["peak_rss_mb"]
     rows.append({"measure": "peak RSS, (c) long / 1k", cols["c_long"]: f"{long_rss:.3f}"})
     rows.append({"measure": "(a) with output.chunk_frames = 10",

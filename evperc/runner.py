@@ -399,10 +399,13 @@ def run(request: RunRequest, resume: bool = False,
 
     writer.on_chunk = on_chunk
     t0 = time.perf_counter()
+    main_cpu0, writer_cpu0 = time.thread_time(), writer.thread_cpu_s
+    decode_cpu = [0.0]
     new_frames = 0
     # scans are read, decoded and turned into sensor grids in a thread (the second core)
     # while this one fuses
-    scans = prefetched(pipeline.inputs(state.scan_index), depth=2, name="evperc-decode")
+    scans = prefetched(pipeline.inputs(state.scan_index), depth=2, name="evperc-decode",
+                       cpu_s=decode_cpu)
     bar = tqdm(scans, unit="frame", desc=request.log_path.name,
                disable=None if progress is None else not progress, leave=False,
                initial=state.frames)
@@ -435,6 +438,8 @@ def run(request: RunRequest, resume: bool = False,
     writer.finish()
     clock.lap("write")
     wall = time.perf_counter() - t0
+    cpu_s = {"main": time.thread_time() - main_cpu0, "decode": decode_cpu[0],
+             "writer": writer.thread_cpu_s - writer_cpu0}
     counts = state.decision_counts
     total = max(int(counts.sum()), 1)
     names = sorted(DECISION_CODES, key=DECISION_CODES.get)
@@ -445,7 +450,11 @@ def run(request: RunRequest, resume: bool = False,
                "skipped_scans": dict(pipeline.reader.stats),
                "resumed": resume,
                "stage_ms_per_frame": dict(clock.per_frame_ms(new_frames), writer_thread=round(
-                   1e3 * writer.thread_seconds / max(new_frames, 1), 3))}
+                   1e3 * writer.thread_seconds / max(new_frames, 1), 3)),
+               # CPU time of each thread over the frame loop (wall times above include the
+               # time a thread waited for a core)
+               "cpu_ms_per_frame": {name: round(1e3 * seconds / max(new_frames, 1), 3)
+                                    for name, seconds in cpu_s.items()}}
     writer.close(summary)
     _remove_checkpoints(out_dir, keep=set())
     return summary

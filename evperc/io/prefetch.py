@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import queue
 import threading
+import time
 from collections.abc import Iterable, Iterator
 from typing import TypeVar
 
@@ -29,10 +30,12 @@ _POLL_S = 0.05
 _ITEM, _ERROR, _DONE = range(3)
 
 
-def prefetched(iterable: Iterable[T], depth: int = 2,
-               name: str = "evperc-prefetch") -> Iterator[T]:
+def prefetched(iterable: Iterable[T], depth: int = 2, name: str = "evperc-prefetch",
+               cpu_s: list[float] | None = None) -> Iterator[T]:
     """A generator of the items of ``iterable`` in order, produced by a daemon thread named
     ``name`` into a queue of ``depth`` items. The thread starts at the first ``next()``.
+    ``cpu_s``: a one-element list the thread keeps at its CPU time so far (seconds, updated
+    after each item).
 
     Use it as ``with contextlib.closing(prefetched(it)) as items: for item in items: ...``
     (or call ``close()`` in a ``finally``) so that an exception leaving the loop stops the
@@ -41,13 +44,14 @@ def prefetched(iterable: Iterable[T], depth: int = 2,
     """
     if depth < 1:
         raise ValueError(f"prefetch depth must be at least 1, not {depth}")
-    return _consume(iterable, depth, name)
+    return _consume(iterable, depth, name, cpu_s)
 
 
-def _consume(iterable: Iterable[T], depth: int, name: str) -> Iterator[T]:
+def _consume(iterable: Iterable[T], depth: int, name: str,
+             cpu_s: list[float] | None) -> Iterator[T]:
     items: queue.Queue[tuple[int, object]] = queue.Queue(maxsize=depth)
     stop = threading.Event()
-    thread = threading.Thread(target=_produce, args=(iterable, items, stop), name=name,
+    thread = threading.Thread(target=_produce, args=(iterable, items, stop, cpu_s), name=name,
                               daemon=True)
     thread.start()
     try:
@@ -67,13 +71,16 @@ def _consume(iterable: Iterable[T], depth: int, name: str) -> Iterator[T]:
         _drain(items)
 
 
-def _produce(iterable: Iterable[T], items: queue.Queue, stop: threading.Event) -> None:
+def _produce(iterable: Iterable[T], items: queue.Queue, stop: threading.Event,
+             cpu_s: list[float] | None = None) -> None:
     """Thread body: put each item, then a done marker, or the exception that ended the
     source; return early once ``stop`` is set, closing the source."""
     iterator = None
     try:
         iterator = iter(iterable)
         for item in iterator:
+            if cpu_s is not None:
+                cpu_s[0] = time.thread_time()
             if not _put(items, (_ITEM, item), stop) or stop.is_set():
                 return  # before pulling (decoding) another item
             del item

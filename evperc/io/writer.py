@@ -167,6 +167,8 @@ class RunWriter:
         self._pending: Future | None = None
         #: seconds the writer thread spent stacking, compressing and writing chunks
         self.thread_seconds = 0.0
+        #: CPU seconds of the writer thread so far (updated after each chunk)
+        self.thread_cpu_s = 0.0
         #: called with the frame count when a chunk is queued; returns the commit to run
         #: (in the writer thread) after the chunk file is written and before the manifest,
         #: or None: then the chunk is written but the manifest lists it only at the next
@@ -284,6 +286,7 @@ class RunWriter:
             raise OutputError(f"{path}: cannot write chunk ({err.strerror or err})") from err
         finally:
             self.thread_seconds += time.perf_counter() - t0
+            self.thread_cpu_s = time.thread_time()
 
     def finish(self) -> None:
         """Write the last chunk and wait for the writer thread (the manifest stays

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -205,3 +206,29 @@ def test_posed_scans_of_a_log_come_through_unchanged(tmp_path):
         assert a.stamp_ns == b.stamp_ns and a.frame_id == b.frame_id
         np.testing.assert_array_equal(a.points, b.points)
         np.testing.assert_array_equal(a.T_world_sensor, b.T_world_sensor)
+
+
+def _busy(seconds: float) -> None:
+    end = time.thread_time() + seconds
+    while time.thread_time() < end:
+        pass
+
+
+def test_cpu_time_of_the_producer_thread_is_reported() -> None:
+    """``cpu_s`` holds the producer thread's CPU time, not wall time: items that each burn
+    30 ms of CPU add up; items that sleep (off the CPU) do not."""
+    def burning():
+        for i in range(3):
+            _busy(0.03)
+            yield i
+
+    def sleeping():
+        for i in range(3):
+            time.sleep(0.05)
+            yield i
+
+    busy_cpu, idle_cpu = [0.0], [0.0]
+    assert list(prefetched(burning(), depth=1, cpu_s=busy_cpu)) == [0, 1, 2]
+    assert list(prefetched(sleeping(), depth=1, cpu_s=idle_cpu)) == [0, 1, 2]
+    assert busy_cpu[0] >= 0.09
+    assert idle_cpu[0] < 0.05
