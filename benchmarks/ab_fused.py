@@ -5,7 +5,8 @@ is judged by timing the old and the new kernel in the same run, alternating: eac
 runs ``--frames`` frames of one kernel in a fresh process (its own numba cache), then of the
 other. The state is workload (a) of ``bench_run.py`` after 10 scans (160,000 cells), saved
 once to ``bench-out/ab-state.npz``; every frame moves the window by one cell, as when
-driving. The old kernel is ``git archive REV evperc`` unpacked into a temporary folder.
+driving. The old kernel is ``git archive REV evperc configs`` unpacked into a temporary
+folder.
 
 ``python benchmarks/ab_fused.py [--base REV] [--rounds 6] [--frames 40] [--stored]``
 (default base: f17e282, the kernel before the compact focal-set layout).
@@ -90,9 +91,10 @@ def save_state() -> None:
 
 
 def unpack(rev: str, into: Path) -> Path:
-    """``evperc/`` as of ``rev`` under ``into``."""
-    tar = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "evperc"], check=True,
-                         capture_output=True).stdout
+    """``evperc/`` (and ``configs/``, which its default.toml links to) as of ``rev`` under
+    ``into``."""
+    tar = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "evperc", "configs"],
+                         check=True, capture_output=True).stdout
     with tarfile.open(fileobj=BytesIO(tar)) as archive:
         archive.extractall(into, filter="data")
     return into
