@@ -155,14 +155,15 @@ def _skip_resume_or_run(task: RunRequest) -> dict[str, Any]:
         _check_same_inputs(task, manifest)
         if manifest.get("complete"):
             return {"frames": int(manifest["frame_count"]), "status": "skipped"}
-        summary = run(request_from_manifest(task.out_dir), resume=True, progress=False)
+        summary = run(request_from_manifest(task.out_dir), resume=True, progress=False,
+                      reuse_map=True)
         status = "resumed"
     else:
         _clear_stillborn_output(task.out_dir)
         if task.out_dir.is_dir() and any(task.out_dir.iterdir()):
             raise OutputError(f"{task.out_dir}: exists and is not an evperc output; move it "
                               "away or choose another --out")
-        summary = run(task, progress=False)
+        summary = run(task, progress=False, reuse_map=True)
         status = "ok"
     return {"frames": summary["frames"], "frames_per_s": summary["frames_per_s"],
             "status": status}

@@ -22,7 +22,7 @@ from evperc.geo.crs import working_crs
 from evperc.geo.prior import PriorRasteriser
 from evperc.geo.window import Window
 from evperc.io.log import PosedScan, open_log
-from evperc.io.maps import MapData, check_overlap, load_map
+from evperc.io.maps import MapData, check_overlap, load_map, load_map_cached
 from evperc.io.npz import write_npz
 from evperc.io.prefetch import prefetched
 from evperc.io.quantise import dequantise, dequantise_planar
@@ -236,7 +236,7 @@ class FusionState:
 class Pipeline:
     """Inputs opened and checked once; :meth:`step` turns one posed scan into one frame."""
 
-    def __init__(self, request: RunRequest) -> None:
+    def __init__(self, request: RunRequest, reuse_map: bool = False) -> None:
         config = request.config
         self.request = request
         self.reader = open_log(
@@ -254,7 +254,8 @@ class Pipeline:
         self.map_data: MapData | None = None
         self.rasteriser: PriorRasteriser | None = None
         if request.map_path is not None:
-            map_data = load_map(request.map_path, request.roads_path, config_map=config["map"])
+            read = load_map_cached if reuse_map else load_map
+            map_data = read(request.map_path, request.roads_path, config_map=config["map"])
             self.map_data = map_data.to_crs(self.georef.crs)
             self.rasteriser = PriorRasteriser(self.map_data, self.resolution,
                                               config["map"]["tile_size_cells"])
@@ -362,11 +363,13 @@ def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:
 
 def run(request: RunRequest, resume: bool = False,
         on_frame: Callable[[dict[str, Any]], None] | None = None,
-        progress: bool | None = None) -> dict[str, Any]:
+        progress: bool | None = None, reuse_map: bool = False) -> dict[str, Any]:
     """Run the whole pipeline (or continue an interrupted run); returns the summary written
     into the manifest. ``on_frame`` sees every frame's arrays (e.g. to render as it goes);
-    ``progress``: show the per-frame bar (``None``: only on a terminal)."""
-    pipeline = Pipeline(request)
+    ``progress``: show the per-frame bar (``None``: only on a terminal); ``reuse_map``: take
+    the map read by the previous run in this process if it is the same
+    (:func:`evperc.io.maps.load_map_cached`; ``evperc batch`` workers)."""
+    pipeline = Pipeline(request, reuse_map=reuse_map)
     state = FusionState()
     out_dir = request.out_dir
     if resume:

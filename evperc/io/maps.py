@@ -18,8 +18,10 @@ Invalid polygons are repaired with ``shapely.make_valid`` (polygonal parts kept)
 
 from __future__ import annotations
 
+import json
 import logging
 import math
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -152,6 +154,43 @@ def load_map(map_path: str | Path, roads_path: str | Path | None = None, *,
     log.info("%s: %d buildings, %d road surfaces (%d buffered lines) in %s", source,
              len(buildings), len(roads), len(surfaces), crs.to_string())
     return MapData(buildings, roads, crs, source, repaired)
+
+
+#: the last map read by :func:`load_map_cached` in this process: (key, MapData)
+_last_map: tuple[tuple, MapData] | None = None
+_last_map_lock = threading.Lock()
+
+
+def load_map_cached(map_path: str | Path, roads_path: str | Path | None = None, *,
+                    config_map: Mapping[str, Any]) -> MapData:
+    """:func:`load_map`, remembering the last map read in this process: the same files (path,
+    size and modification time) with the same ``[map]`` table give the same
+    :class:`MapData` object instead of a new read. ``evperc batch`` runs many logs on one
+    map in each worker process; a city map takes seconds to read, project and repair."""
+    global _last_map
+    key = (_file_key(map_path), _file_key(roads_path),
+           json.dumps(dict(config_map), sort_keys=True, default=str))
+    with _last_map_lock:
+        if key[0] is not None and _last_map is not None and _last_map[0] == key:
+            log.debug("%s: map reused from the previous run in this process", map_path)
+            return _last_map[1]
+    map_data = load_map(map_path, roads_path, config_map=config_map)
+    with _last_map_lock:
+        _last_map = (key, map_data)
+    return map_data
+
+
+def _file_key(path: str | Path | None) -> tuple[str, int, int] | None:
+    """What identifies a file's content for :func:`load_map_cached`; None if unreadable
+    (then :func:`load_map` reports it)."""
+    if path is None:
+        return None
+    try:
+        resolved = Path(path).expanduser().resolve()
+        stat = resolved.stat()
+    except OSError:
+        return None
+    return str(resolved), stat.st_size, stat.st_mtime_ns
 
 
 def check_overlap(map_data: MapData, xy_bounds: Sequence[float]) -> None:

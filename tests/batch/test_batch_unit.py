@@ -10,8 +10,11 @@ import pytest
 from evperc.batch import format_table, output_names, process_log, read_log_list
 from evperc.config import load_config
 from evperc.errors import UsageError
+from evperc.io import maps
 from evperc.runner import RunRequest
 from tests.batch.logs import write_street_log
+
+SAMPLE = Path(__file__).parents[2] / "sample_data"
 
 
 def test_log_list_ignores_comments_and_blank_lines_relative_to_the_list(tmp_path):
@@ -86,3 +89,19 @@ def test_table_lists_every_log_with_dashes_for_missing_numbers():
     assert lines[1].split() == ["a.mcap", "30", "7.1", "ok"]
     assert lines[2].split()[:4] == ["bad.mcap", "-", "-", "failed"]
     assert lines[2].endswith("/x/bad.mcap: no lidar topic")
+
+
+def test_a_worker_reads_the_map_once_for_many_logs(tmp_path, monkeypatch):
+    """Two logs on one map in the same worker process: the map is read for the first and
+    reused for the second (io.maps.load_map_cached); both runs complete."""
+    reads = []
+    real = maps.load_map
+    monkeypatch.setattr(maps, "_last_map", None)
+    monkeypatch.setattr(maps, "load_map", lambda *a, **k: reads.append(a[0]) or real(*a, **k))
+    config = load_config()
+    rows = [process_log(RunRequest(log_path=SAMPLE / "drive.mcap", out_dir=tmp_path / name,
+                                   config=config, map_path=SAMPLE / "map.geojson", end_s=0.5))
+            for name in ("first", "second")]
+    assert [row["status"] for row in rows] == ["ok", "ok"], rows
+    assert rows[0]["frames"] == rows[1]["frames"] > 0
+    assert len(reads) == 1

@@ -18,7 +18,8 @@ from shapely.geometry import mapping
 
 from evperc.config import default_config
 from evperc.errors import MapError
-from evperc.io.maps import MapData, check_overlap, load_map
+from evperc.io import maps
+from evperc.io.maps import MapData, check_overlap, load_map, load_map_cached
 
 DATA = Path(__file__).parents[1] / "data" / "osm"
 HELSINKI_B = DATA / "helsinki_buildings.geojson"
@@ -364,3 +365,28 @@ def test_untagged_files_named_by_layer(tmp_path: Path, cfg: dict) -> None:
     cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
     assert shapely.intersects_xy(m2.roads[1], cx, cy + 1.9)
     assert not shapely.intersects_xy(m2.roads[1], cx, cy + 2.1)
+
+
+def test_cached_map_is_reused_only_for_the_same_files_and_settings(
+        tmp_path: Path, cfg: dict, monkeypatch: pytest.MonkeyPatch) -> None:
+    """load_map_cached (evperc batch workers): the same file and [map] table give the same
+    object without a new read; another road width, or the file changed on disk, read
+    again; a missing file is an error every time."""
+    reads = []
+    monkeypatch.setattr(maps, "load_map", lambda *a, **k: reads.append(a) or load_map(*a, **k))
+    path = tmp_path / "map.geojson"
+    path.write_bytes(HELSINKI_B.read_bytes())
+    first = load_map_cached(path, HELSINKI_R, config_map=cfg)
+    assert load_map_cached(path, HELSINKI_R, config_map=dict(cfg)) is first
+    assert len(reads) == 1
+    wider = {**cfg, "default_road_width_m": cfg["default_road_width_m"] + 2}
+    assert load_map_cached(path, HELSINKI_R, config_map=wider) is not first
+    assert len(reads) == 2
+    features = json.loads(path.read_text())
+    features["features"] = features["features"][:10]
+    path.write_text(json.dumps(features))
+    fewer = load_map_cached(path, HELSINKI_R, config_map=wider)
+    assert len(reads) == 3 and len(fewer.buildings) == 10 < len(first.buildings)
+    for _ in range(2):
+        with pytest.raises(MapError):
+            load_map_cached(tmp_path / "gone.geojson", HELSINKI_R, config_map=cfg)
