@@ -72,6 +72,7 @@ MALLOC_KEEP = {"MALLOC_MMAP_THRESHOLD_": str(2**32), "MALLOC_TRIM_THRESHOLD_": s
                "MALLOC_TOP_PAD_": str(2**28)}
 #: stages of the manifest summary, in pipeline order, with the issue's names
 STAGES = [("read", "read + decode: wait for the decode thread"),
+          ("decode", "decode thread: read + decompress + decode the scan"),
           ("geometry", "pose + window"),
           ("sensor", "sensor grid"),
           ("prior", "map prior"),

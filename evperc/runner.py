@@ -325,9 +325,18 @@ class Pipeline:
                            {"geometry": t1 - t0, "sensor": t2 - t1, "prior": t3 - t2})
 
     def inputs(self, after_index: int) -> Iterator[tuple[int, FrameInputs]]:
-        """:meth:`prepare` of each scan of :meth:`scans`."""
-        for index, scan in self.scans(after_index):
-            yield index, self.prepare(scan)
+        """:meth:`prepare` of each scan of :meth:`scans`; ``seconds["decode"]`` is the time
+        spent getting the scan (reading, decompressing and decoding the log up to it)."""
+        scans = self.scans(after_index)
+        while True:
+            t0 = time.perf_counter()
+            item = next(scans, None)
+            if item is None:
+                return
+            decode_s = time.perf_counter() - t0
+            inputs = self.prepare(item[1])
+            inputs.seconds["decode"] = decode_s
+            yield item[0], inputs
 
     def step(self, state: FusionState, inputs: FrameInputs, out: StoredOutputs
              ) -> dict[str, Any]:

@@ -54,6 +54,9 @@ def test_run_writes_a_complete_loadable_output(drive: Path, small_config: Path,
     # CPU of the three threads over the frame loop, per frame
     cpu = manifest["summary"]["cpu_ms_per_frame"]
     assert set(cpu) == {"main", "decode", "writer"} and all(v > 0 for v in cpu.values())
+    stages = manifest["summary"]["stage_ms_per_frame"]
+    assert {"decode", "sensor", "fusion", "read", "writer_thread"} <= set(stages)
+    assert all(v >= 0 for v in stages.values()) and stages["decode"] > 0
     assert (out / "config.toml").read_text().count("window_size_m = 40.0") == 1
     run_ = evperc.load(out)
     frames = list(run_.frames)
