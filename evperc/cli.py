@@ -221,8 +221,9 @@ def render_command(out_dir: Path, dest: Path | None, frames_text: str | None, la
               help="MCAP file to write (foxglove.Grid + foxglove.FrameTransform).")
 @click.option("--frames", "frames_text", metavar="A:B:STEP",
               help="Frames to export, Python slice rules  [default: all]")
-@click.option("--frame-id", default="map", show_default=True,
-              help="Frame of the grids and parent of the ego transform (the run's CRS).")
+@click.option("--frame-id", default="evperc", show_default=True,
+              help="Frame of the grids (the run's CRS), parent of the ego transform and of "
+                   "the log's world frame.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing MCAP file.")
 @user_errors
 def export_command(out_dir: Path, mcap_path: Path, frames_text: str | None, frame_id: str,

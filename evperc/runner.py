@@ -286,6 +286,9 @@ class Pipeline:
         request.pop("overwrite")
         return {"decision_codes": DECISION_CODES, "classes": list(CLASSES),
                 "crs": self.crs_name, "resolution_m": self.resolution, "rows": probe.rows,
+                # the log's world frame in the working CRS (None: the run is in the log's frame)
+                "T_crs_world": (self.georef.T_crs_world.tolist() if self.georef is not None
+                                else None),
                 "cols": probe.cols, "log": str(self.request.log_path),
                 "map": str(self.request.map_path) if self.request.map_path else None,
                 "roads": str(self.request.roads_path) if self.request.roads_path else None,
@@ -467,6 +470,8 @@ def run(request: RunRequest, resume: bool = False,
                # time a thread waited for a core)
                "cpu_ms_per_frame": {name: round(1e3 * seconds / max(new_frames, 1), 3)
                                     for name, seconds in cpu_s.items()}}
+    # the frame the log's poses are in (the child of T_crs_world): known once scans are posed
+    writer.manifest["world_frame"] = pipeline.reader.posed_in
     writer.close(summary)
     _remove_checkpoints(out_dir, keep=set())
     return summary

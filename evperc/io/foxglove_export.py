@@ -1,7 +1,8 @@
 """Export a run as an MCAP file for Foxglove (``evperc export OUT --mcap FILE``).
 
-Per frame, on ``/evperc/grid``, one ``foxglove.Grid`` (protobuf) in frame ``map`` (the run's
-working CRS, x east, y north, metres): its ``pose`` is the window's south-west corner
+Per frame, on ``/evperc/grid``, one ``foxglove.Grid`` (protobuf) in frame ``evperc`` (the
+run's working CRS, x east, y north, metres; ``--frame-id``): its ``pose`` is the window's
+south-west corner
 ``(col0·r, row0·r)`` with identity orientation, so data row 0 is the southern row, exactly
 the row order of the run (docs/conventions.md). Each cell holds, little-endian::
 
@@ -11,10 +12,14 @@ the row order of the run (docs/conventions.md). Each cell holds, little-endian::
     offset 28..31  red, green, blue, alpha                  uint8: pignistic colour (SPEC §6)
 
 ``cell_stride`` = 32 bytes, ``row_stride`` = 32 · cols. On ``/evperc/ego`` a
-``foxglove.FrameTransform`` ``map`` → ``ego`` carries the vehicle pose (x, y, yaw). A
-metadata record ``evperc`` names the CRS, resolution and decision codes. Messages are
-encoded with the foxglove-sdk's schemas and written with the ``mcap`` writer, at log time
-= the frame's ``stamp_ns``.
+``foxglove.FrameTransform`` ``evperc`` → ``ego`` carries the vehicle pose (x, y, yaw). On
+``/evperc/world`` a ``foxglove.FrameTransform`` ``evperc`` → the log's world frame (the
+frame its poses are in, e.g. ``map`` or ``odom``: the manifest's ``world_frame``) places that
+frame in the CRS (the run's geo-reference ``T_crs_world``, planar; the identity when the run
+worked in the log's own frame). Open this file together with the log in Foxglove and the
+grids lie under the log's point clouds. A metadata record ``evperc`` names the CRS,
+resolution, frames and decision codes. Messages are encoded with the foxglove-sdk's schemas
+and written with the ``mcap`` writer, at log time = the frame's ``stamp_ns``.
 """
 
 from __future__ import annotations
@@ -35,6 +40,9 @@ log = logging.getLogger(__name__)
 
 GRID_TOPIC = "/evperc/grid"
 EGO_TOPIC = "/evperc/ego"
+WORLD_TOPIC = "/evperc/world"
+#: the grids' frame: not ``map``, which many logs use for their own local world frame
+DEFAULT_FRAME_ID = "evperc"
 CLASSES = ("F", "I", "U", "S", "M")
 CELL_STRIDE = 32
 #: (name, numpy type, byte offset, foxglove NumericType name) of each cell field
@@ -72,7 +80,7 @@ def _timestamp(stamp_ns: int) -> Any:
     return Timestamp(sec, nsec)
 
 
-def grid_message(frame: Any, frame_id: str = "map") -> bytes:
+def grid_message(frame: Any, frame_id: str = DEFAULT_FRAME_ID) -> bytes:
     """The encoded ``foxglove.Grid`` of one frame."""
     from foxglove.messages import (
         Grid,
@@ -97,19 +105,36 @@ def grid_message(frame: Any, frame_id: str = "map") -> bytes:
     return grid.encode()
 
 
-def ego_message(frame: Any, frame_id: str = "map", ego_frame_id: str = "ego") -> bytes:
+def ego_message(frame: Any, frame_id: str = DEFAULT_FRAME_ID, ego_frame_id: str = "ego"
+                ) -> bytes:
     """The encoded ``foxglove.FrameTransform`` ``frame_id`` → ``ego_frame_id`` (pose x, y, yaw)."""
+    x, y, yaw = (float(v) for v in np.asarray(frame.pose)[:3])
+    return _planar_transform(frame.stamp_ns, frame_id, ego_frame_id, x, y, 0.0, yaw)
+
+
+def world_message(stamp_ns: int, T_crs_world: np.ndarray, frame_id: str, world_frame: str
+                  ) -> bytes:
+    """The encoded ``foxglove.FrameTransform`` ``frame_id`` (the CRS) → ``world_frame`` (the
+    log's): ``T_crs_world``, a rotation about the vertical and a translation (evperc's
+    geo-references are planar, :mod:`evperc.geo.georef`)."""
+    T = np.asarray(T_crs_world, dtype=np.float64)
+    yaw = math.atan2(T[1, 0], T[0, 0])
+    return _planar_transform(stamp_ns, frame_id, world_frame, *(float(v) for v in T[:3, 3]),
+                             yaw)
+
+
+def _planar_transform(stamp_ns: int, parent: str, child: str, x: float, y: float, z: float,
+                      yaw: float) -> bytes:
     from foxglove.messages import FrameTransform, Quaternion, Vector3
 
-    x, y, yaw = (float(v) for v in np.asarray(frame.pose)[:3])
     return FrameTransform(
-        timestamp=_timestamp(frame.stamp_ns), parent_frame_id=frame_id,
-        child_frame_id=ego_frame_id, translation=Vector3(x=x, y=y, z=0.0),
+        timestamp=_timestamp(stamp_ns), parent_frame_id=parent, child_frame_id=child,
+        translation=Vector3(x=x, y=y, z=z),
         rotation=Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))).encode()
 
 
 def export_mcap(run: Any, mcap_path: str | Path, *, frames: slice = slice(None),
-                frame_id: str = "map", ego_frame_id: str = "ego",
+                frame_id: str = DEFAULT_FRAME_ID, ego_frame_id: str = "ego",
                 overwrite: bool = False) -> dict[str, Any]:
     """Write the selected frames of ``run`` to ``mcap_path`` (see the module docstring).
 
@@ -125,6 +150,16 @@ def export_mcap(run: Any, mcap_path: str | Path, *, frames: slice = slice(None),
         raise OutputError(f"{path}: exists; pass --overwrite or choose another --mcap")
     if not path.parent.is_dir():
         raise OutputError(f"{path}: folder {path.parent} does not exist")
+    world_frame = run.manifest.get("world_frame")
+    T_crs_world = run.manifest.get("T_crs_world")
+    T_crs_world = np.eye(4) if T_crs_world is None else np.asarray(T_crs_world, np.float64)
+    if world_frame == frame_id:
+        log.warning("%s: the log's world frame is also '%s'; choose another --frame-id to "
+                    "link the grids to the log", path, frame_id)
+        world_frame = None
+    elif not world_frame:
+        log.info("%s: the run does not name the log's world frame (run made before "
+                 "2026-11-26, or unfinished): grids not linked to the log", path)
     tmp = path.with_name(f".{path.name}.tmp")
     count = 0
     try:
@@ -132,7 +167,8 @@ def export_mcap(run: Any, mcap_path: str | Path, *, frames: slice = slice(None),
             writer = Writer(stream)
             writer.start(profile="", library="evperc")
             channels = {}
-            for topic, message in ((GRID_TOPIC, Grid), (EGO_TOPIC, FrameTransform)):
+            for topic, message in ((GRID_TOPIC, Grid), (EGO_TOPIC, FrameTransform),
+                                   (WORLD_TOPIC, FrameTransform)):
                 schema = message.get_schema()
                 schema_id = writer.register_schema(schema.name, schema.encoding, schema.data)
                 channels[topic] = writer.register_channel(topic, "protobuf", schema_id)
@@ -140,6 +176,7 @@ def export_mcap(run: Any, mcap_path: str | Path, *, frames: slice = slice(None),
                 "crs": str(run.manifest.get("crs", "local")),
                 "resolution_m": repr(float(run.manifest.get("resolution_m", 0.0))),
                 "frame_id": frame_id, "ego_frame_id": ego_frame_id,
+                "world_frame": world_frame or "",
                 "decision_codes": json.dumps(dict(run.decision_codes), sort_keys=True),
                 "source": str(getattr(run, "out_dir", ""))})
             for frame in select_frames(run, frames):
@@ -149,6 +186,10 @@ def export_mcap(run: Any, mcap_path: str | Path, *, frames: slice = slice(None),
                 writer.add_message(channels[EGO_TOPIC], stamp,
                                    ego_message(frame, frame_id, ego_frame_id), stamp,
                                    sequence=count)
+                if world_frame:
+                    writer.add_message(channels[WORLD_TOPIC], stamp,
+                                       world_message(stamp, T_crs_world, frame_id, world_frame),
+                                       stamp, sequence=count)
                 count += 1
             writer.finish()
         os.replace(tmp, path)
@@ -158,5 +199,5 @@ def export_mcap(run: Any, mcap_path: str | Path, *, frames: slice = slice(None),
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    log.info("%d frames -> %s (%s, %s)", count, path, GRID_TOPIC, EGO_TOPIC)
+    log.info("%d frames -> %s (%s, %s, %s)", count, path, GRID_TOPIC, EGO_TOPIC, WORLD_TOPIC)
     return {"frames": count, "path": path}

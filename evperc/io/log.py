@@ -114,6 +114,9 @@ class LogReader:
         self._gnss_frame: str | None = None
         self._said: set = set()  # one-time log messages already given
         self.stats: dict[str, int] = {}
+        #: the frame of the posed scans' ``T_world_sensor`` (named in the log), once a scan
+        #: has been posed by :meth:`scans`
+        self.posed_in: str | None = None
 
     # --- the log's extent ----------------------------------------------------------------
 
@@ -304,6 +307,7 @@ class LogReader:
                 continue
             if scan.T_frame_sensor is not None:
                 T = T @ scan.T_frame_sensor
+            self.posed_in = poses.world_frame_name
             yield PosedScan(scan.stamp_ns, scan.points, scan.planar, T, scan.frame_id)
 
     def _decode_scan(self, raw: RawMessage) -> ScanRecord | None:

@@ -182,6 +182,11 @@ class PoseSource:
         """Why a scan still waiting when its deadline passes is skipped."""
         return AFTER
 
+    @property
+    def world_frame_name(self) -> str | None:
+        """The frame the poses are given in, once known (``T_world_sensor``'s world)."""
+        raise NotImplementedError
+
 
 class PoseTopicSource(PoseSource):
     """Poses of the vehicle (the message's child frame, or an unnamed body) from one topic.
@@ -218,6 +223,10 @@ class PoseTopicSource(PoseSource):
             return status, None
         return OK, self._world_from_poseframe() @ T_frame_body @ self._body_to_sensor(
             sensor_frame)
+
+    @property
+    def world_frame_name(self) -> str | None:
+        return self.world_frame or self.pose_frame
 
     def _world_from_poseframe(self) -> np.ndarray:
         key = "__world__"
@@ -280,6 +289,10 @@ class TfSource(PoseSource):
 
     def add(self, records: list[PoseRecord]) -> int:
         return sum(not self.tree.add_dynamic(r) for r in records)
+
+    @property
+    def world_frame_name(self) -> str | None:
+        return self.world_frame
 
     def lookup(self, sensor_frame: str, stamp_ns: int) -> tuple[str, np.ndarray | None]:
         world = self.world_frame

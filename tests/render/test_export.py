@@ -13,9 +13,11 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from evperc.cli import cli
+from evperc.io.log import open_log
 from tests.render.conftest import CODES, make_frame, write_run
 
 ROWS, COLS, RES = 3, 4, 0.5
+SAMPLE = Path(__file__).parents[2] / "sample_data"
 FLOAT32, UINT8 = 7, 1      # foxglove.PackedElementField.NumericType values
 
 
@@ -62,7 +64,7 @@ def test_export_round_trip(tmp_path: Path) -> None:
     assert [g[2] for g in grids] == [5_000_000_000, 5_050_000_000, 5_100_000_000]
     assert len(tfs) == 3
     topic, _, log_time, grid = grids[1]
-    assert grid.frame_id == "map"
+    assert grid.frame_id == "evperc"
     assert grid.column_count == COLS
     assert grid.cell_stride == 32 and grid.row_stride == 32 * COLS
     assert len(grid.data) == ROWS * grid.row_stride
@@ -85,7 +87,7 @@ def test_export_round_trip(tmp_path: Path) -> None:
     rgb = [field_value(grid, name, 0, 1) for name in ("red", "green", "blue", "alpha")]
     assert np.allclose(rgb, [191.0, 64.0, 32.0, 255.0], atol=1.0)
     _, _, _, tf = tfs[2]
-    assert (tf.parent_frame_id, tf.child_frame_id) == ("map", "ego")
+    assert (tf.parent_frame_id, tf.child_frame_id) == ("evperc", "ego")
     assert (tf.translation.x, tf.translation.y) == (3.5, -2.0)
     assert math.isclose(tf.rotation.z, math.sin(math.pi / 4))
     assert math.isclose(tf.rotation.w, math.cos(math.pi / 4))
@@ -107,3 +109,63 @@ def test_export_frames_and_overwrite(tmp_path: Path) -> None:
     assert result.exit_code == 2 and "--overwrite" in result.output
     assert runner.invoke(cli, [*args, "--overwrite"]).exit_code == 0
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+def planar(tf) -> np.ndarray:
+    """4×4 of a decoded foxglove.FrameTransform that turns about the vertical only."""
+    assert tf.rotation.x == tf.rotation.y == 0.0
+    yaw = 2 * math.atan2(tf.rotation.z, tf.rotation.w)
+    T = np.eye(4)
+    T[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
+    T[:3, 3] = [tf.translation.x, tf.translation.y, tf.translation.z]
+    return T
+
+
+def test_export_links_the_grids_to_the_logs_world_frame(tmp_path: Path) -> None:
+    """A run of the sample drive (poses in the log's local frame `map`, geo-referenced by
+    GNSS) exported: /evperc/world carries `evperc` → `map` = the run's T_crs_world, so the
+    log's own lidar poses, carried through it, land on the exported ego poses — the grids
+    lie under the log's data in Foxglove."""
+    out, mcap = tmp_path / "run", tmp_path / "grids.mcap"
+    runner = CliRunner()
+    result = runner.invoke(cli, ["run", str(SAMPLE / "drive.mcap"), "--map",
+                                 str(SAMPLE / "map.geojson"), "--out", str(out), "--end", "1"],
+                           catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["world_frame"] == "map"
+    result = runner.invoke(cli, ["export", str(out), "--mcap", str(mcap)], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    messages, metadata = read(mcap)
+    links = {t: m for topic, _, t, m in messages if topic == "/evperc/world"}
+    egos = {t: m for topic, _, t, m in messages if topic == "/evperc/ego"}
+    assert len(links) == len(egos) == manifest["frame_count"] > 5
+    assert metadata["evperc"]["world_frame"] == "map"
+    link = next(iter(links.values()))
+    assert (link.parent_frame_id, link.child_frame_id) == ("evperc", "map")
+    np.testing.assert_allclose(planar(link), manifest["T_crs_world"], atol=1e-9)
+    # the log's poses, read independently, through the link = the exported ego poses
+    posed = {s.stamp_ns: s.T_world_sensor for s in open_log(SAMPLE / "drive.mcap").scans()}
+    for stamp, ego in egos.items():
+        T_crs_sensor = planar(links[stamp]) @ posed[stamp]
+        assert ego.parent_frame_id == "evperc"
+        assert ego.translation.x == pytest.approx(T_crs_sensor[0, 3], abs=1e-6)
+        assert ego.translation.y == pytest.approx(T_crs_sensor[1, 3], abs=1e-6)
+        yaw = math.atan2(T_crs_sensor[1, 0], T_crs_sensor[0, 0])
+        assert math.remainder(2 * math.atan2(ego.rotation.z, ego.rotation.w) - yaw,
+                              2 * math.pi) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_export_names_no_world_frame_equal_to_the_grid_frame(tmp_path: Path) -> None:
+    """--frame-id equal to the log's world frame: the link would be a loop; it is left out
+    (the grids are still written)."""
+    out, mcap = tmp_path / "run", tmp_path / "grids.mcap"
+    runner = CliRunner()
+    assert runner.invoke(cli, ["run", str(SAMPLE / "drive.mcap"), "--no-map", "--out",
+                               str(out), "--end", "0.5"]).exit_code == 0
+    result = runner.invoke(cli, ["export", str(out), "--mcap", str(mcap), "--frame-id", "map"],
+                           catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    messages, _ = read(mcap)
+    assert not [m for m in messages if m[0] == "/evperc/world"]
+    assert [m for m in messages if m[0] == "/evperc/grid"]
