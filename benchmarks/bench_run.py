@@ -323,6 +323,7 @@ def collect() -> dict:
     CACHE.mkdir(exist_ok=True)
     before = machine()
     sim_a = simulate("sim-hdl64-10s", "hdl64", 10)
+    sim_a_long = simulate("sim-hdl64-30s", "hdl64", 30)
     sim_b = simulate("sim-ibeo4-20s", "ibeo4", 20)
     sim_c = simulate("sim-ibeo4-100s", "ibeo4", 100)
     long_c = loop_log(sim_c, LOOPS)
@@ -331,6 +332,7 @@ def collect() -> dict:
     runs_dir = CACHE / "runs"
     results = {
         "a": best_run(sim_a, runs_dir / "a", w200),
+        "a_long": best_run(sim_a_long, runs_dir / "a-long", w200),
         "a_chunk10": run_evperc(sim_a, runs_dir / "a-chunk10", w200_chunk10),
         "a_malloc": run_evperc(sim_a, runs_dir / "a-malloc", w200, env=MALLOC_KEEP),
         "b": best_run(sim_b, runs_dir / "b"),
@@ -340,6 +342,7 @@ def collect() -> dict:
     cold, warm = numba_startup(sim_b)
     inproc = in_process(sim_a, w200, runs_dir / "a")
     shutil.rmtree(runs_dir / "c-long", ignore_errors=True)  # ~1.3 GB of frames
+    shutil.rmtree(runs_dir / "a-long", ignore_errors=True)
     after = machine()
     return {"machine_before": before, "machine_after": after, "quick": QUICK, "loops": LOOPS,
             "runs": results, "numba_cold_s": cold, "numba_warm_s": warm, "in_process": inproc}
@@ -378,6 +381,15 @@ def rows_from(data: dict) -> list[dict]:
     rows += [whole, rss, out, cores, kernel, threads]
     long_rss = r["c_long"]["peak_rss_mb"] / r["c_short"]["peak_rss_mb"]
     rows.append({"measure": "peak RSS, (c) long / 1k", cols["c_long"]: f"{long_rss:.3f}"})
+    a_long = r["a_long"]
+    cpu = a_long.get("cpu_ms_per_frame", {})
+    rows.append({"measure": "(a) on a 30 s log (300 scans): whole run",
+                 cols["a"]: f"{a_long['frames_per_s']:.1f} frames/s (runs: "
+                            f"{', '.join(f'{v:.1f}' for v in a_long['all_frames_per_s'])}); "
+                            f"CPU ms/frame main / decode / writer "
+                            + " / ".join(f"{cpu.get(k, float('nan')):.2f}"
+                                         for k in ("main", "decode", "writer"))
+                            + f"; {a_long['peak_rss_mb']:.0f} MB peak"})
     rows.append({"measure": "(a) with output.chunk_frames = 10",
                  cols["a"]: f"{r['a_chunk10']['frames_per_s']:.1f} frames/s, "
                             f"{r['a_chunk10']['peak_rss_mb']:.0f} MB peak, "
