@@ -90,17 +90,12 @@ def overlap(old: Window, new: Window) -> tuple[tuple[slice, slice], tuple[slice,
             (slice(r_lo - new.row0, r_hi - new.row0), slice(c_lo - new.col0, c_hi - new.col0)))
 
 
-def scroll(layer: np.ndarray, old: Window, new: Window, fill: np.ndarray | float,
-           out: np.ndarray | None = None) -> np.ndarray:
+def scroll(layer: np.ndarray, old: Window, new: Window, fill: np.ndarray | float
+           ) -> np.ndarray:
     """Move ``layer`` (shape ``old.shape + extra``) to ``new`` by whole cells: cells both
     windows cover keep their values, cells that enter get ``fill`` (broadcast over the
-    trailing axes; e.g. the vacuous mass vector). No resampling. Writes into ``out`` (a
-    different array of the new shape, e.g. a spare buffer) or a new array; returns it."""
-    shape = new.shape + layer.shape[2:]
-    if out is None:
-        out = np.empty(shape, dtype=layer.dtype)
-    elif out.shape != shape or out is layer:
-        raise ValueError("out must be another array of the new window's shape")
+    trailing axes; e.g. the vacuous mass vector). Returns a new array; no resampling."""
+    out = np.empty(new.shape + layer.shape[2:], dtype=layer.dtype)
     ov = overlap(old, new)
     if ov is None:
         out[...] = fill

@@ -63,15 +63,17 @@ def test_scroll_vector_fill_and_disjoint_windows() -> None:
 
 
 @pytest.mark.parametrize(("drow", "dcol"), [(0, 0), (1, 2), (-3, 1), (0, -4), (7, 7), (99, 0)])
-def test_scroll_into_a_spare_buffer_equals_a_fresh_one(drow: int, dcol: int) -> None:
+def test_scroll_matches_a_cell_by_cell_move(drow: int, dcol: int) -> None:
+    """Every cell of the new window, looked up by its world cell: the old value where the
+    old window held it, the fill elsewhere (only the entering strips are filled)."""
     rng = np.random.default_rng([drow + 100, dcol + 100])
     old = Window(1.0, 6, 5, 10, 20)
     new = Window(1.0, 6, 5, 10 + drow, 20 + dcol)
     layer = rng.uniform(size=(6, 5, 3))
     fill = np.array([0.0, 0.0, 1.0])
-    spare = np.full((6, 5, 3), np.nan)  # stale content must all be overwritten
-    got = scroll(layer, old, new, fill, out=spare)
-    assert got is spare
-    np.testing.assert_array_equal(got, scroll(layer, old, new, fill))
-    with pytest.raises(ValueError):
-        scroll(layer, old, new, fill, out=layer)
+    got = scroll(layer, old, new, fill)
+    for r in range(new.rows):
+        for c in range(new.cols):
+            r_old, c_old = new.row0 + r - old.row0, new.col0 + c - old.col0
+            inside = 0 <= r_old < old.rows and 0 <= c_old < old.cols
+            np.testing.assert_array_equal(got[r, c], layer[r_old, c_old] if inside else fill)
