@@ -168,10 +168,12 @@ def load_map_cached(map_path: str | Path, roads_path: str | Path | None = None, 
     :class:`MapData` object instead of a new read. ``evperc batch`` runs many logs on one
     map in each worker process; a city map takes seconds to read, project and repair."""
     global _last_map
-    key = (_file_key(map_path), _file_key(roads_path),
-           json.dumps(dict(config_map), sort_keys=True, default=str))
+    map_key, roads_key = _file_key(map_path), _file_key(roads_path)
+    key = (map_key, roads_key, json.dumps(dict(config_map), sort_keys=True, default=str))
+    # a file given but unreadable is never looked up: load_map reports it
+    readable = map_key is not None and (roads_path is None or roads_key is not None)
     with _last_map_lock:
-        if key[0] is not None and _last_map is not None and _last_map[0] == key:
+        if readable and _last_map is not None and _last_map[0] == key:
             log.debug("%s: map reused from the previous run in this process", map_path)
             return _last_map[1]
     map_data = load_map(map_path, roads_path, config_map=config_map)

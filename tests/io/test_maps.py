@@ -390,3 +390,9 @@ def test_cached_map_is_reused_only_for_the_same_files_and_settings(
     for _ in range(2):
         with pytest.raises(MapError):
             load_map_cached(tmp_path / "gone.geojson", HELSINKI_R, config_map=cfg)
+    # the buildings alone, then the same buildings with a roads file that is missing: the
+    # error, not the map read without roads
+    alone = load_map_cached(HELSINKI_B, config_map=cfg)
+    assert load_map_cached(HELSINKI_B, config_map=cfg) is alone
+    with pytest.raises(MapError, match="gone-roads.geojson"):
+        load_map_cached(HELSINKI_B, tmp_path / "gone-roads.geojson", config_map=cfg)
