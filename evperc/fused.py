@@ -22,7 +22,9 @@ or ζ can move them: each block is trimmed to its active lanes.
 
 Two output kinds: :class:`FusedOutputs` (float32 betP and conflict parts, the decision; for
 tests and studies) and :class:`StoredOutputs` (everything quantised to uint8 as the output
-format stores it, written straight into the writer's chunk buffer: no float copies).
+format stores it, written straight into the writer's chunk buffer: no float copies; the
+masses in the block-sparse layout of :mod:`evperc.io.mass_tiles`, one tile per block, so
+an unobserved block writes its Ω plane only).
 
 Arithmetic is float32 (``fastmath``: LLVM may reassociate sums), so results equal the numpy
 twin to float32 round-off (~1e-6), not bit for bit. The kernels are compiled once and
@@ -59,10 +61,13 @@ from evperc.geo.prior import (
     FOCAL_OTHER,
     FOCAL_ROAD,
 )
+from evperc.io import mass_tiles
 from evperc.pipeline import DECISION_CODES, FusionParams, decide, scaled_rate, vacuous
 
 #: context label of a cell without map prior (vacuous GG)
 NO_MAP = 255
+#: cells per tile of the stored masses' block-sparse layout: the kernel's block
+MASS_TILE = fused_kernel.BLOCK
 
 _F, _I, _U, _S, _M = 1, 2, 4, 8, 16
 _O = _I | _U | _S | _M
@@ -94,10 +99,15 @@ class FusedOutputs:
 @dataclass(frozen=True)
 class StoredOutputs:
     """uint8 outputs of :func:`fused_step` as the output format stores them
-    (``round(255 · x)``, docs/output-format.md): the new masses, betP, conflict parts, ζ
-    and the decision, each planar. Usually views into the writer's chunk buffer."""
+    (``round(255 · x)``, docs/output-format.md): the new masses in the block-sparse layout
+    of :mod:`evperc.io.mass_tiles` (tiles of :data:`MASS_TILE` cells: ``mass_runs`` from
+    its start, ``tile_masks``, and ``mass_length[0]`` the bytes of runs written), betP,
+    conflict parts, ζ and the decision, planar. Usually views into the writer's chunk
+    buffer."""
 
-    masses: np.ndarray  # uint8 (32, rows, cols)
+    mass_runs: np.ndarray  # uint8 (32 · rows · cols,): room for every plane of every cell
+    tile_masks: np.ndarray  # uint32 (rows, tiles per row)
+    mass_length: np.ndarray  # int64 (1,)
     betp: np.ndarray  # uint8 (5, rows, cols)
     conflict: np.ndarray  # uint8 (3, rows, cols)
     zeta: np.ndarray  # uint8 (rows, cols)
@@ -105,12 +115,25 @@ class StoredOutputs:
 
     @staticmethod
     def empty(shape: tuple[int, int]) -> StoredOutputs:
-        return StoredOutputs(np.empty((32, *shape), np.uint8), np.empty((5, *shape), np.uint8),
-                             np.empty((3, *shape), np.uint8), np.empty(shape, np.uint8),
-                             np.empty(shape, np.uint8))
+        return StoredOutputs(*(np.empty(s, d) for s, d in StoredOutputs.layout(shape)))
+
+    @staticmethod
+    def layout(shape: tuple[int, int]) -> list[tuple[tuple[int, ...], type]]:
+        """Shape and dtype of each array, in field order."""
+        rows, cols = shape
+        return [((32 * rows * cols,), np.uint8),
+                ((rows, mass_tiles.tiles_per_row(cols, MASS_TILE)), np.uint32),
+                ((1,), np.int64), ((5, rows, cols), np.uint8), ((3, rows, cols), np.uint8),
+                ((rows, cols), np.uint8), ((rows, cols), np.uint8)]
 
     def arrays(self) -> tuple[np.ndarray, ...]:
-        return self.masses, self.betp, self.conflict, self.zeta, self.decision
+        return (self.mass_runs, self.tile_masks, self.mass_length, self.betp, self.conflict,
+                self.zeta, self.decision)
+
+    def masses(self) -> np.ndarray:
+        """The masses as dense uint8 planes ``(32, rows, cols)``."""
+        runs = self.mass_runs[:int(self.mass_length[0])]
+        return mass_tiles.decode(runs, self.tile_masks, self.decision.shape, MASS_TILE)
 
 
 def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.ndarray,
@@ -287,10 +310,12 @@ def _check_state(pg: np.ndarray, zeta: np.ndarray) -> tuple[int, int]:
 
 
 def _check_outputs(out: FusedOutputs | StoredOutputs, shape: tuple[int, int]) -> None:
-    want = FusedOutputs.empty((1, 1)) if isinstance(out, FusedOutputs) else (
-        StoredOutputs.empty((1, 1)))
-    for got, model in zip(out.arrays(), want.arrays(), strict=True):
-        if (got.shape != (*model.shape[:-2], *shape) or got.dtype != model.dtype
+    if isinstance(out, FusedOutputs):
+        want = [(a.shape[:-2] + shape, a.dtype) for a in FusedOutputs.empty((1, 1)).arrays()]
+    else:
+        want = StoredOutputs.layout(shape)
+    for got, (model_shape, dtype) in zip(out.arrays(), want, strict=True):
+        if (got.shape != model_shape or got.dtype != dtype
                 or not got.flags.c_contiguous or not got.flags.writeable):
             raise ValueError(f"out arrays do not match the grid {shape} (see "
                              f"{type(out).__name__}.empty)")

@@ -388,10 +388,7 @@ def _skipped(kind: str, first: str, last: str) -> list[str]:
                         "for k in range(3):",
                         *_loop(width, "cf[np.uint64(k), ws + {i}]", "_0", "    "),
                         *_loop(width, "dc[ws + {i}]", "vac_code")]
-    return lines + ["for a in range(32):",
-                    "    value = np.uint8(255) if a == 31 else np.uint8(0)",
-                    *_loop(width, "qm[np.uint64(a), ws + {i}]", "value", "    "),
-                    "for k in range(5):",
+    return lines + ["for k in range(5):",
                     *_loop(width, "qb[np.uint64(k), ws + {i}]", "np.uint8(51)", "    "),
                     "for k in range(3):",
                     *_loop(width, "qc[np.uint64(k), ws + {i}]", "np.uint8(0)", "    "),
@@ -419,13 +416,48 @@ def _store_outputs(kind: str) -> list[str]:
                 f"{indent}    v = v if v < _1 else _1",
                 f"{indent}    {target.format(i='np.uint64(t)')} = "
                 "np.uint8(np.int32(v * _255 + _HALF))"]
-    return ["for a in range(32):",
-            *quantised("qm[np.uint64(a), wl + {i}]", f"{OUT_MASS} + a"),
+    return [*_store_tile(),
             "for k in range(5):", *quantised("qb[np.uint64(k), wl + {i}]", f"{OUT_BETP} + k"),
             "for k in range(3):",
             *quantised("qc[np.uint64(k), wl + {i}]", f"{OUT_CONFLICT} + k"),
             *quantised("qz[wl + {i}]", str(OUT_ZETA), indent=""),
             *_loop(width, "qd[wl + {i}]", code)]
+
+
+def _store_tile() -> list[str]:
+    """The block's masses as runs of the output's block-sparse layout
+    (:mod:`evperc.io.mass_tiles`): the tile's mask is the union of its cells' focal sets
+    (Ω for the lanes not computed, which are vacuous), then for each plane in it, in
+    increasing subset order, the ``n`` quantised values of the tile's cells, from ``pos`` on."""
+    def const(first: str, last: str) -> list[str]:
+        return [f"    for t in range({first}, {last}):",
+                "        qr[pos + np.uint64(t)] = value"]
+    return [
+        "tile_mask = new_mask",
+        "if l0 > 0 or l1 < n:",
+        "    tile_mask |= _OMEGA_BIT",
+        "qt[tile] = tile_mask",
+        "for a in range(32):",
+        "    if (tile_mask >> np.uint32(a)) & _ONE:",
+        "        value = np.uint8(255) if a == 31 else np.uint8(0)",
+        *["    " + line for line in const("0", "l0")],
+        "        pl = pos + np.uint64(l0)",
+        "        for t in range(l1 - l0):",
+        f"            v = {_buf(f'{OUT_MASS} + a').format(i='np.uint64(t)')}",
+        "            v = v if v > _0 else _0",
+        "            v = v if v < _1 else _1",
+        "            qr[pl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))",
+        *["    " + line for line in const("l1", "n")],
+        "        pos += np.uint64(n)",
+    ]
+
+
+def _idle_tile() -> list[str]:
+    """An idle block's masses: all its cells are vacuous, the tile holds Ω only."""
+    return ["qt[tile] = _OMEGA_BIT",
+            "for t in range(n):",
+            "    qr[pos + np.uint64(t)] = np.uint8(255)",
+            "pos += np.uint64(n)"]
 
 
 PARAMS = ("derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, "
@@ -436,10 +468,11 @@ PARAMS = ("derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a
 
 def _kernel(kind: str) -> list[str]:
     outs = ("betp, conflict, decision" if kind == "float"
-            else "q_masses, q_betp, q_conflict, q_zeta, q_decision")
+            else "q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision")
     flat = ["bp = betp.reshape(5, n_cells)", "cf = conflict.reshape(3, n_cells)",
             "dc = decision.reshape(n_cells)"] if kind == "float" else [
-            "qm = q_masses.reshape(32, n_cells)", "qb = q_betp.reshape(5, n_cells)",
+            "qr = q_runs", "qt = q_tiles.reshape(q_tiles.size)",
+            "pos = np.uint64(0)  # bytes of mass runs written", "qb = q_betp.reshape(5, n_cells)",
             "qc = q_conflict.reshape(3, n_cells)", "qz = q_zeta.reshape(n_cells)",
             "qd = q_decision.reshape(n_cells)"]
     block = [
@@ -447,6 +480,7 @@ def _kernel(kind: str) -> list[str]:
         "s0 = max(lo, j0)  # [s0, s1): cells of the block inside the previous window",
         "s1 = min(hi, j0 + n)",
         "wb = np.uint64(r * cols + j0)  # flat window index of the block's lane 0",
+        "tile = np.uint64(r * tiles_per_row + j0 // BLOCK)",
         *_active_lanes(),
         "if l1 <= l0:",
         "    l0 = l1 = n",
@@ -455,6 +489,7 @@ def _kernel(kind: str) -> list[str]:
         "if l1 < n:",
         *["    " + line for line in _skipped(kind, "l1", "n")],
         "if l1 <= l0:",
+        *(["    " + line for line in _idle_tile()] if kind == "stored" else []),
         "    continue",
         *_load(),
     ]
@@ -476,6 +511,7 @@ def _kernel(kind: str) -> list[str]:
         "    obs_f = observed.reshape(n_cells)",
         *["    " + line for line in flat],
         "    wrap = cols - off_c  # window columns from here on wrap to the buffer's start",
+        "    tiles_per_row = (cols + BLOCK - 1) // BLOCK",
         "    buf = np.zeros(PLANES * BLOCK, np.float32)",
         "    act = np.zeros(BLOCK, np.uint8)",
         "    for r in range(rows):",
@@ -496,6 +532,8 @@ def _kernel(kind: str) -> list[str]:
               "                for l in range(SUB):"]
     lines += ["                    " + line for line in _body()]
     lines += ["            " + line for line in _store_state() + _store_outputs(kind)]
+    if kind == "stored":
+        lines.append("    q_length[0] = np.int64(pos)")
     return lines
 
 

@@ -59,6 +59,7 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
     cf = conflict.reshape(3, n_cells)
     dc = decision.reshape(n_cells)
     wrap = cols - off_c  # window columns from here on wrap to the buffer's start
+    tiles_per_row = (cols + BLOCK - 1) // BLOCK
     buf = np.zeros(PLANES * BLOCK, np.float32)
     act = np.zeros(BLOCK, np.uint8)
     for r in range(rows):
@@ -74,6 +75,7 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
             s0 = max(lo, j0)  # [s0, s1): cells of the block inside the previous window
             s1 = min(hi, j0 + n)
             wb = np.uint64(r * cols + j0)  # flat window index of the block's lane 0
+            tile = np.uint64(r * tiles_per_row + j0 // BLOCK)
             l0 = 0
             l1 = n
             if may_skip:
@@ -902,7 +904,7 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
-               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, q_masses, q_betp, q_conflict, q_zeta, q_decision):  # pragma: no cover - compiled
+               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
     n_cells = rows * cols
     st = state.reshape(32, n_cells)
@@ -913,12 +915,15 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
     oc = occ.reshape(n_cells)
     lbl = labels.reshape(n_cells)
     obs_f = observed.reshape(n_cells)
-    qm = q_masses.reshape(32, n_cells)
+    qr = q_runs
+    qt = q_tiles.reshape(q_tiles.size)
+    pos = np.uint64(0)  # bytes of mass runs written
     qb = q_betp.reshape(5, n_cells)
     qc = q_conflict.reshape(3, n_cells)
     qz = q_zeta.reshape(n_cells)
     qd = q_decision.reshape(n_cells)
     wrap = cols - off_c  # window columns from here on wrap to the buffer's start
+    tiles_per_row = (cols + BLOCK - 1) // BLOCK
     buf = np.zeros(PLANES * BLOCK, np.float32)
     act = np.zeros(BLOCK, np.uint8)
     for r in range(rows):
@@ -934,6 +939,7 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
             s0 = max(lo, j0)  # [s0, s1): cells of the block inside the previous window
             s1 = min(hi, j0 + n)
             wb = np.uint64(r * cols + j0)  # flat window index of the block's lane 0
+            tile = np.uint64(r * tiles_per_row + j0 // BLOCK)
             l0 = 0
             l1 = n
             if may_skip:
@@ -1002,10 +1008,6 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                         for t in range(w):
                             fc[sc + np.uint64(t)] = _OMEGA_BIT
                 ws = wb + np.uint64(0)
-                for a in range(32):
-                    value = np.uint8(255) if a == 31 else np.uint8(0)
-                    for t in range(l0 - 0):
-                        qm[np.uint64(a), ws + np.uint64(t)] = value
                 for k in range(5):
                     for t in range(l0 - 0):
                         qb[np.uint64(k), ws + np.uint64(t)] = np.uint8(51)
@@ -1054,10 +1056,6 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                         for t in range(w):
                             fc[sc + np.uint64(t)] = _OMEGA_BIT
                 ws = wb + np.uint64(l1)
-                for a in range(32):
-                    value = np.uint8(255) if a == 31 else np.uint8(0)
-                    for t in range(n - l1):
-                        qm[np.uint64(a), ws + np.uint64(t)] = value
                 for k in range(5):
                     for t in range(n - l1):
                         qb[np.uint64(k), ws + np.uint64(t)] = np.uint8(51)
@@ -1069,6 +1067,10 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                 for t in range(n - l1):
                     qd[ws + np.uint64(t)] = vac_code
             if l1 <= l0:
+                qt[tile] = _OMEGA_BIT
+                for t in range(n):
+                    qr[pos + np.uint64(t)] = np.uint8(255)
+                pos += np.uint64(n)
                 continue
             old_mask = np.uint32(0)
             for seg in range(2):
@@ -1762,12 +1764,24 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                         zt[sc + np.uint64(t)] = buf[np.uint64((32) * BLOCK + lb) + np.uint64(t)]
                     for t in range(w):
                         fl[sc + np.uint64(t)] = np.uint8(buf[np.uint64((42) * BLOCK + lb) + np.uint64(t)])
+            tile_mask = new_mask
+            if l0 > 0 or l1 < n:
+                tile_mask |= _OMEGA_BIT
+            qt[tile] = tile_mask
             for a in range(32):
-                for t in range(l1 - l0):
-                    v = buf[np.uint64((0 + a) * BLOCK + l0) + np.uint64(t)]
-                    v = v if v > _0 else _0
-                    v = v if v < _1 else _1
-                    qm[np.uint64(a), wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
+                if (tile_mask >> np.uint32(a)) & _ONE:
+                    value = np.uint8(255) if a == 31 else np.uint8(0)
+                    for t in range(0, l0):
+                        qr[pos + np.uint64(t)] = value
+                    pl = pos + np.uint64(l0)
+                    for t in range(l1 - l0):
+                        v = buf[np.uint64((0 + a) * BLOCK + l0) + np.uint64(t)]
+                        v = v if v > _0 else _0
+                        v = v if v < _1 else _1
+                        qr[pl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
+                    for t in range(l1, n):
+                        qr[pos + np.uint64(t)] = value
+                    pos += np.uint64(n)
             for k in range(5):
                 for t in range(l1 - l0):
                     v = buf[np.uint64((33 + k) * BLOCK + l0) + np.uint64(t)]
@@ -1787,3 +1801,4 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                 qz[wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
             for t in range(l1 - l0):
                 qd[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * BLOCK + l0) + np.uint64(t)])
+    q_length[0] = np.int64(pos)

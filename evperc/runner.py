@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -59,10 +60,12 @@ class FrameInputs:
     stamp_ns: int
     pose: np.ndarray              # x_m, y_m, yaw_rad of the sensor in the working CRS
     window: Window
-    free: np.ndarray              # sensor grid m({F}), float32 window.shape
-    occupied: np.ndarray          # sensor grid m({O})
+    free: np.ndarray | None       # sensor grid m({F}), float32 window.shape (None: not yet)
+    occupied: np.ndarray | None   # sensor grid m({O})
     labels: np.ndarray | None     # map context labels, None without a map
     seconds: dict[str, float]     # time spent preparing it, per stage
+    scan: PosedScan | None = None  # the scan whose sensor grid is still to compute
+    t_crs: np.ndarray | None = None  # its sensor pose in the working CRS
 
 
 def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
@@ -265,6 +268,8 @@ class Pipeline:
         self.sensor_params = SensorParams.from_config(config["sensor"], self.resolution)
         self._overlap_checked = False
         self.clock = StageClock()
+        #: frames whose sensor grid the fusion thread computed (:meth:`inputs`, ``defer``)
+        self.sensor_grids_in_step = 0
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -306,10 +311,11 @@ class Pipeline:
             if index > after_index and index % r.every == 0:
                 yield index, scan
 
-    def prepare(self, scan: PosedScan) -> FrameInputs:
+    def prepare(self, scan: PosedScan, sensor: bool = True) -> FrameInputs:
         """What the fusion step needs from one scan, which does not depend on the fusion
-        state: pose, window, sensor grid (SPEC §3) and map labels. The runner calls this in
-        the decode thread, one or two scans ahead of the fusion."""
+        state: pose, window, sensor grid (SPEC §3; left to :meth:`sensor_grid` unless
+        ``sensor``) and map labels. The runner calls this in the decode thread, one or two
+        scans ahead of the fusion."""
         t0 = time.perf_counter()
         t_crs = (self.georef.apply(scan.T_world_sensor) if self.georef is not None
                  else scan.T_world_sensor)
@@ -319,17 +325,30 @@ class Pipeline:
             check_overlap(self.map_data, window.bounds)
             self._overlap_checked = True
         t1 = time.perf_counter()
-        free, occupied = sensor_grid(scan.points, scan.planar, t_crs, window,
-                                     self.sensor_params)
-        t2 = time.perf_counter()
         labels = self.rasteriser.labels(window) if self.rasteriser is not None else None
-        t3 = time.perf_counter()
-        return FrameInputs(scan.stamp_ns, pose, window, free, occupied, labels,
-                           {"geometry": t1 - t0, "sensor": t2 - t1, "prior": t3 - t2})
+        t2 = time.perf_counter()
+        inputs = FrameInputs(scan.stamp_ns, pose, window, None, None, labels,
+                             {"geometry": t1 - t0, "prior": t2 - t1}, scan, t_crs)
+        return self.sensor_grid(inputs) if sensor else inputs
 
-    def inputs(self, after_index: int) -> Iterator[tuple[int, FrameInputs]]:
+    def sensor_grid(self, inputs: FrameInputs) -> FrameInputs:
+        """``inputs`` with the sensor grid of its scan (SPEC §3)."""
+        if inputs.scan is None:
+            return inputs
+        t0 = time.perf_counter()
+        free, occupied = sensor_grid(inputs.scan.points, inputs.scan.planar, inputs.t_crs,
+                                     inputs.window, self.sensor_params)
+        seconds = {**inputs.seconds, "sensor": time.perf_counter() - t0}
+        return replace(inputs, free=free, occupied=occupied, seconds=seconds, scan=None,
+                       t_crs=None)
+
+    def inputs(self, after_index: int, defer: threading.Event | None = None
+               ) -> Iterator[tuple[int, FrameInputs]]:
         """:meth:`prepare` of each scan of :meth:`scans`; ``seconds["decode"]`` is the time
-        spent getting the scan (reading, decompressing and decoding the log up to it)."""
+        spent getting the scan (reading, decompressing and decoding the log up to it).
+        ``defer``: while it is set (the fusion thread has no scan waiting for it), the sensor
+        grid is left to :meth:`step` — the two threads share the work where this one would
+        be the bottleneck."""
         scans = self.scans(after_index)
         while True:
             t0 = time.perf_counter()
@@ -337,7 +356,7 @@ class Pipeline:
             if item is None:
                 return
             decode_s = time.perf_counter() - t0
-            inputs = self.prepare(item[1])
+            inputs = self.prepare(item[1], sensor=defer is None or not defer.is_set())
             inputs.seconds["decode"] = decode_s
             yield item[0], inputs
 
@@ -347,6 +366,11 @@ class Pipeline:
         ``out`` (the writer's chunk buffer); returns the frame's metadata."""
         clock = self.clock
         clock.lap("read")  # waiting for the decode thread (reading, decoding, sensor grid)
+        if inputs.free is None:  # left to this thread (Pipeline.inputs)
+            inputs = self.sensor_grid(inputs)
+            del inputs.seconds["sensor"]  # timed here, by the clock
+            clock.lap("sensor")
+            self.sensor_grids_in_step += 1
         clock.add(inputs.seconds)  # the decode thread's time, overlapped with this one
         window = inputs.window
         shift = state.move_to(window)
@@ -368,7 +392,7 @@ class Pipeline:
 def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:
     """The stored layers of a frame as float arrays, interleaved ``(rows, cols, k)`` as
     :func:`evperc.load` gives them (for ``on_frame`` consumers such as live rendering)."""
-    return {"masses": dequantise_planar(out.masses), "betp": dequantise_planar(out.betp),
+    return {"masses": dequantise_planar(out.masses()), "betp": dequantise_planar(out.betp),
             "decision": out.decision.copy(), "zeta": dequantise(out.zeta),
             "conflict": dequantise_planar(out.conflict)}
 
@@ -419,8 +443,10 @@ def run(request: RunRequest, resume: bool = False,
     new_frames = 0
     # scans are read, decoded and turned into sensor grids in a thread (the second core)
     # while this one fuses
-    scans = prefetched(pipeline.inputs(state.scan_index), depth=2, name="evperc-decode",
-                       cpu_s=decode_cpu)
+    # the fusion thread computes a scan's sensor grid itself when it would otherwise wait
+    hungry = threading.Event()
+    scans = prefetched(pipeline.inputs(state.scan_index, defer=hungry), depth=2,
+                       name="evperc-decode", cpu_s=decode_cpu, hungry=hungry)
     bar = tqdm(scans, unit="frame", desc=request.log_path.name,
                disable=None if progress is None else not progress, leave=False,
                initial=state.frames)
@@ -428,7 +454,7 @@ def run(request: RunRequest, resume: bool = False,
     clock.restart()
     try:
         for index, inputs in bar:
-            out = StoredOutputs(*writer.frame_slot())
+            out = writer.frame_slot()
             frame = pipeline.step(state, inputs, out)
             state.scan_index = index
             new_frames += 1
@@ -464,6 +490,7 @@ def run(request: RunRequest, resume: bool = False,
                                   for n in names},
                "skipped_scans": dict(pipeline.reader.stats),
                "resumed": resume,
+               "sensor_grids_in_fusion_thread": pipeline.sensor_grids_in_step,
                "stage_ms_per_frame": dict(clock.per_frame_ms(new_frames), writer_thread=round(
                    1e3 * writer.thread_seconds / max(new_frames, 1), 3)),
                # CPU time of each thread over the frame loop (wall times above include the

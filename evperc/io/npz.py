@@ -60,6 +60,7 @@ import logging
 import os
 import zipfile
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -75,7 +76,20 @@ _PIECE = 1 << 20
 _warned = False
 
 
-def write_npz(path: Path, arrays: dict[str, np.ndarray], compress: bool) -> None:
+@dataclass(frozen=True)
+class Concatenated:
+    """A 1-D member made of ``parts`` (1-D arrays of one dtype) end to end, written part by
+    part without joining them in memory (a chunk's mass runs, one part per frame)."""
+
+    parts: tuple[np.ndarray, ...]
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self.parts[0].dtype if self.parts else np.dtype(np.uint8)
+
+
+def write_npz(path: Path, arrays: dict[str, np.ndarray | Concatenated],
+              compress: bool) -> None:
     """Write ``arrays`` as the NPZ ``path`` (members ``NAME.npy``), deflated at
     :data:`DEFLATE_LEVEL` if ``compress`` else stored.
 
@@ -131,9 +145,18 @@ def _use_isal(member: object) -> None:
     member.write = write
 
 
-def _write_npy(fp: object, array: np.ndarray) -> None:
+def _write_npy(fp: object, array: np.ndarray | Concatenated) -> None:
     """``array`` in ``.npy`` format 1.0 to the binary stream ``fp`` (what ``np.save``
     writes), its data as views without copying when contiguous."""
+    if isinstance(array, Concatenated):
+        if any(p.ndim != 1 or p.dtype != array.dtype for p in array.parts):
+            raise ValueError("Concatenated parts must be 1-D arrays of one dtype")
+        size = sum(p.size for p in array.parts)
+        np.lib.format.write_array_header_1_0(fp, {"descr": np.lib.format.dtype_to_descr(
+            array.dtype), "fortran_order": False, "shape": (size,)})
+        for part in array.parts:
+            _write_data(fp, part)
+        return
     array = np.asarray(array)
     if array.dtype.hasobject:
         raise ValueError("object arrays cannot be written without pickling")
@@ -141,6 +164,11 @@ def _write_npy(fp: object, array: np.ndarray) -> None:
     np.lib.format.write_array_header_1_0(fp, header)
     if header["fortran_order"]:
         array = array.T
+    _write_data(fp, array)
+
+
+def _write_data(fp: object, array: np.ndarray) -> None:
+    """The bytes of ``array`` in C order, as views in pieces of :data:`_PIECE` bytes."""
     for part in _contiguous_parts(array):
         data = part.reshape(-1).view(np.uint8)
         for start in range(0, data.size, _PIECE):

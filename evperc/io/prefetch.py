@@ -31,11 +31,14 @@ _ITEM, _ERROR, _DONE = range(3)
 
 
 def prefetched(iterable: Iterable[T], depth: int = 2, name: str = "evperc-prefetch",
-               cpu_s: list[float] | None = None) -> Iterator[T]:
+               cpu_s: list[float] | None = None,
+               hungry: threading.Event | None = None) -> Iterator[T]:
     """A generator of the items of ``iterable`` in order, produced by a daemon thread named
     ``name`` into a queue of ``depth`` items. The thread starts at the first ``next()``.
     ``cpu_s``: a one-element list the thread keeps at its CPU time so far (seconds, updated
-    after each item).
+    after each item). ``hungry``: kept set while the queue holds no item (the consumer
+    waits, or will at its next request), so that the source can leave work to the consumer
+    where the producer is the bottleneck.
 
     Use it as ``with contextlib.closing(prefetched(it)) as items: for item in items: ...``
     (or call ``close()`` in a ``finally``) so that an exception leaving the loop stops the
@@ -44,19 +47,23 @@ def prefetched(iterable: Iterable[T], depth: int = 2, name: str = "evperc-prefet
     """
     if depth < 1:
         raise ValueError(f"prefetch depth must be at least 1, not {depth}")
-    return _consume(iterable, depth, name, cpu_s)
+    return _consume(iterable, depth, name, cpu_s, hungry)
 
 
 def _consume(iterable: Iterable[T], depth: int, name: str,
-             cpu_s: list[float] | None) -> Iterator[T]:
+             cpu_s: list[float] | None, hungry: threading.Event | None) -> Iterator[T]:
     items: queue.Queue[tuple[int, object]] = queue.Queue(maxsize=depth)
     stop = threading.Event()
-    thread = threading.Thread(target=_produce, args=(iterable, items, stop, cpu_s), name=name,
-                              daemon=True)
+    thread = threading.Thread(target=_produce, args=(iterable, items, stop, cpu_s, hungry),
+                              name=name, daemon=True)
     thread.start()
     try:
         while True:
+            if hungry is not None and items.empty():
+                hungry.set()
             kind, value = items.get()
+            if hungry is not None and items.empty():
+                hungry.set()
             if kind == _ITEM:
                 yield value  # type: ignore[misc]
             elif kind == _ERROR:
@@ -72,7 +79,7 @@ def _consume(iterable: Iterable[T], depth: int, name: str,
 
 
 def _produce(iterable: Iterable[T], items: queue.Queue, stop: threading.Event,
-             cpu_s: list[float] | None = None) -> None:
+             cpu_s: list[float] | None = None, hungry: threading.Event | None = None) -> None:
     """Thread body: put each item, then a done marker, or the exception that ended the
     source; return early once ``stop`` is set, closing the source."""
     iterator = None
@@ -83,6 +90,8 @@ def _produce(iterable: Iterable[T], items: queue.Queue, stop: threading.Event,
                 cpu_s[0] = time.thread_time()
             if not _put(items, (_ITEM, item), stop) or stop.is_set():
                 return  # before pulling (decoding) another item
+            if hungry is not None:
+                hungry.clear()
             del item
         _put(items, (_DONE, None), stop)
     except BaseException as err:  # noqa: BLE001 - handed to the consumer, which re-raises it

@@ -12,8 +12,12 @@ import numpy as np
 
 from evperc.errors import OutputError
 from evperc.geo.window import Window
+from evperc.io import mass_tiles
 from evperc.io.quantise import dequantise, dequantise_planar
 from evperc.io.writer import FORMAT_VERSION, MANIFEST
+
+#: output formats :func:`load` reads (2: dense mass planes, before the block-sparse runs)
+READABLE_VERSIONS = (2, FORMAT_VERSION)
 
 
 @dataclass(frozen=True)
@@ -70,11 +74,10 @@ class Run:
                 arrays = {k: npz[k] for k in npz.files}
         except (OSError, ValueError, KeyError) as err:
             raise OutputError(f"{path}: unreadable chunk ({err})") from err
-        masks = arrays["focal_masks"].astype(np.int64)
         rows, cols = self.shape
+        planes = self._mass_planes(path, arrays)
         for k in range(len(arrays["stamp_ns"])):
-            masses = np.zeros((rows, cols, 32), dtype=np.float32)
-            masses[..., masks] = dequantise_planar(arrays["masses"][k])
+            masses = dequantise_planar(next(planes))
             row0, col0 = (int(v) for v in arrays["origin"][k])
             yield Frame(
                 index=chunk["first_frame"] + k, stamp_ns=int(arrays["stamp_ns"][k]),
@@ -84,6 +87,27 @@ class Run:
                 zeta=dequantise(arrays["zeta"][k]),
                 conflict=dequantise_planar(arrays["conflict"][k]), masses=masses,
                 decision_counts=arrays["decision_counts"][k])
+
+    def _mass_planes(self, path: Path, arrays: dict[str, np.ndarray]) -> Iterator[np.ndarray]:
+        """Each frame's dense uint8 mass planes ``(32, rows, cols)``."""
+        if self.manifest["format_version"] == 2:  # the chunk's used planes, dense
+            masks = arrays["focal_masks"].astype(np.int64)
+            for stored in arrays["masses"]:
+                planes = np.zeros((32, *self.shape), np.uint8)
+                planes[masks] = stored
+                yield planes
+            return
+        tile = int(self.manifest["mass_tile_cells"])
+        ends = np.cumsum(arrays["mass_bytes"])
+        if ends.size and ends[-1] != arrays["mass_runs"].size:
+            raise OutputError(f"{path}: {arrays['mass_runs'].size} bytes of mass runs, the "
+                              f"frames list {int(ends[-1])}")
+        for k, end in enumerate(ends):
+            runs = arrays["mass_runs"][end - arrays["mass_bytes"][k]:end]
+            try:
+                yield mass_tiles.decode(runs, arrays["tile_masks"][k], self.shape, tile)
+            except ValueError as err:
+                raise OutputError(f"{path}: frame {k}: {err}") from err
 
 
 def read_manifest(out_dir: str | Path) -> dict[str, Any]:
@@ -95,9 +119,9 @@ def read_manifest(out_dir: str | Path) -> dict[str, Any]:
         manifest = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as err:
         raise OutputError(f"{path}: unreadable manifest ({err})") from err
-    if manifest.get("format_version") != FORMAT_VERSION:
+    if manifest.get("format_version") not in READABLE_VERSIONS:
         raise OutputError(f"{path}: format_version {manifest.get('format_version')!r}, this "
-                          f"evperc reads {FORMAT_VERSION}")
+                          f"evperc reads {' and '.join(map(str, READABLE_VERSIONS))}")
     return manifest
 
 

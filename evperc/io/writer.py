@@ -1,4 +1,4 @@
-"""Writing an `evperc run` output directory (docs/output-format.md, format_version 1).
+"""Writing an `evperc run` output directory (docs/output-format.md, format_version 3).
 
 Frames are quantised to uint8 as they arrive and grouped in chunks. A full chunk is
 compressed and written by one background thread (zlib releases the GIL, so this runs on the
@@ -29,12 +29,14 @@ import numpy as np
 
 from evperc import config as config_mod
 from evperc.errors import OutputError
-from evperc.io.npz import write_npz
+from evperc.fused import MASS_TILE, StoredOutputs
+from evperc.io import mass_tiles
+from evperc.io.npz import Concatenated, write_npz
 from evperc.io.quantise import quantise, quantise_planar
 
 log = logging.getLogger(__name__)
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 MANIFEST = "manifest.json"
 FRAMES_DIR = "frames"
 
@@ -93,13 +95,15 @@ def prepare_output_dir(out_dir: Path, overwrite: bool) -> None:
         raise OutputError(f"{out_dir}: output directory is not writable")
 
 
-#: bytes of uint8 layers per cell and frame: 32 masses, 5 betP, decision, ζ, 3 conflicts
+#: bytes of uint8 layers per cell and frame at most: 32 masses (all planes of every tile),
+#: 5 betP, decision, ζ, 3 conflicts
 BYTES_PER_CELL = 32 + 5 + 1 + 1 + 3
 
 
 class _Chunk:
     """Preallocated uint8 layers of up to ``capacity`` frames; frames are quantised straight
-    into them (no per-frame arrays, no stacking copy)."""
+    into them (no per-frame arrays, no stacking copy). Each frame has room for the mass runs
+    of all 32 planes; only the bytes written are touched (and stored)."""
 
     def __init__(self, capacity: int, shape: tuple[int, int], n_codes: int) -> None:
         rows, cols = shape
@@ -109,25 +113,25 @@ class _Chunk:
         self.stamp_ns = np.zeros(capacity, np.int64)
         self.pose = np.zeros((capacity, 3), np.float64)
         self.origin = np.zeros((capacity, 2), np.int64)
-        self.masses = np.empty((capacity, 32, rows, cols), np.uint8)
+        self.mass_runs = np.empty((capacity, 32 * rows * cols), np.uint8)
+        self.tile_masks = np.empty(
+            (capacity, rows, mass_tiles.tiles_per_row(cols, MASS_TILE)), np.uint32)
+        self.mass_bytes = np.zeros(capacity, np.int64)
         self.betp = np.empty((capacity, 5, rows, cols), np.uint8)
         self.decision = np.empty((capacity, rows, cols), np.uint8)
         self.zeta = np.empty((capacity, rows, cols), np.uint8)
         self.conflict = np.empty((capacity, 3, rows, cols), np.uint8)
         self.decision_counts = np.zeros((capacity, n_codes), np.int64)
 
-    def arrays(self) -> dict[str, np.ndarray]:
-        """The NPZ members of the frames held (views where possible)."""
+    def arrays(self) -> dict[str, Any]:
+        """The NPZ members of the frames held (views; the mass runs of the frames as one
+        member, written piece by piece)."""
         k = self.count
-        masses = self.masses[:k]
-        used = np.flatnonzero(masses.any(axis=(0, 2, 3)))
-        if len(used) and used[-1] - used[0] + 1 == len(used):  # contiguous: a view
-            stored = masses[:, used[0]:used[-1] + 1]
-        else:
-            stored = masses[:, used]
+        runs = Concatenated(tuple(self.mass_runs[i, :self.mass_bytes[i]] for i in range(k)))
         return {"stamp_ns": self.stamp_ns[:k], "pose": self.pose[:k],
-                "origin": self.origin[:k], "focal_masks": used.astype(np.uint8),
-                "masses": stored, "betp": self.betp[:k], "decision": self.decision[:k],
+                "origin": self.origin[:k], "tile_masks": self.tile_masks[:k],
+                "mass_bytes": self.mass_bytes[:k], "mass_runs": runs,
+                "betp": self.betp[:k], "decision": self.decision[:k],
                 "zeta": self.zeta[:k], "conflict": self.conflict[:k],
                 "decision_counts": self.decision_counts[:k]}
 
@@ -143,7 +147,8 @@ class RunWriter:
         self.compress = bool(config["output"]["compress"])
         self.manifest: dict[str, Any] = {
             "format_version": FORMAT_VERSION, "complete": False, "frame_count": 0,
-            "chunk_frames": self.chunk_frames, "chunks": [], "first_stamp_ns": None,
+            "chunk_frames": self.chunk_frames, "mass_tile_cells": MASS_TILE, "chunks": [],
+            "first_stamp_ns": None,
             "config": config, **meta}
         try:
             atomic_write_bytes(self.out_dir / "config.toml", config_mod.dumps(config).encode())
@@ -182,6 +187,10 @@ class RunWriter:
 
         out_dir = Path(out_dir)
         manifest = read_manifest(out_dir)
+        if manifest["format_version"] != FORMAT_VERSION:
+            raise OutputError(f"{out_dir}: written in output format_version "
+                              f"{manifest['format_version']} by an earlier evperc; it cannot "
+                              "be resumed, run it again with --overwrite")
         writer = cls.__new__(cls)
         writer.out_dir = out_dir
         writer.manifest = manifest
@@ -199,13 +208,13 @@ class RunWriter:
         """Frames received so far (written or queued)."""
         return self._queued + self._chunk.count
 
-    def frame_slot(self) -> tuple[np.ndarray, ...]:
-        """uint8 views of the next frame's layers in the chunk buffer: ``masses (32, rows,
-        cols), betp (5, …), conflict (3, …), zeta, decision``. Fill them (the fused step
+    def frame_slot(self) -> StoredOutputs:
+        """Views of the next frame's layers in the chunk buffer. Fill them (the fused step
         quantises straight into them), then call :meth:`commit_frame`."""
         c = self._chunk
         k = c.count
-        return c.masses[k], c.betp[k], c.conflict[k], c.zeta[k], c.decision[k]
+        return StoredOutputs(c.mass_runs[k], c.tile_masks[k], c.mass_bytes[k:k + 1],
+                             c.betp[k], c.conflict[k], c.zeta[k], c.decision[k])
 
     def commit_frame(self, stamp_ns: int, pose: np.ndarray, origin: tuple[int, int],
                      decision_counts: np.ndarray | None = None) -> bool:
@@ -236,12 +245,16 @@ class RunWriter:
         if tuple(decision.shape) != self._chunk.shape:
             raise ValueError(f"frame of shape {decision.shape}, the run's window is "
                              f"{self._chunk.shape}")
-        q_masses, q_betp, q_conflict, q_zeta, q_decision = self.frame_slot()
-        quantise_planar(masses, out=q_masses)
-        quantise_planar(betp, out=q_betp)
-        q_decision[...] = decision
-        q_zeta[...] = quantise(zeta)
-        quantise_planar(conflict, out=q_conflict)
+        slot = self.frame_slot()
+        planes = quantise_planar(masses)
+        slot.tile_masks[...] = mass_tiles.masks_of(np.moveaxis(masses, -1, 0), MASS_TILE)
+        runs = mass_tiles.encode(planes, slot.tile_masks, MASS_TILE)
+        slot.mass_runs[:runs.size] = runs
+        slot.mass_length[0] = runs.size
+        quantise_planar(betp, out=slot.betp)
+        slot.decision[...] = decision
+        slot.zeta[...] = quantise(zeta)
+        quantise_planar(conflict, out=slot.conflict)
         return self.commit_frame(stamp_ns, pose, origin, decision_counts)
 
     def _wait(self) -> None:

@@ -10,6 +10,7 @@ import pytest
 from evperc import fused_codegen
 from evperc.dst import total_conflict_tolerance
 from evperc.fused import (
+    MASS_TILE,
     NO_MAP,
     FusedOutputs,
     StoredOutputs,
@@ -21,6 +22,7 @@ from evperc.fused import (
 from evperc.fused import fused_step as planar_step
 from evperc.geo.prior import prior_masses
 from evperc.geo.window import Window, scroll
+from evperc.io import mass_tiles
 from evperc.io.quantise import quantise
 from evperc.pipeline import FusionParams, decide, fusion_step, scaled_rate, sensor_masses
 
@@ -517,6 +519,14 @@ def sparse_planar_state(rng: np.random.Generator, shape: tuple[int, int]
     return pg, zeta
 
 
+def written(out: FusedOutputs | StoredOutputs) -> tuple[np.ndarray, ...]:
+    """The arrays a step wrote (not the unused end of the stored mass runs' room)."""
+    if isinstance(out, FusedOutputs):
+        return out.arrays()
+    runs = out.mass_runs[:int(out.mass_length[0])]
+    return (runs, *out.arrays()[1:])
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_compact_layout_equals_dense(seed: int) -> None:
     """SPEC §1: the compact layout (a block reads and writes only the planes its cells'
@@ -545,7 +555,7 @@ def test_compact_layout_equals_dense(seed: int) -> None:
         want = planar_step(dense_pg, dense_zeta, free, occ, labels, (0.9, 0.9, 0.8), 0.1,
                            params, out=kind.empty(shape), flags=dense_flags,
                            focal=dense_focal, offset=offset, shift=shift)
-        for a, b in zip(got.arrays(), want.arrays(), strict=True):
+        for a, b in zip(written(got), written(want), strict=True):
             np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(pg, dense_pg)
         np.testing.assert_array_equal(zeta, dense_zeta)
@@ -566,11 +576,51 @@ def test_stored_outputs_are_the_quantised_float_outputs() -> None:
     stored = planar_step(pg2, zeta2, free, occ, labels, (0.9, 0.9, 0.8), 0.1, params,
                          out=StoredOutputs.empty(shape))
     np.testing.assert_array_equal(pg, pg2)
-    np.testing.assert_array_equal(stored.masses, quantise(pg))
+    np.testing.assert_array_equal(stored.masses(), quantise(pg))
+    # each tile stores exactly the union of its cells' focal sets (the float state's)
+    focal = focal_sets(pg)
+    for r in range(shape[0]):
+        for t, j0 in enumerate(range(0, shape[1], MASS_TILE)):
+            union = np.bitwise_or.reduce(focal[r, j0:j0 + MASS_TILE])
+            assert stored.tile_masks[r, t] == union
     np.testing.assert_array_equal(stored.zeta, quantise(zeta))
     np.testing.assert_array_equal(stored.betp, quantise(floats.betp))
     np.testing.assert_array_equal(stored.conflict, quantise(floats.conflict))
     np.testing.assert_array_equal(stored.decision, floats.decision)
+
+
+@pytest.mark.parametrize(("seed", "shape"), [(0, (30, 600)), (1, (16, 257)), (2, (21, 97))])
+def test_stored_masses_are_the_state_in_tiles(seed: int, shape: tuple[int, int]) -> None:
+    """The stored masses (block-sparse runs, evperc.io.mass_tiles) decode to round(255·m)
+    of the new state in window order, every tile's mask is the union of its cells' focal
+    sets (only Ω for a tile of untouched vacuous cells), over scrolled frames of a circular
+    buffer whose scans leave whole blocks unobserved (idle blocks, partly active blocks,
+    rows of several tiles, a last tile shorter than the others)."""
+    rng = np.random.default_rng(1100 + seed)
+    params = FusionParams()
+    pg, zeta = planar_random_state(rng, shape)
+    flags, focal = vacuous_flags(pg, zeta), focal_sets(pg)
+    offset = (0, 0)
+    idle_tiles = 0
+    for frame in range(4):
+        shift = (0, 0) if frame == 0 else tuple(int(v) for v in rng.integers(-9, 10, 2))
+        offset = ((offset[0] + shift[0]) % shape[0], (offset[1] + shift[1]) % shape[1])
+        free, occ = random_scan(rng, shape)
+        free[: shape[0] // 2], occ[: shape[0] // 2] = 0, 0  # a band the scan does not see
+        stored = planar_step(pg, zeta, free, occ, None, (0.9, 0.9, 0.8), 0.1, params,
+                             out=StoredOutputs.empty(shape), flags=flags, focal=focal,
+                             offset=offset, shift=shift)
+        window_pg = window_order(pg, offset)
+        np.testing.assert_array_equal(stored.masses(), quantise(window_pg))
+        window_focal = window_order(focal_sets(pg), offset)
+        for r in range(shape[0]):
+            for t, j0 in enumerate(range(0, shape[1], MASS_TILE)):
+                union = np.bitwise_or.reduce(window_focal[r, j0:j0 + MASS_TILE])
+                assert stored.tile_masks[r, t] == union, (frame, r, t)
+                idle_tiles += int(union == 1 << 31)
+        assert stored.mass_length[0] == mass_tiles.run_bytes(stored.tile_masks, shape[1],
+                                                             MASS_TILE)
+    assert idle_tiles > 0
 
 
 def test_generated_kernel_is_up_to_date() -> None:
