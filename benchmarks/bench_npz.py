@@ -31,6 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from evperc.io import npz  # noqa: E402
+from evperc.io.writer import FORMAT_VERSION  # noqa: E402
 
 CACHE = ROOT / "bench-out"
 SIM = "sim-hdl64-10s"
@@ -58,7 +59,8 @@ def zlib_write_npz(path: Path, arrays: dict[str, np.ndarray], compress: bool) ->
 def real_chunks() -> list[dict[str, np.ndarray]]:
     """The full chunks of an (a) run (frames of the last, partial chunk left out)."""
     manifest = OUT / "manifest.json"
-    if not (manifest.exists() and json.loads(manifest.read_text())["complete"]):
+    done = manifest.exists() and json.loads(manifest.read_text())
+    if not (done and done["complete"] and done["format_version"] == FORMAT_VERSION):
         sim = CACHE / SIM
         if not (sim / ".done").exists():
             sys.path.insert(0, str(Path(__file__).resolve().parent))

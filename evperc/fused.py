@@ -23,8 +23,8 @@ or ζ can move them: each block is trimmed to its active lanes.
 Two output kinds: :class:`FusedOutputs` (float32 betP and conflict parts, the decision; for
 tests and studies) and :class:`StoredOutputs` (everything quantised to uint8 as the output
 format stores it, written straight into the writer's chunk buffer: no float copies; the
-masses in the block-sparse layout of :mod:`evperc.io.mass_tiles`, one tile per block, so
-an unobserved block writes its Ω plane only).
+masses in the block-sparse layout of :mod:`evperc.io.mass_tiles`, tiles of 64 cells, so an
+unobserved tile writes its Ω plane only).
 
 Arithmetic is float32 (``fastmath``: LLVM may reassociate sums), so results equal the numpy
 twin to float32 round-off (~1e-6), not bit for bit. The kernels are compiled once and
@@ -66,8 +66,8 @@ from evperc.pipeline import DECISION_CODES, FusionParams, decide, scaled_rate, v
 
 #: context label of a cell without map prior (vacuous GG)
 NO_MAP = 255
-#: cells per tile of the stored masses' block-sparse layout: the kernel's block
-MASS_TILE = fused_kernel.BLOCK
+#: cells per tile of the stored masses' block-sparse layout
+MASS_TILE = fused_kernel.TILE
 
 _F, _I, _U, _S, _M = 1, 2, 4, 8, 16
 _O = _I | _U | _S | _M

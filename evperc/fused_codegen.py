@@ -74,6 +74,10 @@ _OMEGA_BIT = np.uint32(1 << 31)
 BLOCK = 256
 #: lanes per run of the body (whole sub-blocks within [l0, l1) are computed)
 SUB = 16
+#: cells per tile of the stored masses (evperc.io.mass_tiles): a divisor of BLOCK; smaller
+#: tiles store fewer planes (the union of fewer cells' focal sets: 1.56 MB of runs per
+#: frame of workload (a) with tiles of 256, 1.02 with 64, 0.83 with 32, 0.63 per cell)
+TILE = 64
 IN_ZETA, IN_FREE, IN_OCC, IN_LABEL, IN_OBSERVED = 32, 33, 34, 35, 36
 # outputs overwrite the inputs of their own lane (the body loads every input before it
 # stores), which keeps the buffer in L1
@@ -426,35 +430,42 @@ def _store_outputs(kind: str) -> list[str]:
 
 def _store_tile() -> list[str]:
     """The block's masses as runs of the output's block-sparse layout
-    (:mod:`evperc.io.mass_tiles`): the tile's mask is the union of its cells' focal sets
-    (Ω for the lanes not computed, which are vacuous), then for each plane in it, in
-    increasing subset order, the ``n`` quantised values of the tile's cells, from ``pos`` on."""
-    def const(first: str, last: str) -> list[str]:
-        return [f"    for t in range({first}, {last}):",
-                "        qr[pos + np.uint64(t)] = value"]
+    (:mod:`evperc.io.mass_tiles`), one tile of TILE lanes after the other: the tile's mask
+    is the union of its cells' focal sets (Ω for lanes not computed, which are vacuous),
+    then for each plane in it, in increasing subset order, the quantised values of the
+    tile's cells, from ``pos`` on."""
+    focal = (f"np.uint32({_buf(str(OUT_FOCAL_LO), '0')}) | "
+             f"(np.uint32({_buf(str(OUT_FOCAL_HI), '0')}) << np.uint32(16))")
     return [
-        "tile_mask = new_mask",
-        "if l0 > 0 or l1 < n:",
-        "    tile_mask |= _OMEGA_BIT",
-        "qt[tile] = tile_mask",
-        "for a in range(32):",
-        "    if (tile_mask >> np.uint32(a)) & _ONE:",
-        "        value = np.uint8(255) if a == 31 else np.uint8(0)",
-        *["    " + line for line in const("0", "l0")],
-        "        pl = pos + np.uint64(l0)",
-        "        for t in range(l1 - l0):",
-        f"            v = {_buf(f'{OUT_MASS} + a').format(i='np.uint64(t)')}",
-        "            v = v if v > _0 else _0",
-        "            v = v if v < _1 else _1",
-        "            qr[pl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))",
-        *["    " + line for line in const("l1", "n")],
-        "        pos += np.uint64(n)",
+        "for q0 in range(0, n, TILE):",
+        "    q1 = min(n, q0 + TILE)",
+        "    c0 = min(max(l0, q0), q1)  # [c0, c1): the tile's computed lanes",
+        "    c1 = max(min(l1, q1), c0)",
+        "    tile_mask = _OMEGA_BIT if (c0 > q0 or c1 < q1) else np.uint32(0)",
+        "    for t in range(c0, c1):",
+        f"        tile_mask |= {focal.format(i='np.uint64(t)')}",
+        "    qt[tile + np.uint64(q0 // TILE)] = tile_mask",
+        "    for a in range(32):",
+        "        if (tile_mask >> np.uint32(a)) & _ONE:",
+        "            value = np.uint8(255) if a == 31 else np.uint8(0)",
+        "            for t in range(q0, c0):",
+        "                qr[pos + np.uint64(t - q0)] = value",
+        "            pl = pos + np.uint64(c0 - q0)",
+        "            for t in range(c1 - c0):",
+        f"                v = {_buf(f'{OUT_MASS} + a', 'c0').format(i='np.uint64(t)')}",
+        "                v = v if v > _0 else _0",
+        "                v = v if v < _1 else _1",
+        "                qr[pl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))",
+        "            for t in range(c1, q1):",
+        "                qr[pos + np.uint64(t - q0)] = value",
+        "            pos += np.uint64(q1 - q0)",
     ]
 
 
 def _idle_tile() -> list[str]:
-    """An idle block's masses: all its cells are vacuous, the tile holds Ω only."""
-    return ["qt[tile] = _OMEGA_BIT",
+    """An idle block's masses: all its cells are vacuous, its tiles hold Ω only."""
+    return ["for q0 in range(0, n, TILE):",
+            "    qt[tile + np.uint64(q0 // TILE)] = _OMEGA_BIT",
             "for t in range(n):",
             "    qr[pos + np.uint64(t)] = np.uint8(255)",
             "pos += np.uint64(n)"]
@@ -480,7 +491,7 @@ def _kernel(kind: str) -> list[str]:
         "s0 = max(lo, j0)  # [s0, s1): cells of the block inside the previous window",
         "s1 = min(hi, j0 + n)",
         "wb = np.uint64(r * cols + j0)  # flat window index of the block's lane 0",
-        "tile = np.uint64(r * tiles_per_row + j0 // BLOCK)",
+        "tile = np.uint64(r * tiles_per_row + j0 // TILE)  # the block's first tile",
         *_active_lanes(),
         "if l1 <= l0:",
         "    l0 = l1 = n",
@@ -511,7 +522,7 @@ def _kernel(kind: str) -> list[str]:
         "    obs_f = observed.reshape(n_cells)",
         *["    " + line for line in flat],
         "    wrap = cols - off_c  # window columns from here on wrap to the buffer's start",
-        "    tiles_per_row = (cols + BLOCK - 1) // BLOCK",
+        "    tiles_per_row = (cols + TILE - 1) // TILE",
         "    buf = np.zeros(PLANES * BLOCK, np.float32)",
         "    act = np.zeros(BLOCK, np.uint8)",
         "    for r in range(rows):",
@@ -539,7 +550,7 @@ def _kernel(kind: str) -> list[str]:
 
 def source() -> str:
     """The text of evperc/fused_kernel.py."""
-    constants = f"BLOCK = {BLOCK}\nSUB = {SUB}\nPLANES = {PLANES}\n"
+    constants = f"BLOCK = {BLOCK}\nSUB = {SUB}\nPLANES = {PLANES}\nTILE = {TILE}\n"
     return HEADER + constants + "\n".join(_kernel("float") + _kernel("stored")) + "\n"
 
 

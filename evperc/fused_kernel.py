@@ -40,6 +40,7 @@ _P15 = np.float32(32768)
 BLOCK = 256
 SUB = 16
 PLANES = 45
+TILE = 64
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
@@ -59,7 +60,7 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
     cf = conflict.reshape(3, n_cells)
     dc = decision.reshape(n_cells)
     wrap = cols - off_c  # window columns from here on wrap to the buffer's start
-    tiles_per_row = (cols + BLOCK - 1) // BLOCK
+    tiles_per_row = (cols + TILE - 1) // TILE
     buf = np.zeros(PLANES * BLOCK, np.float32)
     act = np.zeros(BLOCK, np.uint8)
     for r in range(rows):
@@ -75,7 +76,7 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
             s0 = max(lo, j0)  # [s0, s1): cells of the block inside the previous window
             s1 = min(hi, j0 + n)
             wb = np.uint64(r * cols + j0)  # flat window index of the block's lane 0
-            tile = np.uint64(r * tiles_per_row + j0 // BLOCK)
+            tile = np.uint64(r * tiles_per_row + j0 // TILE)  # the block's first tile
             l0 = 0
             l1 = n
             if may_skip:
@@ -923,7 +924,7 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
     qz = q_zeta.reshape(n_cells)
     qd = q_decision.reshape(n_cells)
     wrap = cols - off_c  # window columns from here on wrap to the buffer's start
-    tiles_per_row = (cols + BLOCK - 1) // BLOCK
+    tiles_per_row = (cols + TILE - 1) // TILE
     buf = np.zeros(PLANES * BLOCK, np.float32)
     act = np.zeros(BLOCK, np.uint8)
     for r in range(rows):
@@ -939,7 +940,7 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
             s0 = max(lo, j0)  # [s0, s1): cells of the block inside the previous window
             s1 = min(hi, j0 + n)
             wb = np.uint64(r * cols + j0)  # flat window index of the block's lane 0
-            tile = np.uint64(r * tiles_per_row + j0 // BLOCK)
+            tile = np.uint64(r * tiles_per_row + j0 // TILE)  # the block's first tile
             l0 = 0
             l1 = n
             if may_skip:
@@ -1067,7 +1068,8 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                 for t in range(n - l1):
                     qd[ws + np.uint64(t)] = vac_code
             if l1 <= l0:
-                qt[tile] = _OMEGA_BIT
+                for q0 in range(0, n, TILE):
+                    qt[tile + np.uint64(q0 // TILE)] = _OMEGA_BIT
                 for t in range(n):
                     qr[pos + np.uint64(t)] = np.uint8(255)
                 pos += np.uint64(n)
@@ -1764,24 +1766,28 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                         zt[sc + np.uint64(t)] = buf[np.uint64((32) * BLOCK + lb) + np.uint64(t)]
                     for t in range(w):
                         fl[sc + np.uint64(t)] = np.uint8(buf[np.uint64((42) * BLOCK + lb) + np.uint64(t)])
-            tile_mask = new_mask
-            if l0 > 0 or l1 < n:
-                tile_mask |= _OMEGA_BIT
-            qt[tile] = tile_mask
-            for a in range(32):
-                if (tile_mask >> np.uint32(a)) & _ONE:
-                    value = np.uint8(255) if a == 31 else np.uint8(0)
-                    for t in range(0, l0):
-                        qr[pos + np.uint64(t)] = value
-                    pl = pos + np.uint64(l0)
-                    for t in range(l1 - l0):
-                        v = buf[np.uint64((0 + a) * BLOCK + l0) + np.uint64(t)]
-                        v = v if v > _0 else _0
-                        v = v if v < _1 else _1
-                        qr[pl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
-                    for t in range(l1, n):
-                        qr[pos + np.uint64(t)] = value
-                    pos += np.uint64(n)
+            for q0 in range(0, n, TILE):
+                q1 = min(n, q0 + TILE)
+                c0 = min(max(l0, q0), q1)  # [c0, c1): the tile's computed lanes
+                c1 = max(min(l1, q1), c0)
+                tile_mask = _OMEGA_BIT if (c0 > q0 or c1 < q1) else np.uint32(0)
+                for t in range(c0, c1):
+                    tile_mask |= np.uint32(buf[np.uint64((43) * BLOCK + 0) + np.uint64(t)]) | (np.uint32(buf[np.uint64((44) * BLOCK + 0) + np.uint64(t)]) << np.uint32(16))
+                qt[tile + np.uint64(q0 // TILE)] = tile_mask
+                for a in range(32):
+                    if (tile_mask >> np.uint32(a)) & _ONE:
+                        value = np.uint8(255) if a == 31 else np.uint8(0)
+                        for t in range(q0, c0):
+                            qr[pos + np.uint64(t - q0)] = value
+                        pl = pos + np.uint64(c0 - q0)
+                        for t in range(c1 - c0):
+                            v = buf[np.uint64((0 + a) * BLOCK + c0) + np.uint64(t)]
+                            v = v if v > _0 else _0
+                            v = v if v < _1 else _1
+                            qr[pl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
+                        for t in range(c1, q1):
+                            qr[pos + np.uint64(t - q0)] = value
+                        pos += np.uint64(q1 - q0)
             for k in range(5):
                 for t in range(l1 - l0):
                     v = buf[np.uint64((33 + k) * BLOCK + l0) + np.uint64(t)]
