@@ -141,3 +141,92 @@ def test_manifest_size_does_not_grow_with_frames(tmp_path: Path) -> None:
             want = np.bincount(frame.decision.ravel(), minlength=len(DECISION_CODES))
             np.testing.assert_array_equal(frame.decision_counts, want)
     assert sizes[0] == sizes[1]
+
+
+def test_masses_of_wide_windows_round_trip_through_the_tiles(tmp_path: Path) -> None:
+    """Format 3 stores masses in tiles of 64 cells (evperc.io.mass_tiles): rows of several
+    tiles, the last one shorter, tiles with different planes, vacuous tiles; chunk members
+    hold one run per frame, their lengths listed in ``mass_bytes``."""
+    rng = np.random.default_rng(12)
+    rows, cols = 3, 150
+    config = load_config()
+    config["output"]["chunk_frames"] = 2
+    meta = {"decision_codes": DECISION_CODES, "classes": list("FIUSM"), "crs": "local",
+            "resolution_m": 0.5, "rows": rows, "cols": cols}
+    writer = RunWriter(tmp_path / "out", config, meta)
+    written = []
+    for k in range(3):
+        masses = np.zeros((rows, cols, 32), np.float32)
+        masses[..., 31] = 1.0
+        for r in range(rows):  # a band of cells with a few random focal sets each
+            lo, hi = sorted(rng.integers(0, cols, 2))
+            sets = rng.choice(31, size=3, replace=False)
+            masses[r, lo:hi, sets] = rng.dirichlet(np.ones(4), hi - lo)[:, :3].T
+            masses[r, lo:hi, 31] = 1 - masses[r, lo:hi, sets].sum(axis=0)
+        betp = np.full((rows, cols, 5), 0.2, np.float32)
+        writer.add(k, np.zeros(3), (0, 0), masses, betp, np.zeros((rows, cols), np.uint8),
+                   np.zeros((rows, cols), np.float32), np.zeros((rows, cols, 3), np.float32))
+        written.append(masses)
+    writer.close({})
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert manifest["format_version"] == 3 and manifest["mass_tile_cells"] == 64
+    with np.load(tmp_path / "out" / "frames" / "chunk_00000.npz") as chunk:
+        assert chunk["tile_masks"].shape == (2, rows, 3)
+        assert chunk["mass_runs"].size == chunk["mass_bytes"].sum()
+        assert chunk["mass_runs"].size < 2 * 32 * rows * cols // 4  # sparse
+    for frame, masses in zip(evperc.load(tmp_path / "out").frames, written, strict=True):
+        np.testing.assert_allclose(frame.masses, masses, atol=1 / 510 + 1e-6)
+        assert (frame.masses[masses == 0] == 0).all()
+
+
+def test_a_chunk_whose_runs_do_not_match_its_masks_is_refused(tmp_path: Path) -> None:
+    rng = np.random.default_rng(4)
+    writer = make_writer(tmp_path / "out", chunk_frames=3)
+    for k in range(2):
+        writer.add(k, np.zeros(3), (0, 0), *frame_arrays(rng))
+    writer.close({})
+    path = tmp_path / "out" / "frames" / "chunk_00000.npz"
+    with np.load(path) as chunk:
+        members = {k: chunk[k] for k in chunk.files}
+    members["mass_bytes"] = members["mass_bytes"] + np.array([1, -1])
+    np.savez(path, **members)
+    with pytest.raises(OutputError, match=r"chunk_00000.npz: frame 0: .* bytes of mass runs"):
+        list(evperc.load(tmp_path / "out").frames)
+
+
+def write_format_2(out: Path, masses: np.ndarray) -> None:
+    """An output as evperc wrote it in format 2 (dense planes of the chunk's used subsets
+    in ``masses``, their subsets in ``focal_masks``), written with numpy alone."""
+    (out / "frames").mkdir(parents=True)
+    used = np.flatnonzero(masses.any(axis=(0, 1, 2)))
+    k = masses.shape[0]
+    planes = np.round(np.moveaxis(masses, -1, 1)[:, used] * 255).astype(np.uint8)
+    np.savez(out / "frames" / "chunk_00000.npz", stamp_ns=np.arange(k), pose=np.zeros((k, 3)),
+             origin=np.zeros((k, 2), np.int64), focal_masks=used.astype(np.uint8),
+             masses=planes, betp=np.full((k, 5, ROWS, COLS), 51, np.uint8),
+             decision=np.zeros((k, ROWS, COLS), np.uint8),
+             zeta=np.zeros((k, ROWS, COLS), np.uint8),
+             conflict=np.zeros((k, 3, ROWS, COLS), np.uint8),
+             decision_counts=np.zeros((k, len(DECISION_CODES)), np.int64))
+    manifest = {"format_version": 2, "complete": True, "frame_count": k, "chunk_frames": k,
+                "chunks": [{"file": "frames/chunk_00000.npz", "first_frame": 0,
+                            "frame_count": k}],
+                "decision_codes": DECISION_CODES, "classes": list("FIUSM"), "crs": "local",
+                "resolution_m": 0.5, "rows": ROWS, "cols": COLS, "config": load_config(),
+                "request": {}}
+    (out / "manifest.json").write_text(json.dumps(manifest))
+
+
+def test_outputs_of_format_2_are_still_read_but_not_resumed(tmp_path: Path) -> None:
+    rng = np.random.default_rng(8)
+    masses = np.stack([frame_arrays(rng)[0] for _ in range(2)])
+    write_format_2(tmp_path / "old", masses)
+    frames = list(evperc.load(tmp_path / "old").frames)
+    assert len(frames) == 2
+    for frame, want in zip(frames, masses, strict=True):
+        np.testing.assert_allclose(frame.masses, want, atol=1 / 510 + 1e-6)
+    manifest = json.loads((tmp_path / "old" / "manifest.json").read_text())
+    manifest["complete"] = False
+    (tmp_path / "old" / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(OutputError, match="format_version 2 by an earlier evperc"):
+        RunWriter.resume(tmp_path / "old")

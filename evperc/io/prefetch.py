@@ -54,16 +54,19 @@ def _consume(iterable: Iterable[T], depth: int, name: str,
              cpu_s: list[float] | None, hungry: threading.Event | None) -> Iterator[T]:
     items: queue.Queue[tuple[int, object]] = queue.Queue(maxsize=depth)
     stop = threading.Event()
-    thread = threading.Thread(target=_produce, args=(iterable, items, stop, cpu_s, hungry),
+    flag = threading.Lock()  # a test of the queue and a change of hungry, atomic
+    thread = threading.Thread(target=_produce,
+                              args=(iterable, items, stop, cpu_s,
+                                    None if hungry is None else (hungry, flag)),
                               name=name, daemon=True)
     thread.start()
     try:
         while True:
-            if hungry is not None and items.empty():
-                hungry.set()
+            if hungry is not None:
+                _note_hunger(items, hungry, flag)
             kind, value = items.get()
-            if hungry is not None and items.empty():
-                hungry.set()
+            if hungry is not None:
+                _note_hunger(items, hungry, flag)
             if kind == _ITEM:
                 yield value  # type: ignore[misc]
             elif kind == _ERROR:
@@ -79,7 +82,8 @@ def _consume(iterable: Iterable[T], depth: int, name: str,
 
 
 def _produce(iterable: Iterable[T], items: queue.Queue, stop: threading.Event,
-             cpu_s: list[float] | None = None, hungry: threading.Event | None = None) -> None:
+             cpu_s: list[float] | None = None,
+             hungry: tuple[threading.Event, threading.Lock] | None = None) -> None:
     """Thread body: put each item, then a done marker, or the exception that ended the
     source; return early once ``stop`` is set, closing the source."""
     iterator = None
@@ -91,7 +95,9 @@ def _produce(iterable: Iterable[T], items: queue.Queue, stop: threading.Event,
             if not _put(items, (_ITEM, item), stop) or stop.is_set():
                 return  # before pulling (decoding) another item
             if hungry is not None:
-                hungry.clear()
+                with hungry[1]:
+                    if not items.empty():
+                        hungry[0].clear()
             del item
         _put(items, (_DONE, None), stop)
     except BaseException as err:  # noqa: BLE001 - handed to the consumer, which re-raises it
@@ -103,6 +109,14 @@ def _produce(iterable: Iterable[T], items: queue.Queue, stop: threading.Event,
                 close()
             except Exception:  # noqa: BLE001 - the consumer has stopped; nobody to tell
                 log.debug("closing the prefetched iterator failed", exc_info=True)
+
+
+def _note_hunger(items: queue.Queue, hungry: threading.Event, flag: threading.Lock) -> None:
+    """Set ``hungry`` if the queue is empty (under ``flag``: the producer clears it only
+    while an item is queued)."""
+    with flag:
+        if items.empty():
+            hungry.set()
 
 
 def _put(items: queue.Queue, entry: tuple[int, object], stop: threading.Event) -> bool:

@@ -207,3 +207,27 @@ def test_chunks_count_each_frames_decisions(drive: Path, small_config: Path,
     for frame in frames:
         want = np.bincount(frame.decision.ravel(), minlength=7)
         np.testing.assert_array_equal(frame.decision_counts, want)
+
+
+def test_the_thread_that_computes_a_sensor_grid_does_not_change_the_output(
+        drive: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The decode thread leaves a scan's sensor grid to the fusion thread when that one has
+    no scan waiting (Pipeline.inputs, ``defer``); which thread computes it is timing, and
+    must not show in the output: every grid in the decode thread and every grid in the
+    fusion thread give identical frames."""
+    from evperc.runner import Pipeline
+
+    prepare = Pipeline.prepare
+    outputs = {}
+    for in_fusion in (False, True):
+        monkeypatch.setattr(Pipeline, "prepare", lambda self, scan, sensor=True,
+                            _fusion=in_fusion: prepare(self, scan, sensor=not _fusion))
+        config = load_config(overrides={"grid.window_size_m": 40.0})
+        out = tmp_path / f"fusion-{in_fusion}"
+        summary = run(RunRequest(log_path=drive, out_dir=out, config=config), progress=False)
+        assert summary["sensor_grids_in_fusion_thread"] == (40 if in_fusion else 0)
+        outputs[in_fusion] = list(evperc.load(out).frames)
+    for a, b in zip(outputs[False], outputs[True], strict=True):
+        np.testing.assert_array_equal(a.masses, b.masses)
+        np.testing.assert_array_equal(a.decision, b.decision)
+        np.testing.assert_array_equal(a.zeta, b.zeta)

@@ -237,3 +237,21 @@ def test_crcs_written_with_isal_are_zlibs(tmp_path: Path) -> None:
             buffer = io.BytesIO()
             np.save(buffer, array)
             assert archive.getinfo(f"{name}.npy").CRC == zlib.crc32(buffer.getvalue())
+
+
+def test_a_concatenated_member_is_its_parts_end_to_end(tmp_path: Path) -> None:
+    """``Concatenated`` parts (a chunk's mass runs, one part per frame) are written as one
+    1-D member, byte-identical to np.savez of the joined array; no part is copied whole."""
+    rng = np.random.default_rng(3)
+    parts = tuple(rng.integers(0, 256, n).astype(np.uint8) for n in (5, 0, 3 * npz._PIECE + 7))
+    joined = np.concatenate(parts)
+    write_npz(tmp_path / "c.npz", {"runs": npz.Concatenated(parts),
+                                   "none": npz.Concatenated(())}, compress=True)
+    np.savez(tmp_path / "ref.npz", runs=joined, none=np.zeros(0, np.uint8))
+    with zipfile.ZipFile(tmp_path / "c.npz") as got, zipfile.ZipFile(tmp_path / "ref.npz") as ref:
+        assert got.read("runs.npy") == ref.read("runs.npy")
+        assert got.read("none.npy") == ref.read("none.npy")
+    with pytest.raises(ValueError, match="1-D arrays of one dtype"):
+        write_npz(tmp_path / "bad.npz", {"runs": npz.Concatenated(
+            (np.zeros(2, np.uint8), np.zeros(2, np.int16)))}, compress=True)
+    assert not (tmp_path / "bad.npz").exists()

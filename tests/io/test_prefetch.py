@@ -232,3 +232,26 @@ def test_cpu_time_of_the_producer_thread_is_reported() -> None:
     assert list(prefetched(sleeping(), depth=1, cpu_s=idle_cpu)) == [0, 1, 2]
     assert busy_cpu[0] >= 0.09
     assert idle_cpu[0] < 0.05
+
+
+def test_hungry_is_set_while_the_consumer_has_nothing_queued() -> None:
+    """``hungry`` tells the source that the consumer waits (or will at its next request):
+    set when the consumer asks with an empty queue, clear once an item is queued for it."""
+    hungry = threading.Event()
+    seen: list[bool] = []
+    second_checked = threading.Event()
+
+    def source():
+        seen.append(hungry.wait(WAIT_S))  # the consumer is waiting for the first item
+        yield 0
+        yield 1  # queued: the consumer has an item waiting
+        seen.append(hungry.is_set())
+        second_checked.set()
+        yield 2
+
+    items = prefetched(source(), depth=2, hungry=hungry)
+    assert next(items) == 0
+    assert second_checked.wait(WAIT_S)
+    assert seen == [True, False]
+    assert list(items) == [1, 2]
+    assert hungry.is_set()  # the consumer asked again and found the queue empty
