@@ -123,10 +123,12 @@ def test_stored_members(tmp_path: Path) -> None:
     assert info.compress_size == info.file_size == len(members(numpy_npz(arrays, False))["a.npy"])
 
 
-def test_large_member_spans_many_pieces_and_is_zip64(tmp_path: Path) -> None:
+def test_large_member_spans_many_pieces_and_is_zip64(tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     """A member of 2.5 pieces plus a header; every local header carries the zip64 extra
     field (sizes 0xFFFFFFFF in the fixed part, real sizes in the extra) so that members past
     4 GiB need nothing else."""
+    monkeypatch.setattr(npz, "_PIECE", 1 << 20)
     n = int(2.5 * npz._PIECE) + 7
     big = (np.arange(n, dtype=np.uint64) * 2654435761 % 251).astype(np.uint8)
     arrays = {"big": big, "small": np.arange(4, dtype=np.float64)}
@@ -239,9 +241,12 @@ def test_crcs_written_with_isal_are_zlibs(tmp_path: Path) -> None:
             assert archive.getinfo(f"{name}.npy").CRC == zlib.crc32(buffer.getvalue())
 
 
-def test_a_concatenated_member_is_its_parts_end_to_end(tmp_path: Path) -> None:
+def test_a_concatenated_member_is_its_parts_end_to_end(tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
     """``Concatenated`` parts (a chunk's mass runs, one part per frame) are written as one
-    1-D member, byte-identical to np.savez of the joined array; no part is copied whole."""
+    1-D member, byte-identical to np.savez of the joined array, a part larger than a piece
+    in several pieces."""
+    monkeypatch.setattr(npz, "_PIECE", 1 << 16)
     rng = np.random.default_rng(3)
     parts = tuple(rng.integers(0, 256, n).astype(np.uint8) for n in (5, 0, 3 * npz._PIECE + 7))
     joined = np.concatenate(parts)
