@@ -302,6 +302,19 @@ class Pipeline:
                 "request": {k: (str(v) if isinstance(v, Path) else v)
                             for k, v in request.items()}}
 
+    def warm_up_inputs(self) -> None:
+        """Read and prepare the first scan of the requested span, and drop it: the one-off
+        costs of the first frame (opening the log's index, building the message decoders,
+        rasterising the map tiles around the first pose: ~26 ms on workload (a)) are paid
+        here, with the rest of the start-up, not by the first frame."""
+        scans = self.scans(-1)
+        try:
+            first = next(scans, None)
+        finally:
+            scans.close()
+        if first is not None:
+            self.prepare(first[1])
+
     def scans(self, after_index: int) -> Any:
         """``(index, scan)`` of the scans to fuse: the requested time span, every N-th,
         after ``after_index`` (resume)."""
@@ -429,6 +442,7 @@ def run(request: RunRequest, resume: bool = False,
     ``progress``: show the per-frame bar (``None``: only on a terminal); ``reuse_map``: take
     the map read by the previous run in this process if it is the same
     (:func:`evperc.io.maps.load_map_cached`; ``evperc batch`` workers)."""
+    started = time.perf_counter()
     keep_freed_memory()
     pipeline = Pipeline(request, reuse_map=reuse_map)
     state = FusionState()
@@ -462,6 +476,7 @@ def run(request: RunRequest, resume: bool = False,
         return commit
 
     writer.on_chunk = on_chunk
+    pipeline.warm_up_inputs()
     t0 = time.perf_counter()
     main_cpu0, writer_cpu0 = time.thread_time(), writer.thread_cpu_s
     decode_cpu = [0.0]
@@ -510,6 +525,8 @@ def run(request: RunRequest, resume: bool = False,
     total = max(int(counts.sum()), 1)
     names = sorted(DECISION_CODES, key=DECISION_CODES.get)
     summary = {"frames": state.frames, "wall_time_s": round(wall, 3),
+               # opening the inputs, the map, the kernels and the first scan's one-off costs
+               "start_up_s": round(t0 - started, 3),
                "frames_per_s": round(new_frames / wall, 2) if wall > 0 else None,
                "decision_share": {n: round(float(counts[DECISION_CODES[n]]) / total, 6)
                                   for n in names},

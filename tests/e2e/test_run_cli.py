@@ -54,6 +54,7 @@ def test_run_writes_a_complete_loadable_output(drive: Path, small_config: Path,
     # CPU of the three threads over the frame loop, per frame
     cpu = manifest["summary"]["cpu_ms_per_frame"]
     assert set(cpu) == {"main", "decode", "writer"} and all(v > 0 for v in cpu.values())
+    assert 0 < manifest["summary"]["start_up_s"] < 60
     stages = manifest["summary"]["stage_ms_per_frame"]
     assert {"decode", "sensor", "fusion", "read", "writer_thread"} <= set(stages)
     assert all(v >= 0 for v in stages.values()) and stages["decode"] > 0
@@ -231,3 +232,28 @@ def test_the_thread_that_computes_a_sensor_grid_does_not_change_the_output(
         np.testing.assert_array_equal(a.masses, b.masses)
         np.testing.assert_array_equal(a.decision, b.decision)
         np.testing.assert_array_equal(a.zeta, b.zeta)
+
+
+def test_warm_up_pays_the_first_frames_one_off_costs_and_changes_nothing(
+        tmp_path: Path) -> None:
+    """Pipeline.warm_up_inputs (called by run before its clock starts) opens the log's
+    decoders and rasterises the map tiles around the first pose; the scans prepared after it
+    are those of a pipeline without it."""
+    from evperc.runner import Pipeline
+
+    root = Path(__file__).resolve().parents[2] / "sample_data"
+    request = RunRequest(log_path=root / "drive.mcap", out_dir=tmp_path / "unused",
+                         config=load_config(), map_path=root / "map.geojson")
+    warm, cold = Pipeline(request), Pipeline(request)
+    warm.warm_up_inputs()
+    assert warm.rasteriser.stats["tiles_rasterised"] > 0
+    assert warm.reader.source._decoders
+    assert cold.rasteriser.stats["tiles_rasterised"] == 0
+    warm_inputs, cold_inputs = warm.inputs(-1), cold.inputs(-1)
+    for _ in range(3):
+        (i, a), (j, b) = next(warm_inputs), next(cold_inputs)
+        assert i == j
+        for name in ("free", "occupied", "labels", "pose"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    hits = warm.rasteriser.stats["tile_hits"]
+    assert hits > 0  # the first frame found its tiles ready
