@@ -167,11 +167,20 @@ class FusionState:
     @staticmethod
     def fresh(window: Window) -> FusionState:
         """Every cell vacuous, ζ = 0."""
-        pg = np.zeros((32, *window.shape), np.float32)
-        pg[OMEGA] = 1.0
-        return FusionState(window, pg, np.zeros(window.shape, np.float32),
-                           np.ones(window.shape, np.uint8),
-                           np.full(window.shape, 1 << OMEGA, np.uint32))
+        state = FusionState()
+        state.allocate(window.shape)
+        state.window = window
+        return state
+
+    def allocate(self, shape: tuple[int, int]) -> None:
+        """Vacuous buffers for a window of ``shape`` (the first :meth:`move_to` keeps them),
+        every page written now: the first frame does not fault 20 MB in (a 200 m window)."""
+        self.pg = np.empty((32, *shape), np.float32)
+        self.pg[:OMEGA] = 0.0
+        self.pg[OMEGA] = 1.0
+        self.zeta = np.zeros(shape, np.float32)
+        self.flags = np.ones(shape, np.uint8)
+        self.focal = np.full(shape, 1 << OMEGA, np.uint32)
 
     def move_to(self, window: Window) -> tuple[int, int]:
         """Make ``window`` the state's window; returns the shift ``(dr, dc)`` that
@@ -180,9 +189,8 @@ class FusionState:
         follows the move)."""
         shift = (0, 0)
         if self.window is None:
-            fresh = FusionState.fresh(window)
-            self.pg, self.zeta, self.flags, self.focal = (fresh.pg, fresh.zeta, fresh.flags,
-                                                          fresh.focal)
+            if self.pg is None or self.pg.shape[1:] != window.shape:
+                self.allocate(window.shape)
             self.offset = (0, 0)
         elif window != self.window:
             shift = (window.row0 - self.window.row0, window.col0 - self.window.col0)
@@ -477,6 +485,8 @@ def run(request: RunRequest, resume: bool = False,
 
     writer.on_chunk = on_chunk
     pipeline.warm_up_inputs()
+    if state.window is None:
+        state.allocate((int(writer.manifest["rows"]), int(writer.manifest["cols"])))
     t0 = time.perf_counter()
     main_cpu0, writer_cpu0 = time.thread_time(), writer.thread_cpu_s
     decode_cpu = [0.0]

@@ -113,6 +113,7 @@ class LogReader:
         self._lidar_frame: str | None = None
         self._gnss_frame: str | None = None
         self._said: set = set()  # one-time log messages already given
+        self._static: list | None = None  # the static transforms' pose samples, once read
         self.stats: dict[str, int] = {}
         #: the frame of the posed scans' ``T_world_sensor`` (named in the log), once a scan
         #: has been posed by :meth:`scans`
@@ -250,8 +251,11 @@ class LogReader:
                                      self.world_frame, self.extrinsic, self._said)
         else:
             source = TfSource(str(self.path), self.max_gap_ns, self.world_frame, self._said)
-        for raw in self.source.iter_raw(self.static_tf_topics):
-            source.add_static(self._pose_records(raw))
+        if self._static is None:  # read once: each scans() would read them again
+            self._static = [self._pose_records(raw)
+                            for raw in self.source.iter_raw(self.static_tf_topics)]
+        for records in self._static:
+            source.add_static(records)
         return source
 
     # --- streaming -----------------------------------------------------------------------
