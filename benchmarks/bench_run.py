@@ -61,15 +61,14 @@ CACHE = ROOT / "bench-out"
 OSM = ROOT / "tests" / "data" / "osm"
 QUICK = "--quick" in sys.argv[1:] or bool(os.environ.get("EVPERC_BENCH_QUICK"))
 LOOPS = 3 if QUICK else 10
-REPEATS = 1 if QUICK else 2
+REPEATS = 1 if QUICK else 3
 NAIVE_CELLS = 16_000
 PRECISION_FRAMES = 10
 #: frames of the in-process fusion timing (best and median reported)
 FUSION_FRAMES = 50
 WINDOW_200 = "[grid]\nwindow_size_m = 200.0\n"
-#: glibc: no mmap for large arrays and no trimming, so freed pages are reused, not faulted in
-MALLOC_KEEP = {"MALLOC_MMAP_THRESHOLD_": str(2**32), "MALLOC_TRIM_THRESHOLD_": str(2**32),
-               "MALLOC_TOP_PAD_": str(2**28)}
+#: the run with glibc's own malloc thresholds (evperc.runner.keep_freed_memory off)
+GLIBC_DEFAULTS = {"EVPERC_GLIBC_MALLOC_DEFAULTS": "1"}
 #: stages of the manifest summary, in pipeline order, with the issue's names
 STAGES = [("read", "read + decode: wait for the decode thread"),
           ("decode", "decode thread: read + decompress + decode the scan"),
@@ -334,7 +333,7 @@ def collect() -> dict:
         "a": best_run(sim_a, runs_dir / "a", w200),
         "a_long": best_run(sim_a_long, runs_dir / "a-long", w200),
         "a_chunk10": run_evperc(sim_a, runs_dir / "a-chunk10", w200_chunk10),
-        "a_malloc": run_evperc(sim_a, runs_dir / "a-malloc", w200, env=MALLOC_KEEP),
+        "a_malloc": run_evperc(sim_a, runs_dir / "a-malloc", w200, env=GLIBC_DEFAULTS),
         "b": best_run(sim_b, runs_dir / "b"),
         "c_short": run_evperc(sim_c, runs_dir / "c-short"),
         "c_long": run_evperc(long_c, runs_dir / "c-long"),
@@ -395,12 +394,14 @@ def rows_from(data: dict) -> list[dict]:
                             f"{r['a_chunk10']['peak_rss_mb']:.0f} MB peak, "
                             f"{r['a_chunk10']['bytes_per_frame'] / 1e3:,.0f} kB/frame"})
     m = r["a_malloc"]
-    rows.append({"measure": "(a) with MALLOC_MMAP/TRIM_THRESHOLD_=4 GiB",
+    cpu = m.get("cpu_ms_per_frame", {})
+    rows.append({"measure": "(a) with glibc's malloc thresholds (keep_freed_memory off)",
                  cols["a"]: f"{m['frames_per_s']:.1f} frames/s, sys "
                             f"{1e3 * m['sys_s'] / m['frames']:.1f} ms/frame, "
-                            f"{m['minor_faults'] / m['frames']:,.0f} faults/frame, "
-                            f"geometry {m['stage_ms_per_frame']['geometry']:.1f} ms, "
-                            f"write {m['stage_ms_per_frame']['write']:.1f} ms"})
+                            f"{m['minor_faults'] / m['frames']:,.0f} faults/frame, CPU "
+                            "ms/frame main / decode / writer "
+                            + " / ".join(f"{cpu.get(k, float('nan')):.2f}"
+                                         for k in ("main", "decode", "writer"))})
     cells = f"{ip['cells']:,} cells"
     rows.append({"measure": f"in-process sensor grid, {ip['points']:,} points: ms",
                  cols["a"]: f"ours {ip['ours_sensor_s'] * 1e3:.2f}, naive per-point Python "

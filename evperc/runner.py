@@ -8,6 +8,7 @@ import ctypes
 import functools
 import logging
 import math
+import os
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -434,7 +435,10 @@ def keep_freed_memory() -> bool:
     the next frame takes a page fault for every 4 kB of them (~300 a frame of workload (a)
     in the decode thread, ~0.4 ms of its CPU). Kept, they are reused as they are; the
     working set is the same from frame to frame, so memory stays bounded. Process-wide;
-    once per process."""
+    once per process. ``EVPERC_GLIBC_MALLOC_DEFAULTS=1`` leaves glibc as it is (to measure
+    the difference: ``benchmarks/bench_run.py``)."""
+    if os.environ.get("EVPERC_GLIBC_MALLOC_DEFAULTS") == "1":
+        return False
     try:
         libc = ctypes.CDLL("libc.so.6")
         return all(libc.mallopt(option, value) == 1 for option, value in _MALLOC_SETTINGS)
