@@ -230,3 +230,52 @@ def test_outputs_of_format_2_are_still_read_but_not_resumed(tmp_path: Path) -> N
     (tmp_path / "old" / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(OutputError, match="format_version 2 by an earlier evperc"):
         RunWriter.resume(tmp_path / "old")
+
+
+def write_frames(out: Path, n: int, seed: int) -> list:
+    rng = np.random.default_rng(seed)
+    writer = make_writer(out, chunk_frames=3)
+    for k in range(n):
+        writer.add(k, np.zeros(3), (0, k), *frame_arrays(rng))
+    writer.close({})
+    return list(evperc.load(out).frames)
+
+
+def test_layers_deflated_frame_by_frame_equal_whole_chunks(tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch
+                                                           ) -> None:
+    """The writer deflates each frame's layers as it arrives (evperc.io.npz.DeflateStream);
+    with zipfile's member writer changed it deflates whole chunks instead. Both give the same
+    frames, and every chunk member passes zipfile's CRC check."""
+    import zipfile
+
+    import evperc.io.writer as writer_mod
+
+    streamed = write_frames(tmp_path / "streamed", 7, seed=3)
+    for path in (tmp_path / "streamed" / "frames").glob("chunk_*.npz"):
+        with zipfile.ZipFile(path) as archive:
+            assert archive.testzip() is None
+    monkeypatch.setattr(writer_mod, "member_writer_supported", lambda: False)
+    whole = write_frames(tmp_path / "whole", 7, seed=3)
+    assert len(streamed) == len(whole) == 7
+    for a, b in zip(streamed, whole, strict=True):
+        for name in ("decision", "betp", "zeta", "conflict", "masses", "decision_counts"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
+
+def test_a_failure_to_deflate_a_frame_fails_the_run_at_its_chunk(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import evperc.io.writer as writer_mod
+
+    def broken(self, array):
+        raise MemoryError("no room to deflate")
+
+    monkeypatch.setattr(writer_mod.DeflateStream, "add", broken)
+    writer = make_writer(tmp_path / "out", chunk_frames=2)
+    rng = np.random.default_rng(1)
+    with pytest.raises(MemoryError, match="no room to deflate"):
+        for k in range(5):
+            writer.add(k, np.zeros(3), (0, 0), *frame_arrays(rng))
+        writer.close({})
+    writer.abort()
+    assert not list((tmp_path / "out" / "frames").glob("chunk_*.npz"))

@@ -60,6 +60,7 @@ byte-identical to ``np.savez``'s (``.npy`` format 1.0 headers).
 
 from __future__ import annotations
 
+import io
 import logging
 import os
 import zipfile
@@ -92,7 +93,83 @@ class Concatenated:
         return self.parts[0].dtype if self.parts else np.dtype(np.uint8)
 
 
-def write_npz(path: Path, arrays: dict[str, np.ndarray | Concatenated],
+@dataclass(frozen=True)
+class DeflatedMember:
+    """A member already deflated (:class:`DeflateStream`): its raw deflate stream in parts,
+    the CRC-32 and the size of its uncompressed bytes (``.npy`` header and data)."""
+
+    parts: tuple[bytes, ...]
+    crc: int
+    size: int
+
+
+class _Flushed:
+    """Stands for a member writer's compressor once the member's stream is complete."""
+
+    @staticmethod
+    def flush() -> bytes:
+        return b""
+
+
+class DeflateStream:
+    """A ``.npy`` member deflated piece by piece as its data arrives — a chunk's layers frame
+    by frame, while the frame is still in the cache, instead of all at once when the chunk
+    is full. The header, which states the final shape, is deflated last and put in front:
+    a deflate stream ended by a sync flush followed by another deflate stream is one valid
+    stream (RFC 1951 blocks in sequence), and ISA-L combines the CRC-32s."""
+
+    def __init__(self, dtype: np.dtype | type) -> None:
+        self.dtype = np.dtype(dtype)
+        self._compressor = isal_zlib.compressobj(DEFLATE_LEVEL, isal_zlib.DEFLATED, -15)
+        self._parts: list[bytes] = []
+        self._crc = 0
+        self._size = 0
+        self._done: DeflatedMember | None = None
+
+    def add(self, array: np.ndarray) -> None:
+        """Append the bytes of ``array`` (C order, of this stream's dtype)."""
+        if self._done is not None:
+            raise ValueError("the member is complete")
+        if array.dtype != self.dtype:
+            raise ValueError(f"{array.dtype} data for a {self.dtype} member")
+        for part in _contiguous_parts(array):
+            data = part.reshape(-1).view(np.uint8)
+            for start in range(0, data.size, _PIECE):
+                piece = data[start:start + _PIECE]
+                self._crc = isal_zlib.crc32(piece, self._crc)
+                packed = self._compressor.compress(piece)
+                if packed:
+                    self._parts.append(packed)
+            self._size += data.size
+
+    def member(self, shape: tuple[int, ...]) -> DeflatedMember:
+        """The complete member: an array of ``shape`` (its data all added); the stream
+        takes no more data after it."""
+        if int(np.prod(shape, dtype=np.int64)) * self.dtype.itemsize != self._size:
+            raise ValueError(f"{self._size} bytes added for a {self.dtype} array of shape "
+                             f"{shape}")
+        header_io = io.BytesIO()
+        np.lib.format.write_array_header_1_0(header_io, {
+            "descr": np.lib.format.dtype_to_descr(self.dtype), "fortran_order": False,
+            "shape": tuple(shape)})
+        header = header_io.getvalue()
+        head = isal_zlib.compressobj(DEFLATE_LEVEL, isal_zlib.DEFLATED, -15)
+        front = head.compress(header) + head.flush(isal_zlib.Z_SYNC_FLUSH)
+        crc = isal_zlib.crc32_combine(isal_zlib.crc32(header), self._crc, self._size)
+        if self._done is None:
+            self._done = DeflatedMember((*self._parts, self._compressor.flush()), 0, 0)
+        return DeflatedMember((front, *self._done.parts), crc, len(header) + self._size)
+
+
+def member_writer_supported() -> bool:
+    """Whether ``zipfile``'s member writer has the state that :func:`_use_isal` and
+    :class:`DeflatedMember` rely on (CPython 3.6 to 3.13)."""
+    with zipfile.ZipFile(io.BytesIO(), "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        with archive.open("probe", "w") as member:
+            return all(hasattr(member, name) for name in _MEMBER_STATE)
+
+
+def write_npz(path: Path, arrays: dict[str, np.ndarray | Concatenated | DeflatedMember],
               compress: bool) -> None:
     """Write ``arrays`` as the NPZ ``path`` (members ``NAME.npy``), deflated at
     :data:`DEFLATE_LEVEL` if ``compress`` else stored.
@@ -108,9 +185,15 @@ def write_npz(path: Path, arrays: dict[str, np.ndarray | Concatenated],
             with zipfile.ZipFile(f, "w", compression=mode) as archive:
                 for name, array in arrays.items():
                     with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
-                        if compress:
-                            _use_isal(member)
-                        _write_npy(member, array)
+                        if isinstance(array, DeflatedMember):
+                            if not compress:
+                                raise ValueError(f"{name}: a deflated member in a stored "
+                                                 "archive")
+                            _write_deflated(member, array)
+                        else:
+                            if compress:
+                                _use_isal(member)
+                            _write_npy(member, array)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
@@ -147,6 +230,17 @@ def _use_isal(member: object) -> None:
         return view.nbytes
 
     member.write = write
+
+
+def _write_deflated(member: object, deflated: DeflatedMember) -> None:
+    """Put an already deflated stream into a ``zipfile`` member writer, with its CRC-32
+    and sizes (which ``zipfile`` writes into the headers when the member is closed)."""
+    member._compressor = _Flushed()
+    for part in deflated.parts:
+        member._fileobj.write(part)
+        member._compress_size += len(part)
+    member._file_size = deflated.size
+    member._crc = deflated.crc
 
 
 def _write_npy(fp: object, array: np.ndarray | Concatenated) -> None:

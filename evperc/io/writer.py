@@ -1,9 +1,11 @@
 """Writing an `evperc run` output directory (docs/output-format.md, format_version 3).
 
-Frames are quantised to uint8 as they arrive and grouped in chunks. A full chunk is
-compressed and written by one background thread (zlib releases the GIL, so this runs on the
-second core while the main thread fuses the next frames); at most one chunk is being written
-while the next one fills, which bounds memory.
+Frames are quantised to uint8 as they arrive and grouped in chunks. One background thread
+deflates each frame's layers as soon as the frame is committed (ISA-L releases the GIL, so
+this runs on the second core while the main thread fuses the next frames), and writes the
+chunk file when the chunk is full — so the end of a run waits for one frame and the file,
+not for a whole chunk (12–17 ms on workload (a) before, 4–9 after). At most one chunk is
+being written while the next one fills, which bounds memory.
 
 Order on disk for every chunk: the chunk file (temporary name, then rename), then the
 caller's ``on_chunk`` commit (the run's checkpoint), then ``manifest.json`` with
@@ -31,7 +33,7 @@ from evperc import config as config_mod
 from evperc.errors import OutputError
 from evperc.fused import MASS_TILE, StoredOutputs
 from evperc.io import mass_tiles
-from evperc.io.npz import Concatenated, write_npz
+from evperc.io.npz import Concatenated, DeflateStream, member_writer_supported, write_npz
 from evperc.io.quantise import quantise, quantise_planar
 
 log = logging.getLogger(__name__)
@@ -122,18 +124,58 @@ class _Chunk:
         self.zeta = np.empty((capacity, rows, cols), np.uint8)
         self.conflict = np.empty((capacity, 3, rows, cols), np.uint8)
         self.decision_counts = np.zeros((capacity, n_codes), np.int64)
+        #: the layers deflated frame by frame (:meth:`stream`), None: deflated when written
+        self.streams: dict[str, DeflateStream] | None = None
+        self.streamed = 0  # frames in the streams
+        self.error: Exception | None = None  # of deflating a frame, raised with the chunk
+
+    def reset(self, streaming: bool) -> None:
+        """Empty, for the next chunk."""
+        self.count = self.streamed = 0
+        self.error = None
+        self.streams = ({name: DeflateStream(getattr(self, name).dtype) for name in STREAMED}
+                        if streaming else None)
+
+    def layer(self, name: str, k: int) -> np.ndarray:
+        """Frame ``k``'s part of the member ``name``."""
+        if name == "mass_runs":
+            return self.mass_runs[k, :self.mass_bytes[k]]
+        return getattr(self, name)[k]
+
+    def stream(self, k: int) -> None:
+        """Deflate frame ``k``'s layers into the chunk's streams (in frame order)."""
+        if k != self.streamed:
+            raise RuntimeError(f"frame {k} deflated out of order (expected {self.streamed})")
+        for name, stream in self.streams.items():
+            stream.add(self.layer(name, k))
+        self.streamed += 1
 
     def arrays(self) -> dict[str, Any]:
-        """The NPZ members of the frames held (views; the mass runs of the frames as one
-        member, written piece by piece)."""
+        """The NPZ members of the frames held: views, or the deflated streams; the mass runs
+        of the frames as one member, written piece by piece."""
         k = self.count
-        runs = Concatenated(tuple(self.mass_runs[i, :self.mass_bytes[i]] for i in range(k)))
+        layers: dict[str, Any] = {
+            "tile_masks": self.tile_masks[:k], "betp": self.betp[:k],
+            "decision": self.decision[:k], "zeta": self.zeta[:k],
+            "conflict": self.conflict[:k],
+            "mass_runs": Concatenated(tuple(self.layer("mass_runs", i) for i in range(k)))}
+        if self.streams is not None:
+            if self.streamed != k:
+                raise RuntimeError(f"{self.streamed} of {k} frames deflated")
+            shapes = {name: (k, *getattr(self, name).shape[1:]) for name in STREAMED}
+            shapes["mass_runs"] = (int(self.mass_bytes[:k].sum()),)
+            layers.update({name: stream.member(shapes[name])
+                           for name, stream in self.streams.items()})
         return {"stamp_ns": self.stamp_ns[:k], "pose": self.pose[:k],
-                "origin": self.origin[:k], "tile_masks": self.tile_masks[:k],
-                "mass_bytes": self.mass_bytes[:k], "mass_runs": runs,
-                "betp": self.betp[:k], "decision": self.decision[:k],
-                "zeta": self.zeta[:k], "conflict": self.conflict[:k],
+                "origin": self.origin[:k], "tile_masks": layers["tile_masks"],
+                "mass_bytes": self.mass_bytes[:k], "mass_runs": layers["mass_runs"],
+                "betp": layers["betp"], "decision": layers["decision"],
+                "zeta": layers["zeta"], "conflict": layers["conflict"],
                 "decision_counts": self.decision_counts[:k]}
+
+
+#: the chunk members deflated frame by frame as the frames arrive
+STREAMED = ("tile_masks", "mass_runs", "betp", "decision", "zeta", "conflict")
 
 
 class RunWriter:
@@ -163,6 +205,11 @@ class RunWriter:
         n_codes = len(self.manifest["decision_codes"])
         self._buffers = [_Chunk(self.chunk_frames, shape, n_codes),
                          _Chunk(self.chunk_frames, shape, n_codes)]
+        # deflate each frame's layers as it arrives (evperc.io.npz.DeflateStream); plain
+        # zipfile writing of whole chunks if zipfile's internals have changed
+        self._streaming = self.compress and member_writer_supported()
+        for chunk in self._buffers:
+            chunk.reset(self._streaming)
         self._chunk = self._buffers[0]
         self._queued = self.manifest["frame_count"]   # frames handed to the writer thread
         self._chunks_queued = len(self.manifest["chunks"])
@@ -230,6 +277,8 @@ class RunWriter:
                                           minlength=c.decision_counts.shape[1])
         c.decision_counts[k] = decision_counts
         c.count = k + 1
+        if self._streaming:
+            self._pool.submit(self._stream_frame, c, k)
         if self.manifest["first_stamp_ns"] is None:
             self.manifest["first_stamp_ns"] = int(stamp_ns)
         if c.count >= self.chunk_frames:
@@ -268,7 +317,7 @@ class RunWriter:
             return
         self._wait()  # the other buffer is free again once its chunk is on disk
         self._chunk = self._buffers[1] if c is self._buffers[0] else self._buffers[0]
-        self._chunk.count = 0
+        self._chunk.reset(self._streaming)
         index = self._chunks_queued
         first = self._queued
         self._chunks_queued += 1
@@ -276,9 +325,24 @@ class RunWriter:
         commit = self.on_chunk(self._queued) if self.on_chunk is not None else None
         self._pending = self._pool.submit(self._write_chunk, c, index, first, commit)
 
+    def _stream_frame(self, c: _Chunk, k: int) -> None:
+        """Writer thread: deflate frame ``k`` of chunk ``c`` (queued before the chunk)."""
+        t0 = time.perf_counter()
+        try:
+            if c.error is None:
+                c.stream(k)
+        except Exception as err:  # noqa: BLE001 - raised by _write_chunk, in order
+            c.error = err
+        finally:
+            self.thread_seconds += time.perf_counter() - t0
+            self.thread_cpu_s = time.thread_time()
+
     def _write_chunk(self, c: _Chunk, index: int, first: int,
                      commit: Callable[[], None] | None) -> None:
         t0 = time.perf_counter()
+        if c.error is not None:
+            self.thread_seconds += time.perf_counter() - t0
+            raise c.error
         name = f"chunk_{index:05d}.npz"
         arrays = c.arrays()
         path = self.out_dir / FRAMES_DIR / name
