@@ -279,3 +279,36 @@ def test_a_failure_to_deflate_a_frame_fails_the_run_at_its_chunk(
         writer.close({})
     writer.abort()
     assert not list((tmp_path / "out" / "frames").glob("chunk_*.npz"))
+
+
+def test_the_ring_of_frame_layers_waits_for_the_writer_thread(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Frames' layers are filled into a ring of RING_SLOTS slots that the writer thread
+    deflates: a frame cannot take a slot whose earlier frame is not deflated yet (memory
+    stays at a few frames whatever the chunk size)."""
+    import threading
+
+    import evperc.io.writer as writer_mod
+
+    gate = threading.Event()
+    add = writer_mod.DeflateStream.add
+
+    def slow_add(self, array):
+        assert gate.wait(10)
+        add(self, array)
+
+    monkeypatch.setattr(writer_mod.DeflateStream, "add", slow_add)
+    writer = make_writer(tmp_path / "out", chunk_frames=100)
+    rng = np.random.default_rng(6)
+    for k in range(writer_mod.RING_SLOTS):  # every slot filled, none deflated
+        writer.add(k, np.zeros(3), (0, 0), *frame_arrays(rng))
+    got_slot = threading.Event()
+    thread = threading.Thread(target=lambda: (writer.frame_slot(), got_slot.set()))
+    thread.start()
+    assert not got_slot.wait(0.3)  # all slots wait for the writer thread
+    gate.set()
+    assert got_slot.wait(10)
+    thread.join()
+    writer.commit_frame(99, np.zeros(3), (0, 0))
+    writer.close({})
+    assert len(evperc.load(tmp_path / "out")) == writer_mod.RING_SLOTS + 1

@@ -102,27 +102,47 @@ def prepare_output_dir(out_dir: Path, overwrite: bool) -> None:
 BYTES_PER_CELL = 32 + 5 + 1 + 1 + 3
 
 
-class _Chunk:
-    """Preallocated uint8 layers of up to ``capacity`` frames; frames are quantised straight
-    into them (no per-frame arrays, no stacking copy). Each frame has room for the mass runs
-    of all 32 planes; only the bytes written are touched (and stored)."""
+class _Layers:
+    """Preallocated uint8 layers of ``slots`` frames; frames are quantised straight into
+    them (no per-frame arrays, no stacking copy). Each slot has room for the mass runs of
+    all 32 planes; only the bytes written are touched (and stored)."""
 
-    def __init__(self, capacity: int, shape: tuple[int, int], n_codes: int) -> None:
+    def __init__(self, slots: int, shape: tuple[int, int]) -> None:
         rows, cols = shape
+        self.mass_runs = np.empty((slots, 32 * rows * cols), np.uint8)
+        self.mass_bytes = np.zeros(slots, np.int64)
+        self.tile_masks = np.empty(
+            (slots, rows, mass_tiles.tiles_per_row(cols, MASS_TILE)), np.uint32)
+        self.betp = np.empty((slots, 5, rows, cols), np.uint8)
+        self.decision = np.empty((slots, rows, cols), np.uint8)
+        self.zeta = np.empty((slots, rows, cols), np.uint8)
+        self.conflict = np.empty((slots, 3, rows, cols), np.uint8)
+
+    def view(self, i: int) -> StoredOutputs:
+        return StoredOutputs(self.mass_runs[i], self.tile_masks[i], self.mass_bytes[i:i + 1],
+                             self.betp[i], self.conflict[i], self.zeta[i], self.decision[i])
+
+    def layer(self, name: str, i: int) -> np.ndarray:
+        """Slot ``i``'s part of the member ``name``."""
+        if name == "mass_runs":
+            return self.mass_runs[i, :self.mass_bytes[i]]
+        return getattr(self, name)[i]
+
+
+class _Chunk:
+    """The frames of one chunk: their metadata, and their layers — in ``layers`` slot
+    ``slots[k]`` for frame ``k``: a ring shared by the chunks when the layers are deflated
+    frame by frame (``streams``), the chunk's own slots (slot k for frame k) otherwise."""
+
+    def __init__(self, capacity: int, n_codes: int, layers: _Layers) -> None:
         self.capacity = capacity
-        self.shape = shape
+        self.layers = layers
         self.count = 0
+        self.slots = np.arange(capacity)
         self.stamp_ns = np.zeros(capacity, np.int64)
         self.pose = np.zeros((capacity, 3), np.float64)
         self.origin = np.zeros((capacity, 2), np.int64)
-        self.mass_runs = np.empty((capacity, 32 * rows * cols), np.uint8)
-        self.tile_masks = np.empty(
-            (capacity, rows, mass_tiles.tiles_per_row(cols, MASS_TILE)), np.uint32)
         self.mass_bytes = np.zeros(capacity, np.int64)
-        self.betp = np.empty((capacity, 5, rows, cols), np.uint8)
-        self.decision = np.empty((capacity, rows, cols), np.uint8)
-        self.zeta = np.empty((capacity, rows, cols), np.uint8)
-        self.conflict = np.empty((capacity, 3, rows, cols), np.uint8)
         self.decision_counts = np.zeros((capacity, n_codes), np.int64)
         #: the layers deflated frame by frame (:meth:`stream`), None: deflated when written
         self.streams: dict[str, DeflateStream] | None = None
@@ -133,14 +153,12 @@ class _Chunk:
         """Empty, for the next chunk."""
         self.count = self.streamed = 0
         self.error = None
-        self.streams = ({name: DeflateStream(getattr(self, name).dtype) for name in STREAMED}
-                        if streaming else None)
+        self.streams = ({name: DeflateStream(getattr(self.layers, name).dtype)
+                         for name in STREAMED} if streaming else None)
 
     def layer(self, name: str, k: int) -> np.ndarray:
         """Frame ``k``'s part of the member ``name``."""
-        if name == "mass_runs":
-            return self.mass_runs[k, :self.mass_bytes[k]]
-        return getattr(self, name)[k]
+        return self.layers.layer(name, int(self.slots[k]))
 
     def stream(self, k: int) -> None:
         """Deflate frame ``k``'s layers into the chunk's streams (in frame order)."""
@@ -151,21 +169,23 @@ class _Chunk:
         self.streamed += 1
 
     def arrays(self) -> dict[str, Any]:
-        """The NPZ members of the frames held: views, or the deflated streams; the mass runs
-        of the frames as one member, written piece by piece."""
+        """The NPZ members of the frames held: the deflated streams, or views of the chunk's
+        own layers; the mass runs of the frames as one member, written piece by piece."""
         k = self.count
-        layers: dict[str, Any] = {
-            "tile_masks": self.tile_masks[:k], "betp": self.betp[:k],
-            "decision": self.decision[:k], "zeta": self.zeta[:k],
-            "conflict": self.conflict[:k],
-            "mass_runs": Concatenated(tuple(self.layer("mass_runs", i) for i in range(k)))}
         if self.streams is not None:
             if self.streamed != k:
                 raise RuntimeError(f"{self.streamed} of {k} frames deflated")
-            shapes = {name: (k, *getattr(self, name).shape[1:]) for name in STREAMED}
+            shapes = {name: (k, *getattr(self.layers, name).shape[1:]) for name in STREAMED}
             shapes["mass_runs"] = (int(self.mass_bytes[:k].sum()),)
-            layers.update({name: stream.member(shapes[name])
-                           for name, stream in self.streams.items()})
+            layers = {name: stream.member(shapes[name])
+                      for name, stream in self.streams.items()}
+        else:
+            own = self.layers
+            layers = {"tile_masks": own.tile_masks[:k], "betp": own.betp[:k],
+                      "decision": own.decision[:k], "zeta": own.zeta[:k],
+                      "conflict": own.conflict[:k],
+                      "mass_runs": Concatenated(tuple(self.layer("mass_runs", i)
+                                                      for i in range(k)))}
         return {"stamp_ns": self.stamp_ns[:k], "pose": self.pose[:k],
                 "origin": self.origin[:k], "tile_masks": layers["tile_masks"],
                 "mass_bytes": self.mass_bytes[:k], "mass_runs": layers["mass_runs"],
@@ -174,6 +194,9 @@ class _Chunk:
                 "decision_counts": self.decision_counts[:k]}
 
 
+#: frames whose layers are held at once when they are deflated frame by frame: the one
+#: being filled, and up to three waiting for (or in) the writer thread
+RING_SLOTS = 4
 #: the chunk members deflated frame by frame as the frames arrive
 STREAMED = ("tile_masks", "mass_runs", "betp", "decision", "zeta", "conflict")
 
@@ -203,11 +226,21 @@ class RunWriter:
         shape = (int(self.manifest["rows"]), int(self.manifest["cols"]))
         # two buffers: one filling while the writer thread writes the other
         n_codes = len(self.manifest["decision_codes"])
-        self._buffers = [_Chunk(self.chunk_frames, shape, n_codes),
-                         _Chunk(self.chunk_frames, shape, n_codes)]
-        # deflate each frame's layers as it arrives (evperc.io.npz.DeflateStream); plain
-        # zipfile writing of whole chunks if zipfile's internals have changed
+        self._shape = shape
+        # deflate each frame's layers as it arrives (evperc.io.npz.DeflateStream), from a
+        # ring of a few frames' layers; whole chunks deflated when written (each chunk
+        # holding its frames' layers) if the chunks are stored or zipfile's internals have
+        # changed
         self._streaming = self.compress and member_writer_supported()
+        if self._streaming:
+            ring = _Layers(RING_SLOTS, shape)
+            layers = [ring, ring]
+        else:
+            layers = [_Layers(self.chunk_frames, shape) for _ in range(2)]
+        self._ring_free = threading.Semaphore(RING_SLOTS)  # slots the writer has deflated
+        self._next_slot = 0
+        self._reserved: int | None = None  # the slot frame_slot() handed out
+        self._buffers = [_Chunk(self.chunk_frames, n_codes, layer) for layer in layers]
         for chunk in self._buffers:
             chunk.reset(self._streaming)
         self._chunk = self._buffers[0]
@@ -256,24 +289,34 @@ class RunWriter:
         return self._queued + self._chunk.count
 
     def frame_slot(self) -> StoredOutputs:
-        """Views of the next frame's layers in the chunk buffer. Fill them (the fused step
-        quantises straight into them), then call :meth:`commit_frame`."""
-        c = self._chunk
-        k = c.count
-        return StoredOutputs(c.mass_runs[k], c.tile_masks[k], c.mass_bytes[k:k + 1],
-                             c.betp[k], c.conflict[k], c.zeta[k], c.decision[k])
+        """Views of the next frame's layers. Fill them (the fused step quantises straight
+        into them), then call :meth:`commit_frame`. Waits while the writer thread has not
+        yet deflated the frames that used the ring's slots before."""
+        if self._reserved is None:
+            if self._streaming:
+                self._ring_free.acquire()
+                self._reserved = self._next_slot
+                self._next_slot = (self._next_slot + 1) % RING_SLOTS
+            else:
+                self._reserved = self._chunk.count
+        return self._chunk.layers.view(self._reserved)
 
     def commit_frame(self, stamp_ns: int, pose: np.ndarray, origin: tuple[int, int],
                      decision_counts: np.ndarray | None = None) -> bool:
         """The frame whose layers fill :meth:`frame_slot` is complete; a full chunk is handed
         to the writer thread (then returns True)."""
+        if self._reserved is None:
+            raise RuntimeError("commit_frame() without frame_slot()")
         c = self._chunk
         k = c.count
+        slot, self._reserved = self._reserved, None
+        c.slots[k] = slot
+        c.mass_bytes[k] = c.layers.mass_bytes[slot]
         c.stamp_ns[k] = int(stamp_ns)
         c.pose[k] = pose
         c.origin[k] = origin
         if decision_counts is None:
-            decision_counts = np.bincount(c.decision[k].ravel(),
+            decision_counts = np.bincount(c.layers.decision[slot].ravel(),
                                           minlength=c.decision_counts.shape[1])
         c.decision_counts[k] = decision_counts
         c.count = k + 1
@@ -291,9 +334,9 @@ class RunWriter:
             decision_counts: np.ndarray | None = None) -> bool:
         """Queue one frame of float layers, interleaved ``(rows, cols, k)`` (quantised at once:
         the caller may reuse its arrays); see :meth:`commit_frame`."""
-        if tuple(decision.shape) != self._chunk.shape:
+        if tuple(decision.shape) != self._shape:
             raise ValueError(f"frame of shape {decision.shape}, the run's window is "
-                             f"{self._chunk.shape}")
+                             f"{self._shape}")
         slot = self.frame_slot()
         planes = quantise_planar(masses)
         slot.tile_masks[...] = mass_tiles.masks_of(np.moveaxis(masses, -1, 0), MASS_TILE)
@@ -334,6 +377,7 @@ class RunWriter:
         except Exception as err:  # noqa: BLE001 - raised by _write_chunk, in order
             c.error = err
         finally:
+            self._ring_free.release()  # the frame's slot may be filled again
             self.thread_seconds += time.perf_counter() - t0
             self.thread_cpu_s = time.thread_time()
 
