@@ -70,7 +70,9 @@ def write_json(path: Path, obj: Any) -> None:
 
 def chunk_frames_for(config: dict[str, Any], shape: tuple[int, int]) -> int:
     """Frames per chunk: ``output.chunk_frames``, fewer if a chunk would pass
-    ``output.chunk_max_mb`` of uint8 layers (two chunk buffers are held at once)."""
+    ``output.chunk_max_mb`` of uint8 layers before deflate (held in memory, two chunks at
+    once, only when the chunks are stored, ``output.compress = false``; deflated chunks
+    keep a ring of :data:`RING_SLOTS` frames)."""
     frame_bytes = shape[0] * shape[1] * BYTES_PER_CELL
     cap = int(config["output"]["chunk_max_mb"] * 1e6 // max(frame_bytes, 1))
     return max(1, min(int(config["output"]["chunk_frames"]), cap))
