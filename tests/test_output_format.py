@@ -312,3 +312,27 @@ def test_the_ring_of_frame_layers_waits_for_the_writer_thread(
     writer.commit_frame(99, np.zeros(3), (0, 0))
     writer.close({})
     assert len(evperc.load(tmp_path / "out")) == writer_mod.RING_SLOTS + 1
+
+
+def test_stored_chunks_hold_the_same_frames(tmp_path: Path) -> None:
+    """``output.compress = false``: chunks are stored, not deflated (whole-chunk buffers, no
+    ring), and read back the same as deflated ones."""
+    import zipfile
+
+    deflated = write_frames(tmp_path / "deflated", 5, seed=8)
+    rng = np.random.default_rng(8)
+    config = load_config()
+    config["output"]["chunk_frames"] = 3
+    config["output"]["compress"] = False
+    meta = {"decision_codes": DECISION_CODES, "classes": list("FIUSM"), "crs": "EPSG:32635",
+            "resolution_m": 0.5, "rows": ROWS, "cols": COLS}
+    writer = RunWriter(tmp_path / "stored", config, meta)
+    for k in range(5):
+        writer.add(k, np.zeros(3), (0, k), *frame_arrays(rng))
+    writer.close({})
+    with zipfile.ZipFile(tmp_path / "stored" / "frames" / "chunk_00000.npz") as archive:
+        assert {i.compress_type for i in archive.infolist()} == {zipfile.ZIP_STORED}
+    stored = list(evperc.load(tmp_path / "stored").frames)
+    for a, b in zip(deflated, stored, strict=True):
+        for name in ("decision", "betp", "zeta", "conflict", "masses"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
