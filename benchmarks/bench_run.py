@@ -197,6 +197,12 @@ def _vm_rss_mb(pid: int, key: str = "VmRSS") -> float:
     return 0.0
 
 
+def thread_cpu(run: dict) -> str:
+    """CPU ms per frame of the main, decode and writer threads, as "m / d / w"."""
+    cpu = run.get("cpu_ms_per_frame", {})
+    return " / ".join(f"{cpu.get(k, float('nan')):.2f}" for k in ("main", "decode", "writer"))
+
+
 def best_run(sim: Path, out: Path, config: Path | None = None) -> dict:
     """The fastest of REPEATS runs (the machine is shared); peak RSS is the largest seen."""
     runs = [run_evperc(sim, out, config) for _ in range(REPEATS)]
@@ -374,34 +380,26 @@ def rows_from(data: dict) -> list[dict]:
         cores[col] = f"{run['cpu_s'] / run['wall_s']:.2f}"
         kernel[col] = (f"{1e3 * run['sys_s'] / run['frames']:.1f}; "
                        f"{run['minor_faults'] / run['frames']:,.0f}")
-        cpu = run.get("cpu_ms_per_frame", {})
-        threads[col] = " / ".join(f"{cpu.get(k, float('nan')):.2f}"
-                                  for k in ("main", "decode", "writer"))
+        threads[col] = thread_cpu(run)
     rows += [whole, rss, out, cores, kernel, threads]
     long_rss = r["c_long"]["peak_rss_mb"] / r["c_short"]["peak_rss_mb"]
     rows.append({"measure": "peak RSS, (c) long / 1k", cols["c_long"]: f"{long_rss:.3f}"})
     a_long = r["a_long"]
-    cpu = a_long.get("cpu_ms_per_frame", {})
     rows.append({"measure": "(a) on a 30 s log (300 scans): whole run",
                  cols["a"]: f"{a_long['frames_per_s']:.1f} frames/s (runs: "
                             f"{', '.join(f'{v:.1f}' for v in a_long['all_frames_per_s'])}); "
-                            f"CPU ms/frame main / decode / writer "
-                            + " / ".join(f"{cpu.get(k, float('nan')):.2f}"
-                                         for k in ("main", "decode", "writer"))
-                            + f"; {a_long['peak_rss_mb']:.0f} MB peak"})
+                            f"CPU ms/frame main / decode / writer {thread_cpu(a_long)}; "
+                            f"{a_long['peak_rss_mb']:.0f} MB peak"})
     rows.append({"measure": "(a) with output.chunk_frames = 10",
                  cols["a"]: f"{r['a_chunk10']['frames_per_s']:.1f} frames/s, "
                             f"{r['a_chunk10']['peak_rss_mb']:.0f} MB peak, "
                             f"{r['a_chunk10']['bytes_per_frame'] / 1e3:,.0f} kB/frame"})
     m = r["a_malloc"]
-    cpu = m.get("cpu_ms_per_frame", {})
     rows.append({"measure": "(a) with glibc's malloc thresholds (keep_freed_memory off)",
                  cols["a"]: f"{m['frames_per_s']:.1f} frames/s, sys "
                             f"{1e3 * m['sys_s'] / m['frames']:.1f} ms/frame, "
                             f"{m['minor_faults'] / m['frames']:,.0f} faults/frame, CPU "
-                            "ms/frame main / decode / writer "
-                            + " / ".join(f"{cpu.get(k, float('nan')):.2f}"
-                                         for k in ("main", "decode", "writer"))})
+                            f"ms/frame main / decode / writer {thread_cpu(m)}"})
     cells = f"{ip['cells']:,} cells"
     rows.append({"measure": f"in-process sensor grid, {ip['points']:,} points: ms",
                  cols["a"]: f"ours {ip['ours_sensor_s'] * 1e3:.2f}, naive per-point Python "
