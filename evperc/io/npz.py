@@ -124,11 +124,11 @@ class DeflateStream:
         self._parts: list[bytes] = []
         self._crc = 0
         self._size = 0
-        self._done: DeflatedMember | None = None
+        self._end: bytes | None = None  # the stream's final flush, once member() ran
 
     def add(self, array: np.ndarray) -> None:
         """Append the bytes of ``array`` (C order, of this stream's dtype)."""
-        if self._done is not None:
+        if self._end is not None:
             raise ValueError("the member is complete")
         if array.dtype != self.dtype:
             raise ValueError(f"{array.dtype} data for a {self.dtype} member")
@@ -156,9 +156,9 @@ class DeflateStream:
         head = isal_zlib.compressobj(DEFLATE_LEVEL, isal_zlib.DEFLATED, -15)
         front = head.compress(header) + head.flush(isal_zlib.Z_SYNC_FLUSH)
         crc = isal_zlib.crc32_combine(isal_zlib.crc32(header), self._crc, self._size)
-        if self._done is None:
-            self._done = DeflatedMember((*self._parts, self._compressor.flush()), 0, 0)
-        return DeflatedMember((front, *self._done.parts), crc, len(header) + self._size)
+        if self._end is None:
+            self._end = self._compressor.flush()
+        return DeflatedMember((front, *self._parts, self._end), crc, len(header) + self._size)
 
 
 def member_writer_supported() -> bool:
