@@ -412,20 +412,25 @@ def _store_outputs(kind: str) -> list[str]:
                        "    "),
                 *_loop(width, "dc[wl + {i}]", code)]
 
-    def quantised(target: str, plane: str, indent: str = "    ") -> list[str]:
-        """round(255 · clip(x, 0, 1)), as evperc.io.quantise"""
-        return [f"{indent}for t in range({width}):",
-                f"{indent}    v = {_buf(plane).format(i='np.uint64(t)')}",
-                f"{indent}    v = v if v > _0 else _0",
-                f"{indent}    v = v if v < _1 else _1",
-                f"{indent}    {target.format(i='np.uint64(t)')} = "
-                "np.uint8(np.int32(v * _255 + _HALF))"]
     return [*_store_tile(),
-            "for k in range(5):", *quantised("qb[np.uint64(k), wl + {i}]", f"{OUT_BETP} + k"),
+            "for k in range(5):",
+            *_quantised(width, "qb[np.uint64(k), wl + {i}]", f"{OUT_BETP} + k"),
             "for k in range(3):",
-            *quantised("qc[np.uint64(k), wl + {i}]", f"{OUT_CONFLICT} + k"),
-            *quantised("qz[wl + {i}]", str(OUT_ZETA), indent=""),
+            *_quantised(width, "qc[np.uint64(k), wl + {i}]", f"{OUT_CONFLICT} + k"),
+            *_quantised(width, "qz[wl + {i}]", str(OUT_ZETA), indent=""),
             *_loop(width, "qd[wl + {i}]", code)]
+
+
+def _quantised(width: str, target: str, plane: str, lane: str = "l0",
+               indent: str = "    ") -> list[str]:
+    """``target`` ← round(255 · clip(x, 0, 1)) (as evperc.io.quantise) of ``width`` lanes
+    of ``plane`` of the block buffer from lane ``lane`` on; ``{i}`` as in :func:`_loop`."""
+    return [f"{indent}for t in range({width}):",
+            f"{indent}    v = {_buf(plane, lane).format(i='np.uint64(t)')}",
+            f"{indent}    v = v if v > _0 else _0",
+            f"{indent}    v = v if v < _1 else _1",
+            f"{indent}    {target.format(i='np.uint64(t)')} = "
+            "np.uint8(np.int32(v * _255 + _HALF))"]
 
 
 def _store_tile() -> list[str]:
@@ -451,11 +456,7 @@ def _store_tile() -> list[str]:
         "            for t in range(q0, c0):",
         "                qr[pos + np.uint64(t - q0)] = value",
         "            pl = pos + np.uint64(c0 - q0)",
-        "            for t in range(c1 - c0):",
-        f"                v = {_buf(f'{OUT_MASS} + a', 'c0').format(i='np.uint64(t)')}",
-        "                v = v if v > _0 else _0",
-        "                v = v if v < _1 else _1",
-        "                qr[pl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))",
+        *_quantised("c1 - c0", "qr[pl + {i}]", f"{OUT_MASS} + a", "c0", " " * 12),
         "            for t in range(c1, q1):",
         "                qr[pos + np.uint64(t - q0)] = value",
         "            pos += np.uint64(q1 - q0)",
