@@ -441,7 +441,8 @@ def keep_freed_memory() -> bool:
         return False
     try:
         libc = ctypes.CDLL("libc.so.6")
-        return all(libc.mallopt(option, value) == 1 for option, value in _MALLOC_SETTINGS)
+        applied = [libc.mallopt(option, value) == 1 for option, value in _MALLOC_SETTINGS]
+        return all(applied)
     except (OSError, AttributeError):  # not glibc (macOS, musl): nothing to tune
         return False
 
