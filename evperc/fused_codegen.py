@@ -27,7 +27,17 @@ S = 8, M = 16, O = 30, Ω = 31):
 
 Around the body, per block of 256 cells of a window row: trim to the active lanes, read the
 planes in the union of the cells' focal-set masks (compact layout, :mod:`evperc.fused`),
-run the body, write back the planes used before or after, and the outputs. Arrays are
+zero the other planes only where an earlier block may have left values (``dirty``), run
+the body, write back the planes used before or after, and the outputs. The block buffer's
+planes are 272 floats apart, not 256: with 1 kB between them, one sub-block's lanes of all
+45 planes fell in 4 of the L1 cache's 64 sets.
+
+Two variants of each kernel: the general one, and a *lean* one for the options where
+the I butterfly (α_I = 0), classical discounting and the ⊛ rule's normalisation are
+identities — contextual discounting with α_I = 0 and a residual conflict that is not
+normalised, the default configuration. Fewer operations spill fewer of the 32 + 32 + 32
+live values out of the registers: the lean step is 12–16 % faster (docs/performance.md).
+:func:`evperc.fused.fused_step` picks it; numba compiles a variant on its first use. Arrays are
 flattened once and indexed with unsigned integers: a signed index gets numba's
 negative-index fix-up (vector copies become scatters) and an array view costs two atomic
 reference-count updates (12 % of the step's time under perf before they went).
@@ -65,6 +75,7 @@ _INV5 = np.float32(1.0 / 5.0)
 _2 = np.float32(2.0)
 _ONE = np.uint32(1)
 _OMEGA_BIT = np.uint32(1 << 31)
+_ALL_PLANES = np.uint32(0xFFFFFFFF)
 ''' + "".join(f"_P{a} = np.float32({2 ** a})\n" for a in range(16))
 
 
@@ -72,6 +83,10 @@ _OMEGA_BIT = np.uint32(1 << 31)
 #: BLOCK float32 (inputs, then outputs), so every access is ``buf[sbase + constant + l]``
 #: and LLVM proves without run-time checks that the planes do not overlap
 BLOCK = 256
+#: floats from one plane of the block buffer to the next: BLOCK and one cache line more, so
+#: that a sub-block's lanes of the 45 planes fall in different sets of the L1 cache (a
+#: stride of 1 kB puts them all in 4 of its 64 sets)
+STRIDE = BLOCK + 16
 #: lanes per run of the body (whole sub-blocks within [l0, l1) are computed)
 SUB = 16
 #: cells per tile of the stored masses (evperc.io.mass_tiles): a divisor of BLOCK; smaller
@@ -95,7 +110,7 @@ PLANES = OUT_FOCAL_HI + 1
 
 def _at(plane: int) -> str:
     """Lane ``l`` of ``plane`` in the sub-block at ``sbase`` of the block buffer."""
-    return f"sbase + np.uint64({plane * BLOCK} + l)"
+    return f"sbase + np.uint64({plane * STRIDE} + l)"
 
 
 def _sum(terms: list[str]) -> str:
@@ -108,8 +123,11 @@ def _sum(terms: list[str]) -> str:
     return terms[0]
 
 
-def _body() -> list[str]:
-    """Statements for lane ``l`` of the block in ``buf`` (decision codes as floats)."""
+def _body(lean: bool = False) -> list[str]:
+    """Statements for lane ``l`` of the block in ``buf`` (decision codes as floats).
+    ``lean``: for contextual discounting with α_I = 0 and a residual conflict that is not
+    normalised (the defaults): the I butterfly, classical discounting and the
+    normalisation, identities then, are left out."""
     s: list[str] = []
     add = s.append
     for a in range(32):
@@ -138,16 +156,19 @@ def _body() -> list[str]:
     add("bo = beta if is_o else _0")
     # 3. discounting: contextual butterflies (rate 0: identity), then classical
     for bit, name in ((_F, "a_f"), (_I, "a_i"), (_U, "a_u"), (_S, "a_s"), (_M, "a_m")):
+        if lean and bit == _I:
+            continue
         for j in range(32):
             if j & bit:
                 continue
             add(f"t = {name} * m{j}")
             add(f"m{j + bit} += t")
             add(f"m{j} -= t")
-    add("rest = _1 - m31")
-    for a in range(31):
-        add(f"m{a} *= keep_c")
-    add("m31 += a_c * rest")
+    if not lean:
+        add("rest = _1 - m31")
+        for a in range(31):
+            add(f"m{a} *= keep_c")
+        add("m31 += a_c * rest")
     # 4. d = m ∩ SG
     add("s_f = " + _sum([f"m{a}" for a in range(32) if a & _F]))
     add("s_nf = " + _sum([f"m{a}" for a in range(32) if not a & _F]))
@@ -185,11 +206,12 @@ def _body() -> list[str]:
     add("c0 = other if residual == 1 else _0")
     add("c16 += fo")
     add("c31 += of + (other if residual == 0 else _0)")
-    add("kept_rule = _1 - other")
-    add("kept_rule = kept_rule if kept_rule > _TINY else _TINY")
-    add("scale = (_1 / kept_rule) if residual == 2 else _1")
-    for a in range(32):
-        add(f"c{a} *= scale")
+    if not lean:
+        add("kept_rule = _1 - other")
+        add("kept_rule = kept_rule if kept_rule > _TINY else _TINY")
+        add("scale = (_1 / kept_rule) if residual == 2 else _1")
+        for a in range(32):
+            add(f"c{a} *= scale")
     # 6. ζ
     add("bel_o = " + _sum([f"c{a}" for a in range(2, 32, 2)]))
     add("dynamic = fo + of")
@@ -284,7 +306,7 @@ def _segments(lines: list[str], first: str, last: str) -> list[str]:
 
 def _buf(plane: str, lane: str = "l0") -> str:
     """Element ``{i}`` of ``plane`` of the block buffer from lane ``lane`` on."""
-    return f"buf[np.uint64(({plane}) * BLOCK + {lane}) + {{i}}]"
+    return f"buf[np.uint64(({plane}) * STRIDE + {lane}) + {{i}}]"
 
 
 def _active_lanes() -> list[str]:
@@ -321,7 +343,8 @@ def _load() -> list[str]:
     """Lanes [l0, l1) of the block into ``buf``: the previous state (vacuous outside the
     previous window), ζ, the sensor grid, labels and observed cells. Compact layout: a
     plane that is zero in every buffer cell of the lanes (``old_mask``, the union of their
-    focal sets) is not read."""
+    focal sets) is not read, and is zeroed only if an earlier block may have left values in
+    it (``dirty``): neighbouring blocks mostly use the same planes, so few are."""
     inside = ("max(s0, j0 + l0)", "min(s1, j0 + l1)")
     return [
         "old_mask = np.uint32(0)",
@@ -337,8 +360,10 @@ def _load() -> list[str]:
         "    if (old_mask >> np.uint32(a)) & _ONE:",
         *["        " + line for line in _segments(
             _loop("w", _buf("a", "lb"), "st[np.uint64(a), sc + {i}]"), *inside)],
-        "    elif not entering:",
-        *_loop("l1 - l0", _buf("a"), "_0", "        "),
+        "    elif not entering and (dirty >> np.uint32(a)) & _ONE:",
+        *_loop("BLOCK", _buf("a", "0"), "_0", "        "),
+        "        dirty &= ~(_ONE << np.uint32(a))",
+        "dirty |= old_mask",
         *_segments(_loop("w", _buf(str(IN_ZETA), "lb"), "zt[sc + {i}]"), *inside),
         "wl = wb + np.uint64(l0)",
         *_loop("l1 - l0", _buf(str(IN_FREE)), "fr[wl + {i}]"),
@@ -361,6 +386,9 @@ def _store_state() -> list[str]:
         "new_mask = np.uint32(0)",
         *_segments(masks, "j0 + l0", "j0 + l1"),
         "write_mask = old_mask | new_mask",
+        "# planes the body may have left non-zero in some lane of the buffer (all when it ran",
+        "# past l1, on lanes whose stale inputs are not known)",
+        "dirty |= new_mask if l1 % SUB == 0 else _ALL_PLANES",
         "for a in range(32):",
         "    if (write_mask >> np.uint32(a)) & _ONE:",
         *["        " + line for line in _segments(
@@ -478,7 +506,7 @@ PARAMS = ("derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a
           "may_skip")
 
 
-def _kernel(kind: str) -> list[str]:
+def _kernel(kind: str, lean: bool = False) -> list[str]:
     outs = ("betp, conflict, decision" if kind == "float"
             else "q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision")
     flat = ["bp = betp.reshape(5, n_cells)", "cf = conflict.reshape(3, n_cells)",
@@ -509,7 +537,8 @@ def _kernel(kind: str) -> list[str]:
         "",
         "",
         "@numba.njit(cache=True, nogil=True, fastmath=True, error_model=\"numpy\")",
-        f"def step_{kind}(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,",
+        f"def step_{kind}{'_lean' if lean else ''}(state, zeta, flags, focal, off_r, off_c, dr, "
+        "dc_, free, occ, labels,",
         f"               observed, {PARAMS}, {outs}):  # pragma: no cover - compiled",
         "    rows, cols = state.shape[1], state.shape[2]",
         "    n_cells = rows * cols",
@@ -524,8 +553,9 @@ def _kernel(kind: str) -> list[str]:
         *["    " + line for line in flat],
         "    wrap = cols - off_c  # window columns from here on wrap to the buffer's start",
         "    tiles_per_row = (cols + TILE - 1) // TILE",
-        "    buf = np.zeros(PLANES * BLOCK, np.float32)",
+        "    buf = np.zeros(PLANES * STRIDE, np.float32)",
         "    act = np.zeros(BLOCK, np.uint8)",
+        "    dirty = np.uint32(0)  # planes that may be non-zero in some lane of buf",
         "    for r in range(rows):",
         "        buf_row = r + off_r",
         "        buf_row = buf_row - rows if buf_row >= rows else buf_row",
@@ -542,7 +572,7 @@ def _kernel(kind: str) -> list[str]:
     lines += ["            for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):",
               "                sbase = np.uint64(sub * SUB)",
               "                for l in range(SUB):"]
-    lines += ["                    " + line for line in _body()]
+    lines += ["                    " + line for line in _body(lean)]
     lines += ["            " + line for line in _store_state() + _store_outputs(kind)]
     if kind == "stored":
         lines.append("    q_length[0] = np.int64(pos)")
@@ -551,8 +581,11 @@ def _kernel(kind: str) -> list[str]:
 
 def source() -> str:
     """The text of evperc/fused_kernel.py."""
-    constants = f"BLOCK = {BLOCK}\nSUB = {SUB}\nPLANES = {PLANES}\nTILE = {TILE}\n"
-    return HEADER + constants + "\n".join(_kernel("float") + _kernel("stored")) + "\n"
+    constants = (f"BLOCK = {BLOCK}\nSTRIDE = {STRIDE}\nSUB = {SUB}\nPLANES = {PLANES}\n"
+                 f"TILE = {TILE}\n")
+    kernels = [line for lean in (False, True) for kind in ("float", "stored")
+               for line in _kernel(kind, lean)]
+    return HEADER + constants + "\n".join(kernels) + "\n"
 
 
 def main() -> None:

@@ -21,6 +21,7 @@ _INV5 = np.float32(1.0 / 5.0)
 _2 = np.float32(2.0)
 _ONE = np.uint32(1)
 _OMEGA_BIT = np.uint32(1 << 31)
+_ALL_PLANES = np.uint32(0xFFFFFFFF)
 _P0 = np.float32(1)
 _P1 = np.float32(2)
 _P2 = np.float32(4)
@@ -38,6 +39,7 @@ _P13 = np.float32(8192)
 _P14 = np.float32(16384)
 _P15 = np.float32(32768)
 BLOCK = 256
+STRIDE = 272
 SUB = 16
 PLANES = 45
 TILE = 64
@@ -61,8 +63,9 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
     dc = decision.reshape(n_cells)
     wrap = cols - off_c  # window columns from here on wrap to the buffer's start
     tiles_per_row = (cols + TILE - 1) // TILE
-    buf = np.zeros(PLANES * BLOCK, np.float32)
+    buf = np.zeros(PLANES * STRIDE, np.float32)
     act = np.zeros(BLOCK, np.uint8)
+    dirty = np.uint32(0)  # planes that may be non-zero in some lane of buf
     for r in range(rows):
         buf_row = r + off_r
         buf_row = buf_row - rows if buf_row >= rows else buf_row
@@ -215,11 +218,11 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
             if entering:  # some lanes entered the window: vacuous
                 for a in range(31):
                     for t in range(l1 - l0):
-                        buf[np.uint64((a) * BLOCK + l0) + np.uint64(t)] = _0
+                        buf[np.uint64((a) * STRIDE + l0) + np.uint64(t)] = _0
                 for t in range(l1 - l0):
-                    buf[np.uint64((31) * BLOCK + l0) + np.uint64(t)] = _1
+                    buf[np.uint64((31) * STRIDE + l0) + np.uint64(t)] = _1
                 for t in range(l1 - l0):
-                    buf[np.uint64((32) * BLOCK + l0) + np.uint64(t)] = _0
+                    buf[np.uint64((32) * STRIDE + l0) + np.uint64(t)] = _0
             for a in range(32):
                 if (old_mask >> np.uint32(a)) & _ONE:
                     for seg in range(2):
@@ -230,10 +233,12 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                             sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
                             lb = a0 - j0
                             for t in range(w):
-                                buf[np.uint64((a) * BLOCK + lb) + np.uint64(t)] = st[np.uint64(a), sc + np.uint64(t)]
-                elif not entering:
-                    for t in range(l1 - l0):
-                        buf[np.uint64((a) * BLOCK + l0) + np.uint64(t)] = _0
+                                buf[np.uint64((a) * STRIDE + lb) + np.uint64(t)] = st[np.uint64(a), sc + np.uint64(t)]
+                elif not entering and (dirty >> np.uint32(a)) & _ONE:
+                    for t in range(BLOCK):
+                        buf[np.uint64((a) * STRIDE + 0) + np.uint64(t)] = _0
+                    dirty &= ~(_ONE << np.uint32(a))
+            dirty |= old_mask
             for seg in range(2):
                 a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
                 a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
@@ -242,57 +247,57 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                     sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
                     lb = a0 - j0
                     for t in range(w):
-                        buf[np.uint64((32) * BLOCK + lb) + np.uint64(t)] = zt[sc + np.uint64(t)]
+                        buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)] = zt[sc + np.uint64(t)]
             wl = wb + np.uint64(l0)
             for t in range(l1 - l0):
-                buf[np.uint64((33) * BLOCK + l0) + np.uint64(t)] = fr[wl + np.uint64(t)]
+                buf[np.uint64((33) * STRIDE + l0) + np.uint64(t)] = fr[wl + np.uint64(t)]
             for t in range(l1 - l0):
-                buf[np.uint64((34) * BLOCK + l0) + np.uint64(t)] = oc[wl + np.uint64(t)]
+                buf[np.uint64((34) * STRIDE + l0) + np.uint64(t)] = oc[wl + np.uint64(t)]
             for t in range(l1 - l0):
-                buf[np.uint64((35) * BLOCK + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
+                buf[np.uint64((35) * STRIDE + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
             for t in range(l1 - l0):
-                buf[np.uint64((36) * BLOCK + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
+                buf[np.uint64((36) * STRIDE + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
             for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):
                 sbase = np.uint64(sub * SUB)
                 for l in range(SUB):
                     m0 = buf[sbase + np.uint64(0 + l)]
-                    m1 = buf[sbase + np.uint64(256 + l)]
-                    m2 = buf[sbase + np.uint64(512 + l)]
-                    m3 = buf[sbase + np.uint64(768 + l)]
-                    m4 = buf[sbase + np.uint64(1024 + l)]
-                    m5 = buf[sbase + np.uint64(1280 + l)]
-                    m6 = buf[sbase + np.uint64(1536 + l)]
-                    m7 = buf[sbase + np.uint64(1792 + l)]
-                    m8 = buf[sbase + np.uint64(2048 + l)]
-                    m9 = buf[sbase + np.uint64(2304 + l)]
-                    m10 = buf[sbase + np.uint64(2560 + l)]
-                    m11 = buf[sbase + np.uint64(2816 + l)]
-                    m12 = buf[sbase + np.uint64(3072 + l)]
-                    m13 = buf[sbase + np.uint64(3328 + l)]
-                    m14 = buf[sbase + np.uint64(3584 + l)]
-                    m15 = buf[sbase + np.uint64(3840 + l)]
-                    m16 = buf[sbase + np.uint64(4096 + l)]
-                    m17 = buf[sbase + np.uint64(4352 + l)]
-                    m18 = buf[sbase + np.uint64(4608 + l)]
-                    m19 = buf[sbase + np.uint64(4864 + l)]
-                    m20 = buf[sbase + np.uint64(5120 + l)]
-                    m21 = buf[sbase + np.uint64(5376 + l)]
-                    m22 = buf[sbase + np.uint64(5632 + l)]
-                    m23 = buf[sbase + np.uint64(5888 + l)]
-                    m24 = buf[sbase + np.uint64(6144 + l)]
-                    m25 = buf[sbase + np.uint64(6400 + l)]
-                    m26 = buf[sbase + np.uint64(6656 + l)]
-                    m27 = buf[sbase + np.uint64(6912 + l)]
-                    m28 = buf[sbase + np.uint64(7168 + l)]
-                    m29 = buf[sbase + np.uint64(7424 + l)]
-                    m30 = buf[sbase + np.uint64(7680 + l)]
-                    m31 = buf[sbase + np.uint64(7936 + l)]
-                    z = buf[sbase + np.uint64(8192 + l)]
-                    f = buf[sbase + np.uint64(8448 + l)]
-                    o = buf[sbase + np.uint64(8704 + l)]
+                    m1 = buf[sbase + np.uint64(272 + l)]
+                    m2 = buf[sbase + np.uint64(544 + l)]
+                    m3 = buf[sbase + np.uint64(816 + l)]
+                    m4 = buf[sbase + np.uint64(1088 + l)]
+                    m5 = buf[sbase + np.uint64(1360 + l)]
+                    m6 = buf[sbase + np.uint64(1632 + l)]
+                    m7 = buf[sbase + np.uint64(1904 + l)]
+                    m8 = buf[sbase + np.uint64(2176 + l)]
+                    m9 = buf[sbase + np.uint64(2448 + l)]
+                    m10 = buf[sbase + np.uint64(2720 + l)]
+                    m11 = buf[sbase + np.uint64(2992 + l)]
+                    m12 = buf[sbase + np.uint64(3264 + l)]
+                    m13 = buf[sbase + np.uint64(3536 + l)]
+                    m14 = buf[sbase + np.uint64(3808 + l)]
+                    m15 = buf[sbase + np.uint64(4080 + l)]
+                    m16 = buf[sbase + np.uint64(4352 + l)]
+                    m17 = buf[sbase + np.uint64(4624 + l)]
+                    m18 = buf[sbase + np.uint64(4896 + l)]
+                    m19 = buf[sbase + np.uint64(5168 + l)]
+                    m20 = buf[sbase + np.uint64(5440 + l)]
+                    m21 = buf[sbase + np.uint64(5712 + l)]
+                    m22 = buf[sbase + np.uint64(5984 + l)]
+                    m23 = buf[sbase + np.uint64(6256 + l)]
+                    m24 = buf[sbase + np.uint64(6528 + l)]
+                    m25 = buf[sbase + np.uint64(6800 + l)]
+                    m26 = buf[sbase + np.uint64(7072 + l)]
+                    m27 = buf[sbase + np.uint64(7344 + l)]
+                    m28 = buf[sbase + np.uint64(7616 + l)]
+                    m29 = buf[sbase + np.uint64(7888 + l)]
+                    m30 = buf[sbase + np.uint64(8160 + l)]
+                    m31 = buf[sbase + np.uint64(8432 + l)]
+                    z = buf[sbase + np.uint64(8704 + l)]
+                    f = buf[sbase + np.uint64(8976 + l)]
+                    o = buf[sbase + np.uint64(9248 + l)]
                     u = _1 - f - o
-                    lab = buf[sbase + np.uint64(8960 + l)]
-                    ob = buf[sbase + np.uint64(9216 + l)]
+                    lab = buf[sbase + np.uint64(9520 + l)]
+                    ob = buf[sbase + np.uint64(9792 + l)]
                     obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
                     is_b = lab == _2
                     is_r = lab == _1
@@ -753,38 +758,38 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                     c8 += g if to_s else _0
                     c0 += _0 if to_s else g
                     buf[sbase + np.uint64(0 + l)] = c0
-                    buf[sbase + np.uint64(256 + l)] = c1
-                    buf[sbase + np.uint64(512 + l)] = c2
-                    buf[sbase + np.uint64(768 + l)] = c3
-                    buf[sbase + np.uint64(1024 + l)] = c4
-                    buf[sbase + np.uint64(1280 + l)] = c5
-                    buf[sbase + np.uint64(1536 + l)] = c6
-                    buf[sbase + np.uint64(1792 + l)] = c7
-                    buf[sbase + np.uint64(2048 + l)] = c8
-                    buf[sbase + np.uint64(2304 + l)] = c9
-                    buf[sbase + np.uint64(2560 + l)] = c10
-                    buf[sbase + np.uint64(2816 + l)] = c11
-                    buf[sbase + np.uint64(3072 + l)] = c12
-                    buf[sbase + np.uint64(3328 + l)] = c13
-                    buf[sbase + np.uint64(3584 + l)] = c14
-                    buf[sbase + np.uint64(3840 + l)] = c15
-                    buf[sbase + np.uint64(4096 + l)] = c16
-                    buf[sbase + np.uint64(4352 + l)] = c17
-                    buf[sbase + np.uint64(4608 + l)] = c18
-                    buf[sbase + np.uint64(4864 + l)] = c19
-                    buf[sbase + np.uint64(5120 + l)] = c20
-                    buf[sbase + np.uint64(5376 + l)] = c21
-                    buf[sbase + np.uint64(5632 + l)] = c22
-                    buf[sbase + np.uint64(5888 + l)] = c23
-                    buf[sbase + np.uint64(6144 + l)] = c24
-                    buf[sbase + np.uint64(6400 + l)] = c25
-                    buf[sbase + np.uint64(6656 + l)] = c26
-                    buf[sbase + np.uint64(6912 + l)] = c27
-                    buf[sbase + np.uint64(7168 + l)] = c28
-                    buf[sbase + np.uint64(7424 + l)] = c29
-                    buf[sbase + np.uint64(7680 + l)] = c30
-                    buf[sbase + np.uint64(7936 + l)] = c31
-                    buf[sbase + np.uint64(8192 + l)] = z
+                    buf[sbase + np.uint64(272 + l)] = c1
+                    buf[sbase + np.uint64(544 + l)] = c2
+                    buf[sbase + np.uint64(816 + l)] = c3
+                    buf[sbase + np.uint64(1088 + l)] = c4
+                    buf[sbase + np.uint64(1360 + l)] = c5
+                    buf[sbase + np.uint64(1632 + l)] = c6
+                    buf[sbase + np.uint64(1904 + l)] = c7
+                    buf[sbase + np.uint64(2176 + l)] = c8
+                    buf[sbase + np.uint64(2448 + l)] = c9
+                    buf[sbase + np.uint64(2720 + l)] = c10
+                    buf[sbase + np.uint64(2992 + l)] = c11
+                    buf[sbase + np.uint64(3264 + l)] = c12
+                    buf[sbase + np.uint64(3536 + l)] = c13
+                    buf[sbase + np.uint64(3808 + l)] = c14
+                    buf[sbase + np.uint64(4080 + l)] = c15
+                    buf[sbase + np.uint64(4352 + l)] = c16
+                    buf[sbase + np.uint64(4624 + l)] = c17
+                    buf[sbase + np.uint64(4896 + l)] = c18
+                    buf[sbase + np.uint64(5168 + l)] = c19
+                    buf[sbase + np.uint64(5440 + l)] = c20
+                    buf[sbase + np.uint64(5712 + l)] = c21
+                    buf[sbase + np.uint64(5984 + l)] = c22
+                    buf[sbase + np.uint64(6256 + l)] = c23
+                    buf[sbase + np.uint64(6528 + l)] = c24
+                    buf[sbase + np.uint64(6800 + l)] = c25
+                    buf[sbase + np.uint64(7072 + l)] = c26
+                    buf[sbase + np.uint64(7344 + l)] = c27
+                    buf[sbase + np.uint64(7616 + l)] = c28
+                    buf[sbase + np.uint64(7888 + l)] = c29
+                    buf[sbase + np.uint64(8160 + l)] = c30
+                    buf[sbase + np.uint64(8432 + l)] = c31
+                    buf[sbase + np.uint64(8704 + l)] = z
                     norm = (((((c1 + c2) + (c3 + c4)) + ((c5 + c6) + (c7 + c8))) + (((c9 + c10) + (c11 + c12)) + ((c13 + c14) + (c15 + c16)))) + ((((c17 + c18) + (c19 + c20)) + ((c21 + c22) + (c23 + c24))) + (((c25 + c26) + (c27 + c28)) + ((c29 + c30) + c31))))
                     inv_norm = (_1 / norm) if norm > tol else _0
                     w1 = c1
@@ -843,20 +848,20 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                     fine_ok = (fine_best >= _HALF) & (fine_best >= _HALF * static) & (fine_best - fine_second > _TIE)
                     code = fine_code if (is_static & fine_ok) else code
                     code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code
-                    buf[sbase + np.uint64(8448 + l)] = p_f
-                    buf[sbase + np.uint64(8704 + l)] = p_i
-                    buf[sbase + np.uint64(8960 + l)] = p_u
-                    buf[sbase + np.uint64(9216 + l)] = p_s
-                    buf[sbase + np.uint64(9472 + l)] = p_m
-                    buf[sbase + np.uint64(9728 + l)] = fo
-                    buf[sbase + np.uint64(9984 + l)] = of
-                    buf[sbase + np.uint64(10240 + l)] = other
-                    buf[sbase + np.uint64(10496 + l)] = code
+                    buf[sbase + np.uint64(8976 + l)] = p_f
+                    buf[sbase + np.uint64(9248 + l)] = p_i
+                    buf[sbase + np.uint64(9520 + l)] = p_u
+                    buf[sbase + np.uint64(9792 + l)] = p_s
+                    buf[sbase + np.uint64(10064 + l)] = p_m
+                    buf[sbase + np.uint64(10336 + l)] = fo
+                    buf[sbase + np.uint64(10608 + l)] = of
+                    buf[sbase + np.uint64(10880 + l)] = other
+                    buf[sbase + np.uint64(11152 + l)] = code
                     focal_lo = (((((_P0 if c0 != _0 else _0) + (_P1 if c1 != _0 else _0)) + ((_P2 if c2 != _0 else _0) + (_P3 if c3 != _0 else _0))) + (((_P4 if c4 != _0 else _0) + (_P5 if c5 != _0 else _0)) + ((_P6 if c6 != _0 else _0) + (_P7 if c7 != _0 else _0)))) + ((((_P8 if c8 != _0 else _0) + (_P9 if c9 != _0 else _0)) + ((_P10 if c10 != _0 else _0) + (_P11 if c11 != _0 else _0))) + (((_P12 if c12 != _0 else _0) + (_P13 if c13 != _0 else _0)) + ((_P14 if c14 != _0 else _0) + (_P15 if c15 != _0 else _0)))))
                     focal_hi = (((((_P0 if c16 != _0 else _0) + (_P1 if c17 != _0 else _0)) + ((_P2 if c18 != _0 else _0) + (_P3 if c19 != _0 else _0))) + (((_P4 if c20 != _0 else _0) + (_P5 if c21 != _0 else _0)) + ((_P6 if c22 != _0 else _0) + (_P7 if c23 != _0 else _0)))) + ((((_P8 if c24 != _0 else _0) + (_P9 if c25 != _0 else _0)) + ((_P10 if c26 != _0 else _0) + (_P11 if c27 != _0 else _0))) + (((_P12 if c28 != _0 else _0) + (_P13 if c29 != _0 else _0)) + ((_P14 if c30 != _0 else _0) + (_P15 if c31 != _0 else _0)))))
-                    buf[sbase + np.uint64(11008 + l)] = focal_lo
-                    buf[sbase + np.uint64(11264 + l)] = focal_hi
-                    buf[sbase + np.uint64(10752 + l)] = _1 if ((focal_lo == _0) & (focal_hi == _P15) & (c31 == _1) & (z == _0)) else _0
+                    buf[sbase + np.uint64(11696 + l)] = focal_lo
+                    buf[sbase + np.uint64(11968 + l)] = focal_hi
+                    buf[sbase + np.uint64(11424 + l)] = _1 if ((focal_lo == _0) & (focal_hi == _P15) & (c31 == _1) & (z == _0)) else _0
             new_mask = np.uint32(0)
             for seg in range(2):
                 a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
@@ -866,11 +871,14 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                     sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
                     lb = a0 - j0
                     for t in range(w):
-                        v = np.uint32(buf[np.uint64((43) * BLOCK + lb) + np.uint64(t)])
-                        v |= np.uint32(buf[np.uint64((44) * BLOCK + lb) + np.uint64(t)]) << np.uint32(16)
+                        v = np.uint32(buf[np.uint64((43) * STRIDE + lb) + np.uint64(t)])
+                        v |= np.uint32(buf[np.uint64((44) * STRIDE + lb) + np.uint64(t)]) << np.uint32(16)
                         fc[sc + np.uint64(t)] = v
                         new_mask |= v
             write_mask = old_mask | new_mask
+            # planes the body may have left non-zero in some lane of the buffer (all when it ran
+            # past l1, on lanes whose stale inputs are not known)
+            dirty |= new_mask if l1 % SUB == 0 else _ALL_PLANES
             for a in range(32):
                 if (write_mask >> np.uint32(a)) & _ONE:
                     for seg in range(2):
@@ -881,7 +889,7 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                             sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
                             lb = a0 - j0
                             for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = buf[np.uint64((0 + a) * BLOCK + lb) + np.uint64(t)]
+                                st[np.uint64(a), sc + np.uint64(t)] = buf[np.uint64((0 + a) * STRIDE + lb) + np.uint64(t)]
             for seg in range(2):
                 a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
                 a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
@@ -890,17 +898,17 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                     sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
                     lb = a0 - j0
                     for t in range(w):
-                        zt[sc + np.uint64(t)] = buf[np.uint64((32) * BLOCK + lb) + np.uint64(t)]
+                        zt[sc + np.uint64(t)] = buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)]
                     for t in range(w):
-                        fl[sc + np.uint64(t)] = np.uint8(buf[np.uint64((42) * BLOCK + lb) + np.uint64(t)])
+                        fl[sc + np.uint64(t)] = np.uint8(buf[np.uint64((42) * STRIDE + lb) + np.uint64(t)])
             for k in range(5):
                 for t in range(l1 - l0):
-                    bp[np.uint64(k), wl + np.uint64(t)] = buf[np.uint64((33 + k) * BLOCK + l0) + np.uint64(t)]
+                    bp[np.uint64(k), wl + np.uint64(t)] = buf[np.uint64((33 + k) * STRIDE + l0) + np.uint64(t)]
             for k in range(3):
                 for t in range(l1 - l0):
-                    cf[np.uint64(k), wl + np.uint64(t)] = buf[np.uint64((38 + k) * BLOCK + l0) + np.uint64(t)]
+                    cf[np.uint64(k), wl + np.uint64(t)] = buf[np.uint64((38 + k) * STRIDE + l0) + np.uint64(t)]
             for t in range(l1 - l0):
-                dc[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * BLOCK + l0) + np.uint64(t)])
+                dc[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * STRIDE + l0) + np.uint64(t)])
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
@@ -925,8 +933,9 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
     qd = q_decision.reshape(n_cells)
     wrap = cols - off_c  # window columns from here on wrap to the buffer's start
     tiles_per_row = (cols + TILE - 1) // TILE
-    buf = np.zeros(PLANES * BLOCK, np.float32)
+    buf = np.zeros(PLANES * STRIDE, np.float32)
     act = np.zeros(BLOCK, np.uint8)
+    dirty = np.uint32(0)  # planes that may be non-zero in some lane of buf
     for r in range(rows):
         buf_row = r + off_r
         buf_row = buf_row - rows if buf_row >= rows else buf_row
@@ -1088,11 +1097,11 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
             if entering:  # some lanes entered the window: vacuous
                 for a in range(31):
                     for t in range(l1 - l0):
-                        buf[np.uint64((a) * BLOCK + l0) + np.uint64(t)] = _0
+                        buf[np.uint64((a) * STRIDE + l0) + np.uint64(t)] = _0
                 for t in range(l1 - l0):
-                    buf[np.uint64((31) * BLOCK + l0) + np.uint64(t)] = _1
+                    buf[np.uint64((31) * STRIDE + l0) + np.uint64(t)] = _1
                 for t in range(l1 - l0):
-                    buf[np.uint64((32) * BLOCK + l0) + np.uint64(t)] = _0
+                    buf[np.uint64((32) * STRIDE + l0) + np.uint64(t)] = _0
             for a in range(32):
                 if (old_mask >> np.uint32(a)) & _ONE:
                     for seg in range(2):
@@ -1103,10 +1112,12 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                             sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
                             lb = a0 - j0
                             for t in range(w):
-                                buf[np.uint64((a) * BLOCK + lb) + np.uint64(t)] = st[np.uint64(a), sc + np.uint64(t)]
-                elif not entering:
-                    for t in range(l1 - l0):
-                        buf[np.uint64((a) * BLOCK + l0) + np.uint64(t)] = _0
+                                buf[np.uint64((a) * STRIDE + lb) + np.uint64(t)] = st[np.uint64(a), sc + np.uint64(t)]
+                elif not entering and (dirty >> np.uint32(a)) & _ONE:
+                    for t in range(BLOCK):
+                        buf[np.uint64((a) * STRIDE + 0) + np.uint64(t)] = _0
+                    dirty &= ~(_ONE << np.uint32(a))
+            dirty |= old_mask
             for seg in range(2):
                 a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
                 a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
@@ -1115,57 +1126,57 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                     sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
                     lb = a0 - j0
                     for t in range(w):
-                        buf[np.uint64((32) * BLOCK + lb) + np.uint64(t)] = zt[sc + np.uint64(t)]
+                        buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)] = zt[sc + np.uint64(t)]
             wl = wb + np.uint64(l0)
             for t in range(l1 - l0):
-                buf[np.uint64((33) * BLOCK + l0) + np.uint64(t)] = fr[wl + np.uint64(t)]
+                buf[np.uint64((33) * STRIDE + l0) + np.uint64(t)] = fr[wl + np.uint64(t)]
             for t in range(l1 - l0):
-                buf[np.uint64((34) * BLOCK + l0) + np.uint64(t)] = oc[wl + np.uint64(t)]
+                buf[np.uint64((34) * STRIDE + l0) + np.uint64(t)] = oc[wl + np.uint64(t)]
             for t in range(l1 - l0):
-                buf[np.uint64((35) * BLOCK + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
+                buf[np.uint64((35) * STRIDE + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
             for t in range(l1 - l0):
-                buf[np.uint64((36) * BLOCK + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
+                buf[np.uint64((36) * STRIDE + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
             for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):
                 sbase = np.uint64(sub * SUB)
                 for l in range(SUB):
                     m0 = buf[sbase + np.uint64(0 + l)]
-                    m1 = buf[sbase + np.uint64(256 + l)]
-                    m2 = buf[sbase + np.uint64(512 + l)]
-                    m3 = buf[sbase + np.uint64(768 + l)]
-                    m4 = buf[sbase + np.uint64(1024 + l)]
-                    m5 = buf[sbase + np.uint64(1280 + l)]
-                    m6 = buf[sbase + np.uint64(1536 + l)]
-                    m7 = buf[sbase + np.uint64(1792 + l)]
-                    m8 = buf[sbase + np.uint64(2048 + l)]
-                    m9 = buf[sbase + np.uint64(2304 + l)]
-                    m10 = buf[sbase + np.uint64(2560 + l)]
-                    m11 = buf[sbase + np.uint64(2816 + l)]
-                    m12 = buf[sbase + np.uint64(3072 + l)]
-                    m13 = buf[sbase + np.uint64(3328 + l)]
-                    m14 = buf[sbase + np.uint64(3584 + l)]
-                    m15 = buf[sbase + np.uint64(3840 + l)]
-                    m16 = buf[sbase + np.uint64(4096 + l)]
-                    m17 = buf[sbase + np.uint64(4352 + l)]
-                    m18 = buf[sbase + np.uint64(4608 + l)]
-                    m19 = buf[sbase + np.uint64(4864 + l)]
-                    m20 = buf[sbase + np.uint64(5120 + l)]
-                    m21 = buf[sbase + np.uint64(5376 + l)]
-                    m22 = buf[sbase + np.uint64(5632 + l)]
-                    m23 = buf[sbase + np.uint64(5888 + l)]
-                    m24 = buf[sbase + np.uint64(6144 + l)]
-                    m25 = buf[sbase + np.uint64(6400 + l)]
-                    m26 = buf[sbase + np.uint64(6656 + l)]
-                    m27 = buf[sbase + np.uint64(6912 + l)]
-                    m28 = buf[sbase + np.uint64(7168 + l)]
-                    m29 = buf[sbase + np.uint64(7424 + l)]
-                    m30 = buf[sbase + np.uint64(7680 + l)]
-                    m31 = buf[sbase + np.uint64(7936 + l)]
-                    z = buf[sbase + np.uint64(8192 + l)]
-                    f = buf[sbase + np.uint64(8448 + l)]
-                    o = buf[sbase + np.uint64(8704 + l)]
+                    m1 = buf[sbase + np.uint64(272 + l)]
+                    m2 = buf[sbase + np.uint64(544 + l)]
+                    m3 = buf[sbase + np.uint64(816 + l)]
+                    m4 = buf[sbase + np.uint64(1088 + l)]
+                    m5 = buf[sbase + np.uint64(1360 + l)]
+                    m6 = buf[sbase + np.uint64(1632 + l)]
+                    m7 = buf[sbase + np.uint64(1904 + l)]
+                    m8 = buf[sbase + np.uint64(2176 + l)]
+                    m9 = buf[sbase + np.uint64(2448 + l)]
+                    m10 = buf[sbase + np.uint64(2720 + l)]
+                    m11 = buf[sbase + np.uint64(2992 + l)]
+                    m12 = buf[sbase + np.uint64(3264 + l)]
+                    m13 = buf[sbase + np.uint64(3536 + l)]
+                    m14 = buf[sbase + np.uint64(3808 + l)]
+                    m15 = buf[sbase + np.uint64(4080 + l)]
+                    m16 = buf[sbase + np.uint64(4352 + l)]
+                    m17 = buf[sbase + np.uint64(4624 + l)]
+                    m18 = buf[sbase + np.uint64(4896 + l)]
+                    m19 = buf[sbase + np.uint64(5168 + l)]
+                    m20 = buf[sbase + np.uint64(5440 + l)]
+                    m21 = buf[sbase + np.uint64(5712 + l)]
+                    m22 = buf[sbase + np.uint64(5984 + l)]
+                    m23 = buf[sbase + np.uint64(6256 + l)]
+                    m24 = buf[sbase + np.uint64(6528 + l)]
+                    m25 = buf[sbase + np.uint64(6800 + l)]
+                    m26 = buf[sbase + np.uint64(7072 + l)]
+                    m27 = buf[sbase + np.uint64(7344 + l)]
+                    m28 = buf[sbase + np.uint64(7616 + l)]
+                    m29 = buf[sbase + np.uint64(7888 + l)]
+                    m30 = buf[sbase + np.uint64(8160 + l)]
+                    m31 = buf[sbase + np.uint64(8432 + l)]
+                    z = buf[sbase + np.uint64(8704 + l)]
+                    f = buf[sbase + np.uint64(8976 + l)]
+                    o = buf[sbase + np.uint64(9248 + l)]
                     u = _1 - f - o
-                    lab = buf[sbase + np.uint64(8960 + l)]
-                    ob = buf[sbase + np.uint64(9216 + l)]
+                    lab = buf[sbase + np.uint64(9520 + l)]
+                    ob = buf[sbase + np.uint64(9792 + l)]
                     obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
                     is_b = lab == _2
                     is_r = lab == _1
@@ -1626,38 +1637,38 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                     c8 += g if to_s else _0
                     c0 += _0 if to_s else g
                     buf[sbase + np.uint64(0 + l)] = c0
-                    buf[sbase + np.uint64(256 + l)] = c1
-                    buf[sbase + np.uint64(512 + l)] = c2
-                    buf[sbase + np.uint64(768 + l)] = c3
-                    buf[sbase + np.uint64(1024 + l)] = c4
-                    buf[sbase + np.uint64(1280 + l)] = c5
-                    buf[sbase + np.uint64(1536 + l)] = c6
-                    buf[sbase + np.uint64(1792 + l)] = c7
-                    buf[sbase + np.uint64(2048 + l)] = c8
-                    buf[sbase + np.uint64(2304 + l)] = c9
-                    buf[sbase + np.uint64(2560 + l)] = c10
-                    buf[sbase + np.uint64(2816 + l)] = c11
-                    buf[sbase + np.uint64(3072 + l)] = c12
-                    buf[sbase + np.uint64(3328 + l)] = c13
-                    buf[sbase + np.uint64(3584 + l)] = c14
-                    buf[sbase + np.uint64(3840 + l)] = c15
-                    buf[sbase + np.uint64(4096 + l)] = c16
-                    buf[sbase + np.uint64(4352 + l)] = c17
-                    buf[sbase + np.uint64(4608 + l)] = c18
-                    buf[sbase + np.uint64(4864 + l)] = c19
-                    buf[sbase + np.uint64(5120 + l)] = c20
-                    buf[sbase + np.uint64(5376 + l)] = c21
-                    buf[sbase + np.uint64(5632 + l)] = c22
-                    buf[sbase + np.uint64(5888 + l)] = c23
-                    buf[sbase + np.uint64(6144 + l)] = c24
-                    buf[sbase + np.uint64(6400 + l)] = c25
-                    buf[sbase + np.uint64(6656 + l)] = c26
-                    buf[sbase + np.uint64(6912 + l)] = c27
-                    buf[sbase + np.uint64(7168 + l)] = c28
-                    buf[sbase + np.uint64(7424 + l)] = c29
-                    buf[sbase + np.uint64(7680 + l)] = c30
-                    buf[sbase + np.uint64(7936 + l)] = c31
-                    buf[sbase + np.uint64(8192 + l)] = z
+                    buf[sbase + np.uint64(272 + l)] = c1
+                    buf[sbase + np.uint64(544 + l)] = c2
+                    buf[sbase + np.uint64(816 + l)] = c3
+                    buf[sbase + np.uint64(1088 + l)] = c4
+                    buf[sbase + np.uint64(1360 + l)] = c5
+                    buf[sbase + np.uint64(1632 + l)] = c6
+                    buf[sbase + np.uint64(1904 + l)] = c7
+                    buf[sbase + np.uint64(2176 + l)] = c8
+                    buf[sbase + np.uint64(2448 + l)] = c9
+                    buf[sbase + np.uint64(2720 + l)] = c10
+                    buf[sbase + np.uint64(2992 + l)] = c11
+                    buf[sbase + np.uint64(3264 + l)] = c12
+                    buf[sbase + np.uint64(3536 + l)] = c13
+                    buf[sbase + np.uint64(3808 + l)] = c14
+                    buf[sbase + np.uint64(4080 + l)] = c15
+                    buf[sbase + np.uint64(4352 + l)] = c16
+                    buf[sbase + np.uint64(4624 + l)] = c17
+                    buf[sbase + np.uint64(4896 + l)] = c18
+                    buf[sbase + np.uint64(5168 + l)] = c19
+                    buf[sbase + np.uint64(5440 + l)] = c20
+                    buf[sbase + np.uint64(5712 + l)] = c21
+                    buf[sbase + np.uint64(5984 + l)] = c22
+                    buf[sbase + np.uint64(6256 + l)] = c23
+                    buf[sbase + np.uint64(6528 + l)] = c24
+                    buf[sbase + np.uint64(6800 + l)] = c25
+                    buf[sbase + np.uint64(7072 + l)] = c26
+                    buf[sbase + np.uint64(7344 + l)] = c27
+                    buf[sbase + np.uint64(7616 + l)] = c28
+                    buf[sbase + np.uint64(7888 + l)] = c29
+                    buf[sbase + np.uint64(8160 + l)] = c30
+                    buf[sbase + np.uint64(8432 + l)] = c31
+                    buf[sbase + np.uint64(8704 + l)] = z
                     norm = (((((c1 + c2) + (c3 + c4)) + ((c5 + c6) + (c7 + c8))) + (((c9 + c10) + (c11 + c12)) + ((c13 + c14) + (c15 + c16)))) + ((((c17 + c18) + (c19 + c20)) + ((c21 + c22) + (c23 + c24))) + (((c25 + c26) + (c27 + c28)) + ((c29 + c30) + c31))))
                     inv_norm = (_1 / norm) if norm > tol else _0
                     w1 = c1
@@ -1716,20 +1727,20 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                     fine_ok = (fine_best >= _HALF) & (fine_best >= _HALF * static) & (fine_best - fine_second > _TIE)
                     code = fine_code if (is_static & fine_ok) else code
                     code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code
-                    buf[sbase + np.uint64(8448 + l)] = p_f
-                    buf[sbase + np.uint64(8704 + l)] = p_i
-                    buf[sbase + np.uint64(8960 + l)] = p_u
-                    buf[sbase + np.uint64(9216 + l)] = p_s
-                    buf[sbase + np.uint64(9472 + l)] = p_m
-                    buf[sbase + np.uint64(9728 + l)] = fo
-                    buf[sbase + np.uint64(9984 + l)] = of
-                    buf[sbase + np.uint64(10240 + l)] = other
-                    buf[sbase + np.uint64(10496 + l)] = code
+                    buf[sbase + np.uint64(8976 + l)] = p_f
+                    buf[sbase + np.uint64(9248 + l)] = p_i
+                    buf[sbase + np.uint64(9520 + l)] = p_u
+                    buf[sbase + np.uint64(9792 + l)] = p_s
+                    buf[sbase + np.uint64(10064 + l)] = p_m
+                    buf[sbase + np.uint64(10336 + l)] = fo
+                    buf[sbase + np.uint64(10608 + l)] = of
+                    buf[sbase + np.uint64(10880 + l)] = other
+                    buf[sbase + np.uint64(11152 + l)] = code
                     focal_lo = (((((_P0 if c0 != _0 else _0) + (_P1 if c1 != _0 else _0)) + ((_P2 if c2 != _0 else _0) + (_P3 if c3 != _0 else _0))) + (((_P4 if c4 != _0 else _0) + (_P5 if c5 != _0 else _0)) + ((_P6 if c6 != _0 else _0) + (_P7 if c7 != _0 else _0)))) + ((((_P8 if c8 != _0 else _0) + (_P9 if c9 != _0 else _0)) + ((_P10 if c10 != _0 else _0) + (_P11 if c11 != _0 else _0))) + (((_P12 if c12 != _0 else _0) + (_P13 if c13 != _0 else _0)) + ((_P14 if c14 != _0 else _0) + (_P15 if c15 != _0 else _0)))))
                     focal_hi = (((((_P0 if c16 != _0 else _0) + (_P1 if c17 != _0 else _0)) + ((_P2 if c18 != _0 else _0) + (_P3 if c19 != _0 else _0))) + (((_P4 if c20 != _0 else _0) + (_P5 if c21 != _0 else _0)) + ((_P6 if c22 != _0 else _0) + (_P7 if c23 != _0 else _0)))) + ((((_P8 if c24 != _0 else _0) + (_P9 if c25 != _0 else _0)) + ((_P10 if c26 != _0 else _0) + (_P11 if c27 != _0 else _0))) + (((_P12 if c28 != _0 else _0) + (_P13 if c29 != _0 else _0)) + ((_P14 if c30 != _0 else _0) + (_P15 if c31 != _0 else _0)))))
-                    buf[sbase + np.uint64(11008 + l)] = focal_lo
-                    buf[sbase + np.uint64(11264 + l)] = focal_hi
-                    buf[sbase + np.uint64(10752 + l)] = _1 if ((focal_lo == _0) & (focal_hi == _P15) & (c31 == _1) & (z == _0)) else _0
+                    buf[sbase + np.uint64(11696 + l)] = focal_lo
+                    buf[sbase + np.uint64(11968 + l)] = focal_hi
+                    buf[sbase + np.uint64(11424 + l)] = _1 if ((focal_lo == _0) & (focal_hi == _P15) & (c31 == _1) & (z == _0)) else _0
             new_mask = np.uint32(0)
             for seg in range(2):
                 a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
@@ -1739,11 +1750,14 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                     sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
                     lb = a0 - j0
                     for t in range(w):
-                        v = np.uint32(buf[np.uint64((43) * BLOCK + lb) + np.uint64(t)])
-                        v |= np.uint32(buf[np.uint64((44) * BLOCK + lb) + np.uint64(t)]) << np.uint32(16)
+                        v = np.uint32(buf[np.uint64((43) * STRIDE + lb) + np.uint64(t)])
+                        v |= np.uint32(buf[np.uint64((44) * STRIDE + lb) + np.uint64(t)]) << np.uint32(16)
                         fc[sc + np.uint64(t)] = v
                         new_mask |= v
             write_mask = old_mask | new_mask
+            # planes the body may have left non-zero in some lane of the buffer (all when it ran
+            # past l1, on lanes whose stale inputs are not known)
+            dirty |= new_mask if l1 % SUB == 0 else _ALL_PLANES
             for a in range(32):
                 if (write_mask >> np.uint32(a)) & _ONE:
                     for seg in range(2):
@@ -1754,7 +1768,7 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                             sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
                             lb = a0 - j0
                             for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = buf[np.uint64((0 + a) * BLOCK + lb) + np.uint64(t)]
+                                st[np.uint64(a), sc + np.uint64(t)] = buf[np.uint64((0 + a) * STRIDE + lb) + np.uint64(t)]
             for seg in range(2):
                 a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
                 a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
@@ -1763,16 +1777,16 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                     sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
                     lb = a0 - j0
                     for t in range(w):
-                        zt[sc + np.uint64(t)] = buf[np.uint64((32) * BLOCK + lb) + np.uint64(t)]
+                        zt[sc + np.uint64(t)] = buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)]
                     for t in range(w):
-                        fl[sc + np.uint64(t)] = np.uint8(buf[np.uint64((42) * BLOCK + lb) + np.uint64(t)])
+                        fl[sc + np.uint64(t)] = np.uint8(buf[np.uint64((42) * STRIDE + lb) + np.uint64(t)])
             for q0 in range(0, n, TILE):
                 q1 = min(n, q0 + TILE)
                 c0 = min(max(l0, q0), q1)  # [c0, c1): the tile's computed lanes
                 c1 = max(min(l1, q1), c0)
                 tile_mask = _OMEGA_BIT if (c0 > q0 or c1 < q1) else np.uint32(0)
                 for t in range(c0, c1):
-                    tile_mask |= np.uint32(buf[np.uint64((43) * BLOCK + 0) + np.uint64(t)]) | (np.uint32(buf[np.uint64((44) * BLOCK + 0) + np.uint64(t)]) << np.uint32(16))
+                    tile_mask |= np.uint32(buf[np.uint64((43) * STRIDE + 0) + np.uint64(t)]) | (np.uint32(buf[np.uint64((44) * STRIDE + 0) + np.uint64(t)]) << np.uint32(16))
                 qt[tile + np.uint64(q0 // TILE)] = tile_mask
                 for a in range(32):
                     if (tile_mask >> np.uint32(a)) & _ONE:
@@ -1781,7 +1795,7 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                             qr[pos + np.uint64(t - q0)] = value
                         pl = pos + np.uint64(c0 - q0)
                         for t in range(c1 - c0):
-                            v = buf[np.uint64((0 + a) * BLOCK + c0) + np.uint64(t)]
+                            v = buf[np.uint64((0 + a) * STRIDE + c0) + np.uint64(t)]
                             v = v if v > _0 else _0
                             v = v if v < _1 else _1
                             qr[pl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
@@ -1790,21 +1804,1568 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                         pos += np.uint64(q1 - q0)
             for k in range(5):
                 for t in range(l1 - l0):
-                    v = buf[np.uint64((33 + k) * BLOCK + l0) + np.uint64(t)]
+                    v = buf[np.uint64((33 + k) * STRIDE + l0) + np.uint64(t)]
                     v = v if v > _0 else _0
                     v = v if v < _1 else _1
                     qb[np.uint64(k), wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
             for k in range(3):
                 for t in range(l1 - l0):
-                    v = buf[np.uint64((38 + k) * BLOCK + l0) + np.uint64(t)]
+                    v = buf[np.uint64((38 + k) * STRIDE + l0) + np.uint64(t)]
                     v = v if v > _0 else _0
                     v = v if v < _1 else _1
                     qc[np.uint64(k), wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
             for t in range(l1 - l0):
-                v = buf[np.uint64((32) * BLOCK + l0) + np.uint64(t)]
+                v = buf[np.uint64((32) * STRIDE + l0) + np.uint64(t)]
                 v = v if v > _0 else _0
                 v = v if v < _1 else _1
                 qz[wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
             for t in range(l1 - l0):
-                qd[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * BLOCK + l0) + np.uint64(t)])
+                qd[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * STRIDE + l0) + np.uint64(t)])
+    q_length[0] = np.int64(pos)
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
+               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, betp, conflict, decision):  # pragma: no cover - compiled
+    rows, cols = state.shape[1], state.shape[2]
+    n_cells = rows * cols
+    st = state.reshape(32, n_cells)
+    zt = zeta.reshape(n_cells)
+    fl = flags.reshape(n_cells)
+    fc = focal.reshape(n_cells)
+    fr = free.reshape(n_cells)
+    oc = occ.reshape(n_cells)
+    lbl = labels.reshape(n_cells)
+    obs_f = observed.reshape(n_cells)
+    bp = betp.reshape(5, n_cells)
+    cf = conflict.reshape(3, n_cells)
+    dc = decision.reshape(n_cells)
+    wrap = cols - off_c  # window columns from here on wrap to the buffer's start
+    tiles_per_row = (cols + TILE - 1) // TILE
+    buf = np.zeros(PLANES * STRIDE, np.float32)
+    act = np.zeros(BLOCK, np.uint8)
+    dirty = np.uint32(0)  # planes that may be non-zero in some lane of buf
+    for r in range(rows):
+        buf_row = r + off_r
+        buf_row = buf_row - rows if buf_row >= rows else buf_row
+        rb = buf_row * cols
+        lo = min(max(-dc_, 0), cols)
+        hi = max(min(cols - dc_, cols), lo)
+        if r + dr < 0 or r + dr >= rows:
+            lo = hi = 0
+        for j0 in range(0, cols, BLOCK):
+            n = min(BLOCK, cols - j0)
+            s0 = max(lo, j0)  # [s0, s1): cells of the block inside the previous window
+            s1 = min(hi, j0 + n)
+            wb = np.uint64(r * cols + j0)  # flat window index of the block's lane 0
+            tile = np.uint64(r * tiles_per_row + j0 // TILE)  # the block's first tile
+            l0 = 0
+            l1 = n
+            if may_skip:
+                for t in range(n):
+                    act[t] = 1  # cells entering the window are vacuous
+                for seg in range(2):
+                    a0 = s0 if seg == 0 else max(s0, wrap)
+                    a1 = min(s1, wrap) if seg == 0 else s1
+                    w = a1 - a0
+                    if w > 0:
+                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        lb = a0 - j0
+                        for t in range(w):
+                            act[np.uint64(lb) + np.uint64(t)] = fl[sc + np.uint64(t)]
+                for t in range(n):
+                    act[t] = act[t] & np.uint8((fr[wb + np.uint64(t)] == _0) & (oc[wb + np.uint64(t)] == _0))
+                idle = 0
+                for t in range(n):
+                    idle += np.int32(act[t])
+                if idle == n:  # the whole block stays vacuous
+                    l0 = l1 = n
+                while l0 < n and act[l0] == 1:
+                    l0 += 1
+                while l1 > l0 and act[l1 - 1] == 1:
+                    l1 -= 1
+                if l1 > l0:
+                    l0 = (l0 // 16) * 16
+                    l1 = min(n, (l1 + 15) // 16 * 16)
+            if l1 <= l0:
+                l0 = l1 = n
+            if l0 > 0:
+                for seg in range(2):
+                    a0 = j0 + 0 if seg == 0 else max(j0 + 0, wrap)
+                    a1 = min(min(s0, j0 + l0), wrap) if seg == 0 else min(s0, j0 + l0)
+                    w = a1 - a0
+                    if w > 0:
+                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        lb = a0 - j0
+                        for a in range(31):
+                            for t in range(w):
+                                st[np.uint64(a), sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            st[np.uint64(31), sc + np.uint64(t)] = _1
+                        for t in range(w):
+                            zt[sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            fl[sc + np.uint64(t)] = np.uint8(1)
+                        for t in range(w):
+                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                for seg in range(2):
+                    a0 = max(s1, j0 + 0) if seg == 0 else max(max(s1, j0 + 0), wrap)
+                    a1 = min(j0 + l0, wrap) if seg == 0 else j0 + l0
+                    w = a1 - a0
+                    if w > 0:
+                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        lb = a0 - j0
+                        for a in range(31):
+                            for t in range(w):
+                                st[np.uint64(a), sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            st[np.uint64(31), sc + np.uint64(t)] = _1
+                        for t in range(w):
+                            zt[sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            fl[sc + np.uint64(t)] = np.uint8(1)
+                        for t in range(w):
+                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                ws = wb + np.uint64(0)
+                for k in range(5):
+                    for t in range(l0 - 0):
+                        bp[np.uint64(k), ws + np.uint64(t)] = _INV5
+                for k in range(3):
+                    for t in range(l0 - 0):
+                        cf[np.uint64(k), ws + np.uint64(t)] = _0
+                for t in range(l0 - 0):
+                    dc[ws + np.uint64(t)] = vac_code
+            if l1 < n:
+                for seg in range(2):
+                    a0 = j0 + l1 if seg == 0 else max(j0 + l1, wrap)
+                    a1 = min(min(s0, j0 + n), wrap) if seg == 0 else min(s0, j0 + n)
+                    w = a1 - a0
+                    if w > 0:
+                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        lb = a0 - j0
+                        for a in range(31):
+                            for t in range(w):
+                                st[np.uint64(a), sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            st[np.uint64(31), sc + np.uint64(t)] = _1
+                        for t in range(w):
+                            zt[sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            fl[sc + np.uint64(t)] = np.uint8(1)
+                        for t in range(w):
+                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                for seg in range(2):
+                    a0 = max(s1, j0 + l1) if seg == 0 else max(max(s1, j0 + l1), wrap)
+                    a1 = min(j0 + n, wrap) if seg == 0 else j0 + n
+                    w = a1 - a0
+                    if w > 0:
+                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        lb = a0 - j0
+                        for a in range(31):
+                            for t in range(w):
+                                st[np.uint64(a), sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            st[np.uint64(31), sc + np.uint64(t)] = _1
+                        for t in range(w):
+                            zt[sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            fl[sc + np.uint64(t)] = np.uint8(1)
+                        for t in range(w):
+                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                ws = wb + np.uint64(l1)
+                for k in range(5):
+                    for t in range(n - l1):
+                        bp[np.uint64(k), ws + np.uint64(t)] = _INV5
+                for k in range(3):
+                    for t in range(n - l1):
+                        cf[np.uint64(k), ws + np.uint64(t)] = _0
+                for t in range(n - l1):
+                    dc[ws + np.uint64(t)] = vac_code
+            if l1 <= l0:
+                continue
+            old_mask = np.uint32(0)
+            for seg in range(2):
+                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
+                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
+                w = a1 - a0
+                if w > 0:
+                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    lb = a0 - j0
+                    for t in range(w):
+                        old_mask |= fc[sc + np.uint64(t)]
+            entering = s0 > j0 + l0 or s1 < j0 + l1
+            if entering:  # some lanes entered the window: vacuous
+                for a in range(31):
+                    for t in range(l1 - l0):
+                        buf[np.uint64((a) * STRIDE + l0) + np.uint64(t)] = _0
+                for t in range(l1 - l0):
+                    buf[np.uint64((31) * STRIDE + l0) + np.uint64(t)] = _1
+                for t in range(l1 - l0):
+                    buf[np.uint64((32) * STRIDE + l0) + np.uint64(t)] = _0
+            for a in range(32):
+                if (old_mask >> np.uint32(a)) & _ONE:
+                    for seg in range(2):
+                        a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
+                        a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
+                        w = a1 - a0
+                        if w > 0:
+                            sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                            lb = a0 - j0
+                            for t in range(w):
+                                buf[np.uint64((a) * STRIDE + lb) + np.uint64(t)] = st[np.uint64(a), sc + np.uint64(t)]
+                elif not entering and (dirty >> np.uint32(a)) & _ONE:
+                    for t in range(BLOCK):
+                        buf[np.uint64((a) * STRIDE + 0) + np.uint64(t)] = _0
+                    dirty &= ~(_ONE << np.uint32(a))
+            dirty |= old_mask
+            for seg in range(2):
+                a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
+                a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
+                w = a1 - a0
+                if w > 0:
+                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    lb = a0 - j0
+                    for t in range(w):
+                        buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)] = zt[sc + np.uint64(t)]
+            wl = wb + np.uint64(l0)
+            for t in range(l1 - l0):
+                buf[np.uint64((33) * STRIDE + l0) + np.uint64(t)] = fr[wl + np.uint64(t)]
+            for t in range(l1 - l0):
+                buf[np.uint64((34) * STRIDE + l0) + np.uint64(t)] = oc[wl + np.uint64(t)]
+            for t in range(l1 - l0):
+                buf[np.uint64((35) * STRIDE + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
+            for t in range(l1 - l0):
+                buf[np.uint64((36) * STRIDE + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
+            for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):
+                sbase = np.uint64(sub * SUB)
+                for l in range(SUB):
+                    m0 = buf[sbase + np.uint64(0 + l)]
+                    m1 = buf[sbase + np.uint64(272 + l)]
+                    m2 = buf[sbase + np.uint64(544 + l)]
+                    m3 = buf[sbase + np.uint64(816 + l)]
+                    m4 = buf[sbase + np.uint64(1088 + l)]
+                    m5 = buf[sbase + np.uint64(1360 + l)]
+                    m6 = buf[sbase + np.uint64(1632 + l)]
+                    m7 = buf[sbase + np.uint64(1904 + l)]
+                    m8 = buf[sbase + np.uint64(2176 + l)]
+                    m9 = buf[sbase + np.uint64(2448 + l)]
+                    m10 = buf[sbase + np.uint64(2720 + l)]
+                    m11 = buf[sbase + np.uint64(2992 + l)]
+                    m12 = buf[sbase + np.uint64(3264 + l)]
+                    m13 = buf[sbase + np.uint64(3536 + l)]
+                    m14 = buf[sbase + np.uint64(3808 + l)]
+                    m15 = buf[sbase + np.uint64(4080 + l)]
+                    m16 = buf[sbase + np.uint64(4352 + l)]
+                    m17 = buf[sbase + np.uint64(4624 + l)]
+                    m18 = buf[sbase + np.uint64(4896 + l)]
+                    m19 = buf[sbase + np.uint64(5168 + l)]
+                    m20 = buf[sbase + np.uint64(5440 + l)]
+                    m21 = buf[sbase + np.uint64(5712 + l)]
+                    m22 = buf[sbase + np.uint64(5984 + l)]
+                    m23 = buf[sbase + np.uint64(6256 + l)]
+                    m24 = buf[sbase + np.uint64(6528 + l)]
+                    m25 = buf[sbase + np.uint64(6800 + l)]
+                    m26 = buf[sbase + np.uint64(7072 + l)]
+                    m27 = buf[sbase + np.uint64(7344 + l)]
+                    m28 = buf[sbase + np.uint64(7616 + l)]
+                    m29 = buf[sbase + np.uint64(7888 + l)]
+                    m30 = buf[sbase + np.uint64(8160 + l)]
+                    m31 = buf[sbase + np.uint64(8432 + l)]
+                    z = buf[sbase + np.uint64(8704 + l)]
+                    f = buf[sbase + np.uint64(8976 + l)]
+                    o = buf[sbase + np.uint64(9248 + l)]
+                    u = _1 - f - o
+                    lab = buf[sbase + np.uint64(9520 + l)]
+                    ob = buf[sbase + np.uint64(9792 + l)]
+                    obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
+                    is_b = lab == _2
+                    is_r = lab == _1
+                    is_o = lab == _0
+                    beta = beta_b if is_b else (beta_r if is_r else (beta_o if is_o else _0))
+                    beta = beta if (obs | everywhere) else _0
+                    e = beta * f if is_b else _0
+                    kept = _1 - e
+                    total = kept <= tol
+                    beta = _0 if total else beta
+                    e = _0 if total else e
+                    kept = _1 if total else kept
+                    inv_kept = _1 / kept
+                    bb = beta if is_b else _0
+                    br = beta if is_r else _0
+                    bo = beta if is_o else _0
+                    t = a_f * m0
+                    m1 += t
+                    m0 -= t
+                    t = a_f * m2
+                    m3 += t
+                    m2 -= t
+                    t = a_f * m4
+                    m5 += t
+                    m4 -= t
+                    t = a_f * m6
+                    m7 += t
+                    m6 -= t
+                    t = a_f * m8
+                    m9 += t
+                    m8 -= t
+                    t = a_f * m10
+                    m11 += t
+                    m10 -= t
+                    t = a_f * m12
+                    m13 += t
+                    m12 -= t
+                    t = a_f * m14
+                    m15 += t
+                    m14 -= t
+                    t = a_f * m16
+                    m17 += t
+                    m16 -= t
+                    t = a_f * m18
+                    m19 += t
+                    m18 -= t
+                    t = a_f * m20
+                    m21 += t
+                    m20 -= t
+                    t = a_f * m22
+                    m23 += t
+                    m22 -= t
+                    t = a_f * m24
+                    m25 += t
+                    m24 -= t
+                    t = a_f * m26
+                    m27 += t
+                    m26 -= t
+                    t = a_f * m28
+                    m29 += t
+                    m28 -= t
+                    t = a_f * m30
+                    m31 += t
+                    m30 -= t
+                    t = a_u * m0
+                    m4 += t
+                    m0 -= t
+                    t = a_u * m1
+                    m5 += t
+                    m1 -= t
+                    t = a_u * m2
+                    m6 += t
+                    m2 -= t
+                    t = a_u * m3
+                    m7 += t
+                    m3 -= t
+                    t = a_u * m8
+                    m12 += t
+                    m8 -= t
+                    t = a_u * m9
+                    m13 += t
+                    m9 -= t
+                    t = a_u * m10
+                    m14 += t
+                    m10 -= t
+                    t = a_u * m11
+                    m15 += t
+                    m11 -= t
+                    t = a_u * m16
+                    m20 += t
+                    m16 -= t
+                    t = a_u * m17
+                    m21 += t
+                    m17 -= t
+                    t = a_u * m18
+                    m22 += t
+                    m18 -= t
+                    t = a_u * m19
+                    m23 += t
+                    m19 -= t
+                    t = a_u * m24
+                    m28 += t
+                    m24 -= t
+                    t = a_u * m25
+                    m29 += t
+                    m25 -= t
+                    t = a_u * m26
+                    m30 += t
+                    m26 -= t
+                    t = a_u * m27
+                    m31 += t
+                    m27 -= t
+                    t = a_s * m0
+                    m8 += t
+                    m0 -= t
+                    t = a_s * m1
+                    m9 += t
+                    m1 -= t
+                    t = a_s * m2
+                    m10 += t
+                    m2 -= t
+                    t = a_s * m3
+                    m11 += t
+                    m3 -= t
+                    t = a_s * m4
+                    m12 += t
+                    m4 -= t
+                    t = a_s * m5
+                    m13 += t
+                    m5 -= t
+                    t = a_s * m6
+                    m14 += t
+                    m6 -= t
+                    t = a_s * m7
+                    m15 += t
+                    m7 -= t
+                    t = a_s * m16
+                    m24 += t
+                    m16 -= t
+                    t = a_s * m17
+                    m25 += t
+                    m17 -= t
+                    t = a_s * m18
+                    m26 += t
+                    m18 -= t
+                    t = a_s * m19
+                    m27 += t
+                    m19 -= t
+                    t = a_s * m20
+                    m28 += t
+                    m20 -= t
+                    t = a_s * m21
+                    m29 += t
+                    m21 -= t
+                    t = a_s * m22
+                    m30 += t
+                    m22 -= t
+                    t = a_s * m23
+                    m31 += t
+                    m23 -= t
+                    t = a_m * m0
+                    m16 += t
+                    m0 -= t
+                    t = a_m * m1
+                    m17 += t
+                    m1 -= t
+                    t = a_m * m2
+                    m18 += t
+                    m2 -= t
+                    t = a_m * m3
+                    m19 += t
+                    m3 -= t
+                    t = a_m * m4
+                    m20 += t
+                    m4 -= t
+                    t = a_m * m5
+                    m21 += t
+                    m5 -= t
+                    t = a_m * m6
+                    m22 += t
+                    m6 -= t
+                    t = a_m * m7
+                    m23 += t
+                    m7 -= t
+                    t = a_m * m8
+                    m24 += t
+                    m8 -= t
+                    t = a_m * m9
+                    m25 += t
+                    m9 -= t
+                    t = a_m * m10
+                    m26 += t
+                    m10 -= t
+                    t = a_m * m11
+                    m27 += t
+                    m11 -= t
+                    t = a_m * m12
+                    m28 += t
+                    m12 -= t
+                    t = a_m * m13
+                    m29 += t
+                    m13 -= t
+                    t = a_m * m14
+                    m30 += t
+                    m14 -= t
+                    t = a_m * m15
+                    m31 += t
+                    m15 -= t
+                    s_f = ((((m1 + m3) + (m5 + m7)) + ((m9 + m11) + (m13 + m15))) + (((m17 + m19) + (m21 + m23)) + ((m25 + m27) + (m29 + m31))))
+                    s_nf = ((((m0 + m2) + (m4 + m6)) + ((m8 + m10) + (m12 + m14))) + (((m16 + m18) + (m20 + m22)) + ((m24 + m26) + (m28 + m30))))
+                    dn0 = u * m0 + o * (m0 + m1)
+                    dn1 = u * m1
+                    d0 = dn0 + f * s_nf
+                    d1 = dn1 + f * s_f
+                    d2 = u * m2 + o * (m2 + m3)
+                    d3 = u * m3
+                    d4 = u * m4 + o * (m4 + m5)
+                    d5 = u * m5
+                    d6 = u * m6 + o * (m6 + m7)
+                    d7 = u * m7
+                    d8 = u * m8 + o * (m8 + m9)
+                    d9 = u * m9
+                    d10 = u * m10 + o * (m10 + m11)
+                    d11 = u * m11
+                    d12 = u * m12 + o * (m12 + m13)
+                    d13 = u * m13
+                    d14 = u * m14 + o * (m14 + m15)
+                    d15 = u * m15
+                    d16 = u * m16 + o * (m16 + m17)
+                    d17 = u * m17
+                    d18 = u * m18 + o * (m18 + m19)
+                    d19 = u * m19
+                    d20 = u * m20 + o * (m20 + m21)
+                    d21 = u * m21
+                    d22 = u * m22 + o * (m22 + m23)
+                    d23 = u * m23
+                    d24 = u * m24 + o * (m24 + m25)
+                    d25 = u * m25
+                    d26 = u * m26 + o * (m26 + m27)
+                    d27 = u * m27
+                    d28 = u * m28 + o * (m28 + m29)
+                    d29 = u * m29
+                    d30 = u * m30 + o * (m30 + m31)
+                    d31 = u * m31
+                    keep_d = _1 - beta
+                    c0 = (keep_d * d0 + bb * ((((dn0 + dn1) + (d4 + d5)) + ((d8 + d9) + (d12 + d13))) + (((d16 + d17) + (d20 + d21)) + ((d24 + d25) + (d28 + d29)))) + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
+                    c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
+                    c2 = (keep_d * d2 + bb * ((((d2 + d3) + (d6 + d7)) + ((d10 + d11) + (d14 + d15))) + (((d18 + d19) + (d22 + d23)) + ((d26 + d27) + (d30 + d31))))) * inv_kept
+                    c3 = (keep_d * d3) * inv_kept
+                    c4 = (keep_d * d4 + bo * (d4 + d6)) * inv_kept
+                    c5 = (keep_d * d5 + bo * (d5 + d7)) * inv_kept
+                    c6 = (keep_d * d6) * inv_kept
+                    c7 = (keep_d * d7) * inv_kept
+                    c8 = (keep_d * d8 + br * ((d8 + d10) + (d12 + d14)) + bo * (d8 + d10)) * inv_kept
+                    c9 = (keep_d * d9 + br * ((d9 + d11) + (d13 + d15)) + bo * (d9 + d11)) * inv_kept
+                    c10 = (keep_d * d10) * inv_kept
+                    c11 = (keep_d * d11) * inv_kept
+                    c12 = (keep_d * d12 + bo * (d12 + d14)) * inv_kept
+                    c13 = (keep_d * d13 + bo * (d13 + d15)) * inv_kept
+                    c14 = (keep_d * d14) * inv_kept
+                    c15 = (keep_d * d15) * inv_kept
+                    c16 = (keep_d * d16 + br * ((d16 + d18) + (d20 + d22)) + bo * (d16 + d18)) * inv_kept
+                    c17 = (keep_d * d17 + br * ((d17 + d19) + (d21 + d23)) + bo * (d17 + d19)) * inv_kept
+                    c18 = (keep_d * d18) * inv_kept
+                    c19 = (keep_d * d19) * inv_kept
+                    c20 = (keep_d * d20 + bo * (d20 + d22)) * inv_kept
+                    c21 = (keep_d * d21 + bo * (d21 + d23)) * inv_kept
+                    c22 = (keep_d * d22) * inv_kept
+                    c23 = (keep_d * d23) * inv_kept
+                    c24 = (keep_d * d24 + br * ((d24 + d26) + (d28 + d30)) + bo * (d24 + d26)) * inv_kept
+                    c25 = (keep_d * d25 + br * ((d25 + d27) + (d29 + d31)) + bo * (d25 + d27)) * inv_kept
+                    c26 = (keep_d * d26) * inv_kept
+                    c27 = (keep_d * d27) * inv_kept
+                    c28 = (keep_d * d28 + bo * (d28 + d30)) * inv_kept
+                    c29 = (keep_d * d29 + bo * (d29 + d31)) * inv_kept
+                    c30 = (keep_d * d30) * inv_kept
+                    c31 = (keep_d * d31) * inv_kept
+                    sg_free = f * (_1 - bb) * inv_kept
+                    sg_bel_o = (o + u * bb) * inv_kept
+                    pg_bel_o = ((((m2 + m4) + (m6 + m8)) + ((m10 + m12) + (m14 + m16))) + (((m18 + m20) + (m22 + m24)) + ((m26 + m28) + m30)))
+                    fo = m1 * sg_bel_o
+                    of = pg_bel_o * sg_free
+                    other = c0 - fo - of
+                    other = other if other > _0 else _0
+                    c0 = other if residual == 1 else _0
+                    c16 += fo
+                    c31 += of + (other if residual == 0 else _0)
+                    bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
+                    dynamic = fo + of
+                    z_up = z + inc
+                    z_up = z_up if z_up < _1 else _1
+                    z_down = z - dec
+                    z_down = z_down if z_down > _0 else _0
+                    z = z_up if ((bel_o >= gamma_o) & (dynamic <= gamma_c)) else (z_down if dynamic > gamma_c else z)
+                    g = c17 * z
+                    c17 -= g
+                    c1 += g
+                    g = c18 * z
+                    c18 -= g
+                    c2 += g
+                    g = c19 * z
+                    c19 -= g
+                    c3 += g
+                    g = c20 * z
+                    c20 -= g
+                    c4 += g
+                    g = c21 * z
+                    c21 -= g
+                    c5 += g
+                    g = c22 * z
+                    c22 -= g
+                    c6 += g
+                    g = c23 * z
+                    c23 -= g
+                    c7 += g
+                    g = c24 * z
+                    c24 -= g
+                    c8 += g
+                    g = c25 * z
+                    c25 -= g
+                    c9 += g
+                    g = c26 * z
+                    c26 -= g
+                    c10 += g
+                    g = c27 * z
+                    c27 -= g
+                    c11 += g
+                    g = c28 * z
+                    c28 -= g
+                    c12 += g
+                    g = c29 * z
+                    c29 -= g
+                    c13 += g
+                    g = c30 * z
+                    c30 -= g
+                    c14 += g
+                    g = c31 * z
+                    c31 -= g
+                    c15 += g
+                    g = c16 * z
+                    c16 -= g
+                    c8 += g if to_s else _0
+                    c0 += _0 if to_s else g
+                    buf[sbase + np.uint64(0 + l)] = c0
+                    buf[sbase + np.uint64(272 + l)] = c1
+                    buf[sbase + np.uint64(544 + l)] = c2
+                    buf[sbase + np.uint64(816 + l)] = c3
+                    buf[sbase + np.uint64(1088 + l)] = c4
+                    buf[sbase + np.uint64(1360 + l)] = c5
+                    buf[sbase + np.uint64(1632 + l)] = c6
+                    buf[sbase + np.uint64(1904 + l)] = c7
+                    buf[sbase + np.uint64(2176 + l)] = c8
+                    buf[sbase + np.uint64(2448 + l)] = c9
+                    buf[sbase + np.uint64(2720 + l)] = c10
+                    buf[sbase + np.uint64(2992 + l)] = c11
+                    buf[sbase + np.uint64(3264 + l)] = c12
+                    buf[sbase + np.uint64(3536 + l)] = c13
+                    buf[sbase + np.uint64(3808 + l)] = c14
+                    buf[sbase + np.uint64(4080 + l)] = c15
+                    buf[sbase + np.uint64(4352 + l)] = c16
+                    buf[sbase + np.uint64(4624 + l)] = c17
+                    buf[sbase + np.uint64(4896 + l)] = c18
+                    buf[sbase + np.uint64(5168 + l)] = c19
+                    buf[sbase + np.uint64(5440 + l)] = c20
+                    buf[sbase + np.uint64(5712 + l)] = c21
+                    buf[sbase + np.uint64(5984 + l)] = c22
+                    buf[sbase + np.uint64(6256 + l)] = c23
+                    buf[sbase + np.uint64(6528 + l)] = c24
+                    buf[sbase + np.uint64(6800 + l)] = c25
+                    buf[sbase + np.uint64(7072 + l)] = c26
+                    buf[sbase + np.uint64(7344 + l)] = c27
+                    buf[sbase + np.uint64(7616 + l)] = c28
+                    buf[sbase + np.uint64(7888 + l)] = c29
+                    buf[sbase + np.uint64(8160 + l)] = c30
+                    buf[sbase + np.uint64(8432 + l)] = c31
+                    buf[sbase + np.uint64(8704 + l)] = z
+                    norm = (((((c1 + c2) + (c3 + c4)) + ((c5 + c6) + (c7 + c8))) + (((c9 + c10) + (c11 + c12)) + ((c13 + c14) + (c15 + c16)))) + ((((c17 + c18) + (c19 + c20)) + ((c21 + c22) + (c23 + c24))) + (((c25 + c26) + (c27 + c28)) + ((c29 + c30) + c31))))
+                    inv_norm = (_1 / norm) if norm > tol else _0
+                    w1 = c1
+                    w2 = c2
+                    w3 = c3 * _INV2
+                    w4 = c4
+                    w5 = c5 * _INV2
+                    w6 = c6 * _INV2
+                    w7 = c7 * _INV3
+                    w8 = c8
+                    w9 = c9 * _INV2
+                    w10 = c10 * _INV2
+                    w11 = c11 * _INV3
+                    w12 = c12 * _INV2
+                    w13 = c13 * _INV3
+                    w14 = c14 * _INV3
+                    w15 = c15 * _INV4
+                    w16 = c16
+                    w17 = c17 * _INV2
+                    w18 = c18 * _INV2
+                    w19 = c19 * _INV3
+                    w20 = c20 * _INV2
+                    w21 = c21 * _INV3
+                    w22 = c22 * _INV3
+                    w23 = c23 * _INV4
+                    w24 = c24 * _INV2
+                    w25 = c25 * _INV3
+                    w26 = c26 * _INV3
+                    w27 = c27 * _INV4
+                    w28 = c28 * _INV3
+                    w29 = c29 * _INV4
+                    w30 = c30 * _INV4
+                    w31 = c31 * _INV5
+                    p_f = ((((w1 + w3) + (w5 + w7)) + ((w9 + w11) + (w13 + w15))) + (((w17 + w19) + (w21 + w23)) + ((w25 + w27) + (w29 + w31)))) * inv_norm
+                    p_i = ((((w2 + w3) + (w6 + w7)) + ((w10 + w11) + (w14 + w15))) + (((w18 + w19) + (w22 + w23)) + ((w26 + w27) + (w30 + w31)))) * inv_norm
+                    p_u = ((((w4 + w5) + (w6 + w7)) + ((w12 + w13) + (w14 + w15))) + (((w20 + w21) + (w22 + w23)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
+                    p_s = ((((w8 + w9) + (w10 + w11)) + ((w12 + w13) + (w14 + w15))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
+                    p_m = ((((w16 + w17) + (w18 + w19)) + ((w20 + w21) + (w22 + w23))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
+                    static = p_i + p_u + p_s
+                    code = c_free
+                    best = p_f
+                    code = c_moving if p_m > best else code
+                    best = p_m if p_m > best else best
+                    is_static = static > best
+                    code = c_static if is_static else code
+                    best = static if is_static else best
+                    fine_code = c_infra
+                    fine_best = p_i
+                    fine_code = c_unmapped if p_u > fine_best else fine_code
+                    fine_best = p_u if p_u > fine_best else fine_best
+                    fine_code = c_stopped if p_s > fine_best else fine_code
+                    fine_best = p_s if p_s > fine_best else fine_best
+                    least = p_i if p_i < p_u else p_u
+                    least = least if least < p_s else p_s
+                    fine_second = static - fine_best - least
+                    fine_ok = (fine_best >= _HALF) & (fine_best >= _HALF * static) & (fine_best - fine_second > _TIE)
+                    code = fine_code if (is_static & fine_ok) else code
+                    code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code
+                    buf[sbase + np.uint64(8976 + l)] = p_f
+                    buf[sbase + np.uint64(9248 + l)] = p_i
+                    buf[sbase + np.uint64(9520 + l)] = p_u
+                    buf[sbase + np.uint64(9792 + l)] = p_s
+                    buf[sbase + np.uint64(10064 + l)] = p_m
+                    buf[sbase + np.uint64(10336 + l)] = fo
+                    buf[sbase + np.uint64(10608 + l)] = of
+                    buf[sbase + np.uint64(10880 + l)] = other
+                    buf[sbase + np.uint64(11152 + l)] = code
+                    focal_lo = (((((_P0 if c0 != _0 else _0) + (_P1 if c1 != _0 else _0)) + ((_P2 if c2 != _0 else _0) + (_P3 if c3 != _0 else _0))) + (((_P4 if c4 != _0 else _0) + (_P5 if c5 != _0 else _0)) + ((_P6 if c6 != _0 else _0) + (_P7 if c7 != _0 else _0)))) + ((((_P8 if c8 != _0 else _0) + (_P9 if c9 != _0 else _0)) + ((_P10 if c10 != _0 else _0) + (_P11 if c11 != _0 else _0))) + (((_P12 if c12 != _0 else _0) + (_P13 if c13 != _0 else _0)) + ((_P14 if c14 != _0 else _0) + (_P15 if c15 != _0 else _0)))))
+                    focal_hi = (((((_P0 if c16 != _0 else _0) + (_P1 if c17 != _0 else _0)) + ((_P2 if c18 != _0 else _0) + (_P3 if c19 != _0 else _0))) + (((_P4 if c20 != _0 else _0) + (_P5 if c21 != _0 else _0)) + ((_P6 if c22 != _0 else _0) + (_P7 if c23 != _0 else _0)))) + ((((_P8 if c24 != _0 else _0) + (_P9 if c25 != _0 else _0)) + ((_P10 if c26 != _0 else _0) + (_P11 if c27 != _0 else _0))) + (((_P12 if c28 != _0 else _0) + (_P13 if c29 != _0 else _0)) + ((_P14 if c30 != _0 else _0) + (_P15 if c31 != _0 else _0)))))
+                    buf[sbase + np.uint64(11696 + l)] = focal_lo
+                    buf[sbase + np.uint64(11968 + l)] = focal_hi
+                    buf[sbase + np.uint64(11424 + l)] = _1 if ((focal_lo == _0) & (focal_hi == _P15) & (c31 == _1) & (z == _0)) else _0
+            new_mask = np.uint32(0)
+            for seg in range(2):
+                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
+                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
+                w = a1 - a0
+                if w > 0:
+                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    lb = a0 - j0
+                    for t in range(w):
+                        v = np.uint32(buf[np.uint64((43) * STRIDE + lb) + np.uint64(t)])
+                        v |= np.uint32(buf[np.uint64((44) * STRIDE + lb) + np.uint64(t)]) << np.uint32(16)
+                        fc[sc + np.uint64(t)] = v
+                        new_mask |= v
+            write_mask = old_mask | new_mask
+            # planes the body may have left non-zero in some lane of the buffer (all when it ran
+            # past l1, on lanes whose stale inputs are not known)
+            dirty |= new_mask if l1 % SUB == 0 else _ALL_PLANES
+            for a in range(32):
+                if (write_mask >> np.uint32(a)) & _ONE:
+                    for seg in range(2):
+                        a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
+                        a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
+                        w = a1 - a0
+                        if w > 0:
+                            sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                            lb = a0 - j0
+                            for t in range(w):
+                                st[np.uint64(a), sc + np.uint64(t)] = buf[np.uint64((0 + a) * STRIDE + lb) + np.uint64(t)]
+            for seg in range(2):
+                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
+                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
+                w = a1 - a0
+                if w > 0:
+                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    lb = a0 - j0
+                    for t in range(w):
+                        zt[sc + np.uint64(t)] = buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)]
+                    for t in range(w):
+                        fl[sc + np.uint64(t)] = np.uint8(buf[np.uint64((42) * STRIDE + lb) + np.uint64(t)])
+            for k in range(5):
+                for t in range(l1 - l0):
+                    bp[np.uint64(k), wl + np.uint64(t)] = buf[np.uint64((33 + k) * STRIDE + l0) + np.uint64(t)]
+            for k in range(3):
+                for t in range(l1 - l0):
+                    cf[np.uint64(k), wl + np.uint64(t)] = buf[np.uint64((38 + k) * STRIDE + l0) + np.uint64(t)]
+            for t in range(l1 - l0):
+                dc[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * STRIDE + l0) + np.uint64(t)])
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
+               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision):  # pragma: no cover - compiled
+    rows, cols = state.shape[1], state.shape[2]
+    n_cells = rows * cols
+    st = state.reshape(32, n_cells)
+    zt = zeta.reshape(n_cells)
+    fl = flags.reshape(n_cells)
+    fc = focal.reshape(n_cells)
+    fr = free.reshape(n_cells)
+    oc = occ.reshape(n_cells)
+    lbl = labels.reshape(n_cells)
+    obs_f = observed.reshape(n_cells)
+    qr = q_runs
+    qt = q_tiles.reshape(q_tiles.size)
+    pos = np.uint64(0)  # bytes of mass runs written
+    qb = q_betp.reshape(5, n_cells)
+    qc = q_conflict.reshape(3, n_cells)
+    qz = q_zeta.reshape(n_cells)
+    qd = q_decision.reshape(n_cells)
+    wrap = cols - off_c  # window columns from here on wrap to the buffer's start
+    tiles_per_row = (cols + TILE - 1) // TILE
+    buf = np.zeros(PLANES * STRIDE, np.float32)
+    act = np.zeros(BLOCK, np.uint8)
+    dirty = np.uint32(0)  # planes that may be non-zero in some lane of buf
+    for r in range(rows):
+        buf_row = r + off_r
+        buf_row = buf_row - rows if buf_row >= rows else buf_row
+        rb = buf_row * cols
+        lo = min(max(-dc_, 0), cols)
+        hi = max(min(cols - dc_, cols), lo)
+        if r + dr < 0 or r + dr >= rows:
+            lo = hi = 0
+        for j0 in range(0, cols, BLOCK):
+            n = min(BLOCK, cols - j0)
+            s0 = max(lo, j0)  # [s0, s1): cells of the block inside the previous window
+            s1 = min(hi, j0 + n)
+            wb = np.uint64(r * cols + j0)  # flat window index of the block's lane 0
+            tile = np.uint64(r * tiles_per_row + j0 // TILE)  # the block's first tile
+            l0 = 0
+            l1 = n
+            if may_skip:
+                for t in range(n):
+                    act[t] = 1  # cells entering the window are vacuous
+                for seg in range(2):
+                    a0 = s0 if seg == 0 else max(s0, wrap)
+                    a1 = min(s1, wrap) if seg == 0 else s1
+                    w = a1 - a0
+                    if w > 0:
+                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        lb = a0 - j0
+                        for t in range(w):
+                            act[np.uint64(lb) + np.uint64(t)] = fl[sc + np.uint64(t)]
+                for t in range(n):
+                    act[t] = act[t] & np.uint8((fr[wb + np.uint64(t)] == _0) & (oc[wb + np.uint64(t)] == _0))
+                idle = 0
+                for t in range(n):
+                    idle += np.int32(act[t])
+                if idle == n:  # the whole block stays vacuous
+                    l0 = l1 = n
+                while l0 < n and act[l0] == 1:
+                    l0 += 1
+                while l1 > l0 and act[l1 - 1] == 1:
+                    l1 -= 1
+                if l1 > l0:
+                    l0 = (l0 // 16) * 16
+                    l1 = min(n, (l1 + 15) // 16 * 16)
+            if l1 <= l0:
+                l0 = l1 = n
+            if l0 > 0:
+                for seg in range(2):
+                    a0 = j0 + 0 if seg == 0 else max(j0 + 0, wrap)
+                    a1 = min(min(s0, j0 + l0), wrap) if seg == 0 else min(s0, j0 + l0)
+                    w = a1 - a0
+                    if w > 0:
+                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        lb = a0 - j0
+                        for a in range(31):
+                            for t in range(w):
+                                st[np.uint64(a), sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            st[np.uint64(31), sc + np.uint64(t)] = _1
+                        for t in range(w):
+                            zt[sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            fl[sc + np.uint64(t)] = np.uint8(1)
+                        for t in range(w):
+                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                for seg in range(2):
+                    a0 = max(s1, j0 + 0) if seg == 0 else max(max(s1, j0 + 0), wrap)
+                    a1 = min(j0 + l0, wrap) if seg == 0 else j0 + l0
+                    w = a1 - a0
+                    if w > 0:
+                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        lb = a0 - j0
+                        for a in range(31):
+                            for t in range(w):
+                                st[np.uint64(a), sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            st[np.uint64(31), sc + np.uint64(t)] = _1
+                        for t in range(w):
+                            zt[sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            fl[sc + np.uint64(t)] = np.uint8(1)
+                        for t in range(w):
+                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                ws = wb + np.uint64(0)
+                for k in range(5):
+                    for t in range(l0 - 0):
+                        qb[np.uint64(k), ws + np.uint64(t)] = np.uint8(51)
+                for k in range(3):
+                    for t in range(l0 - 0):
+                        qc[np.uint64(k), ws + np.uint64(t)] = np.uint8(0)
+                for t in range(l0 - 0):
+                    qz[ws + np.uint64(t)] = np.uint8(0)
+                for t in range(l0 - 0):
+                    qd[ws + np.uint64(t)] = vac_code
+            if l1 < n:
+                for seg in range(2):
+                    a0 = j0 + l1 if seg == 0 else max(j0 + l1, wrap)
+                    a1 = min(min(s0, j0 + n), wrap) if seg == 0 else min(s0, j0 + n)
+                    w = a1 - a0
+                    if w > 0:
+                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        lb = a0 - j0
+                        for a in range(31):
+                            for t in range(w):
+                                st[np.uint64(a), sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            st[np.uint64(31), sc + np.uint64(t)] = _1
+                        for t in range(w):
+                            zt[sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            fl[sc + np.uint64(t)] = np.uint8(1)
+                        for t in range(w):
+                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                for seg in range(2):
+                    a0 = max(s1, j0 + l1) if seg == 0 else max(max(s1, j0 + l1), wrap)
+                    a1 = min(j0 + n, wrap) if seg == 0 else j0 + n
+                    w = a1 - a0
+                    if w > 0:
+                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        lb = a0 - j0
+                        for a in range(31):
+                            for t in range(w):
+                                st[np.uint64(a), sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            st[np.uint64(31), sc + np.uint64(t)] = _1
+                        for t in range(w):
+                            zt[sc + np.uint64(t)] = _0
+                        for t in range(w):
+                            fl[sc + np.uint64(t)] = np.uint8(1)
+                        for t in range(w):
+                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                ws = wb + np.uint64(l1)
+                for k in range(5):
+                    for t in range(n - l1):
+                        qb[np.uint64(k), ws + np.uint64(t)] = np.uint8(51)
+                for k in range(3):
+                    for t in range(n - l1):
+                        qc[np.uint64(k), ws + np.uint64(t)] = np.uint8(0)
+                for t in range(n - l1):
+                    qz[ws + np.uint64(t)] = np.uint8(0)
+                for t in range(n - l1):
+                    qd[ws + np.uint64(t)] = vac_code
+            if l1 <= l0:
+                for q0 in range(0, n, TILE):
+                    qt[tile + np.uint64(q0 // TILE)] = _OMEGA_BIT
+                for t in range(n):
+                    qr[pos + np.uint64(t)] = np.uint8(255)
+                pos += np.uint64(n)
+                continue
+            old_mask = np.uint32(0)
+            for seg in range(2):
+                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
+                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
+                w = a1 - a0
+                if w > 0:
+                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    lb = a0 - j0
+                    for t in range(w):
+                        old_mask |= fc[sc + np.uint64(t)]
+            entering = s0 > j0 + l0 or s1 < j0 + l1
+            if entering:  # some lanes entered the window: vacuous
+                for a in range(31):
+                    for t in range(l1 - l0):
+                        buf[np.uint64((a) * STRIDE + l0) + np.uint64(t)] = _0
+                for t in range(l1 - l0):
+                    buf[np.uint64((31) * STRIDE + l0) + np.uint64(t)] = _1
+                for t in range(l1 - l0):
+                    buf[np.uint64((32) * STRIDE + l0) + np.uint64(t)] = _0
+            for a in range(32):
+                if (old_mask >> np.uint32(a)) & _ONE:
+                    for seg in range(2):
+                        a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
+                        a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
+                        w = a1 - a0
+                        if w > 0:
+                            sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                            lb = a0 - j0
+                            for t in range(w):
+                                buf[np.uint64((a) * STRIDE + lb) + np.uint64(t)] = st[np.uint64(a), sc + np.uint64(t)]
+                elif not entering and (dirty >> np.uint32(a)) & _ONE:
+                    for t in range(BLOCK):
+                        buf[np.uint64((a) * STRIDE + 0) + np.uint64(t)] = _0
+                    dirty &= ~(_ONE << np.uint32(a))
+            dirty |= old_mask
+            for seg in range(2):
+                a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
+                a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
+                w = a1 - a0
+                if w > 0:
+                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    lb = a0 - j0
+                    for t in range(w):
+                        buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)] = zt[sc + np.uint64(t)]
+            wl = wb + np.uint64(l0)
+            for t in range(l1 - l0):
+                buf[np.uint64((33) * STRIDE + l0) + np.uint64(t)] = fr[wl + np.uint64(t)]
+            for t in range(l1 - l0):
+                buf[np.uint64((34) * STRIDE + l0) + np.uint64(t)] = oc[wl + np.uint64(t)]
+            for t in range(l1 - l0):
+                buf[np.uint64((35) * STRIDE + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
+            for t in range(l1 - l0):
+                buf[np.uint64((36) * STRIDE + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
+            for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):
+                sbase = np.uint64(sub * SUB)
+                for l in range(SUB):
+                    m0 = buf[sbase + np.uint64(0 + l)]
+                    m1 = buf[sbase + np.uint64(272 + l)]
+                    m2 = buf[sbase + np.uint64(544 + l)]
+                    m3 = buf[sbase + np.uint64(816 + l)]
+                    m4 = buf[sbase + np.uint64(1088 + l)]
+                    m5 = buf[sbase + np.uint64(1360 + l)]
+                    m6 = buf[sbase + np.uint64(1632 + l)]
+                    m7 = buf[sbase + np.uint64(1904 + l)]
+                    m8 = buf[sbase + np.uint64(2176 + l)]
+                    m9 = buf[sbase + np.uint64(2448 + l)]
+                    m10 = buf[sbase + np.uint64(2720 + l)]
+                    m11 = buf[sbase + np.uint64(2992 + l)]
+                    m12 = buf[sbase + np.uint64(3264 + l)]
+                    m13 = buf[sbase + np.uint64(3536 + l)]
+                    m14 = buf[sbase + np.uint64(3808 + l)]
+                    m15 = buf[sbase + np.uint64(4080 + l)]
+                    m16 = buf[sbase + np.uint64(4352 + l)]
+                    m17 = buf[sbase + np.uint64(4624 + l)]
+                    m18 = buf[sbase + np.uint64(4896 + l)]
+                    m19 = buf[sbase + np.uint64(5168 + l)]
+                    m20 = buf[sbase + np.uint64(5440 + l)]
+                    m21 = buf[sbase + np.uint64(5712 + l)]
+                    m22 = buf[sbase + np.uint64(5984 + l)]
+                    m23 = buf[sbase + np.uint64(6256 + l)]
+                    m24 = buf[sbase + np.uint64(6528 + l)]
+                    m25 = buf[sbase + np.uint64(6800 + l)]
+                    m26 = buf[sbase + np.uint64(7072 + l)]
+                    m27 = buf[sbase + np.uint64(7344 + l)]
+                    m28 = buf[sbase + np.uint64(7616 + l)]
+                    m29 = buf[sbase + np.uint64(7888 + l)]
+                    m30 = buf[sbase + np.uint64(8160 + l)]
+                    m31 = buf[sbase + np.uint64(8432 + l)]
+                    z = buf[sbase + np.uint64(8704 + l)]
+                    f = buf[sbase + np.uint64(8976 + l)]
+                    o = buf[sbase + np.uint64(9248 + l)]
+                    u = _1 - f - o
+                    lab = buf[sbase + np.uint64(9520 + l)]
+                    ob = buf[sbase + np.uint64(9792 + l)]
+                    obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
+                    is_b = lab == _2
+                    is_r = lab == _1
+                    is_o = lab == _0
+                    beta = beta_b if is_b else (beta_r if is_r else (beta_o if is_o else _0))
+                    beta = beta if (obs | everywhere) else _0
+                    e = beta * f if is_b else _0
+                    kept = _1 - e
+                    total = kept <= tol
+                    beta = _0 if total else beta
+                    e = _0 if total else e
+                    kept = _1 if total else kept
+                    inv_kept = _1 / kept
+                    bb = beta if is_b else _0
+                    br = beta if is_r else _0
+                    bo = beta if is_o else _0
+                    t = a_f * m0
+                    m1 += t
+                    m0 -= t
+                    t = a_f * m2
+                    m3 += t
+                    m2 -= t
+                    t = a_f * m4
+                    m5 += t
+                    m4 -= t
+                    t = a_f * m6
+                    m7 += t
+                    m6 -= t
+                    t = a_f * m8
+                    m9 += t
+                    m8 -= t
+                    t = a_f * m10
+                    m11 += t
+                    m10 -= t
+                    t = a_f * m12
+                    m13 += t
+                    m12 -= t
+                    t = a_f * m14
+                    m15 += t
+                    m14 -= t
+                    t = a_f * m16
+                    m17 += t
+                    m16 -= t
+                    t = a_f * m18
+                    m19 += t
+                    m18 -= t
+                    t = a_f * m20
+                    m21 += t
+                    m20 -= t
+                    t = a_f * m22
+                    m23 += t
+                    m22 -= t
+                    t = a_f * m24
+                    m25 += t
+                    m24 -= t
+                    t = a_f * m26
+                    m27 += t
+                    m26 -= t
+                    t = a_f * m28
+                    m29 += t
+                    m28 -= t
+                    t = a_f * m30
+                    m31 += t
+                    m30 -= t
+                    t = a_u * m0
+                    m4 += t
+                    m0 -= t
+                    t = a_u * m1
+                    m5 += t
+                    m1 -= t
+                    t = a_u * m2
+                    m6 += t
+                    m2 -= t
+                    t = a_u * m3
+                    m7 += t
+                    m3 -= t
+                    t = a_u * m8
+                    m12 += t
+                    m8 -= t
+                    t = a_u * m9
+                    m13 += t
+                    m9 -= t
+                    t = a_u * m10
+                    m14 += t
+                    m10 -= t
+                    t = a_u * m11
+                    m15 += t
+                    m11 -= t
+                    t = a_u * m16
+                    m20 += t
+                    m16 -= t
+                    t = a_u * m17
+                    m21 += t
+                    m17 -= t
+                    t = a_u * m18
+                    m22 += t
+                    m18 -= t
+                    t = a_u * m19
+                    m23 += t
+                    m19 -= t
+                    t = a_u * m24
+                    m28 += t
+                    m24 -= t
+                    t = a_u * m25
+                    m29 += t
+                    m25 -= t
+                    t = a_u * m26
+                    m30 += t
+                    m26 -= t
+                    t = a_u * m27
+                    m31 += t
+                    m27 -= t
+                    t = a_s * m0
+                    m8 += t
+                    m0 -= t
+                    t = a_s * m1
+                    m9 += t
+                    m1 -= t
+                    t = a_s * m2
+                    m10 += t
+                    m2 -= t
+                    t = a_s * m3
+                    m11 += t
+                    m3 -= t
+                    t = a_s * m4
+                    m12 += t
+                    m4 -= t
+                    t = a_s * m5
+                    m13 += t
+                    m5 -= t
+                    t = a_s * m6
+                    m14 += t
+                    m6 -= t
+                    t = a_s * m7
+                    m15 += t
+                    m7 -= t
+                    t = a_s * m16
+                    m24 += t
+                    m16 -= t
+                    t = a_s * m17
+                    m25 += t
+                    m17 -= t
+                    t = a_s * m18
+                    m26 += t
+                    m18 -= t
+                    t = a_s * m19
+                    m27 += t
+                    m19 -= t
+                    t = a_s * m20
+                    m28 += t
+                    m20 -= t
+                    t = a_s * m21
+                    m29 += t
+                    m21 -= t
+                    t = a_s * m22
+                    m30 += t
+                    m22 -= t
+                    t = a_s * m23
+                    m31 += t
+                    m23 -= t
+                    t = a_m * m0
+                    m16 += t
+                    m0 -= t
+                    t = a_m * m1
+                    m17 += t
+                    m1 -= t
+                    t = a_m * m2
+                    m18 += t
+                    m2 -= t
+                    t = a_m * m3
+                    m19 += t
+                    m3 -= t
+                    t = a_m * m4
+                    m20 += t
+                    m4 -= t
+                    t = a_m * m5
+                    m21 += t
+                    m5 -= t
+                    t = a_m * m6
+                    m22 += t
+                    m6 -= t
+                    t = a_m * m7
+                    m23 += t
+                    m7 -= t
+                    t = a_m * m8
+                    m24 += t
+                    m8 -= t
+                    t = a_m * m9
+                    m25 += t
+                    m9 -= t
+                    t = a_m * m10
+                    m26 += t
+                    m10 -= t
+                    t = a_m * m11
+                    m27 += t
+                    m11 -= t
+                    t = a_m * m12
+                    m28 += t
+                    m12 -= t
+                    t = a_m * m13
+                    m29 += t
+                    m13 -= t
+                    t = a_m * m14
+                    m30 += t
+                    m14 -= t
+                    t = a_m * m15
+                    m31 += t
+                    m15 -= t
+                    s_f = ((((m1 + m3) + (m5 + m7)) + ((m9 + m11) + (m13 + m15))) + (((m17 + m19) + (m21 + m23)) + ((m25 + m27) + (m29 + m31))))
+                    s_nf = ((((m0 + m2) + (m4 + m6)) + ((m8 + m10) + (m12 + m14))) + (((m16 + m18) + (m20 + m22)) + ((m24 + m26) + (m28 + m30))))
+                    dn0 = u * m0 + o * (m0 + m1)
+                    dn1 = u * m1
+                    d0 = dn0 + f * s_nf
+                    d1 = dn1 + f * s_f
+                    d2 = u * m2 + o * (m2 + m3)
+                    d3 = u * m3
+                    d4 = u * m4 + o * (m4 + m5)
+                    d5 = u * m5
+                    d6 = u * m6 + o * (m6 + m7)
+                    d7 = u * m7
+                    d8 = u * m8 + o * (m8 + m9)
+                    d9 = u * m9
+                    d10 = u * m10 + o * (m10 + m11)
+                    d11 = u * m11
+                    d12 = u * m12 + o * (m12 + m13)
+                    d13 = u * m13
+                    d14 = u * m14 + o * (m14 + m15)
+                    d15 = u * m15
+                    d16 = u * m16 + o * (m16 + m17)
+                    d17 = u * m17
+                    d18 = u * m18 + o * (m18 + m19)
+                    d19 = u * m19
+                    d20 = u * m20 + o * (m20 + m21)
+                    d21 = u * m21
+                    d22 = u * m22 + o * (m22 + m23)
+                    d23 = u * m23
+                    d24 = u * m24 + o * (m24 + m25)
+                    d25 = u * m25
+                    d26 = u * m26 + o * (m26 + m27)
+                    d27 = u * m27
+                    d28 = u * m28 + o * (m28 + m29)
+                    d29 = u * m29
+                    d30 = u * m30 + o * (m30 + m31)
+                    d31 = u * m31
+                    keep_d = _1 - beta
+                    c0 = (keep_d * d0 + bb * ((((dn0 + dn1) + (d4 + d5)) + ((d8 + d9) + (d12 + d13))) + (((d16 + d17) + (d20 + d21)) + ((d24 + d25) + (d28 + d29)))) + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
+                    c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
+                    c2 = (keep_d * d2 + bb * ((((d2 + d3) + (d6 + d7)) + ((d10 + d11) + (d14 + d15))) + (((d18 + d19) + (d22 + d23)) + ((d26 + d27) + (d30 + d31))))) * inv_kept
+                    c3 = (keep_d * d3) * inv_kept
+                    c4 = (keep_d * d4 + bo * (d4 + d6)) * inv_kept
+                    c5 = (keep_d * d5 + bo * (d5 + d7)) * inv_kept
+                    c6 = (keep_d * d6) * inv_kept
+                    c7 = (keep_d * d7) * inv_kept
+                    c8 = (keep_d * d8 + br * ((d8 + d10) + (d12 + d14)) + bo * (d8 + d10)) * inv_kept
+                    c9 = (keep_d * d9 + br * ((d9 + d11) + (d13 + d15)) + bo * (d9 + d11)) * inv_kept
+                    c10 = (keep_d * d10) * inv_kept
+                    c11 = (keep_d * d11) * inv_kept
+                    c12 = (keep_d * d12 + bo * (d12 + d14)) * inv_kept
+                    c13 = (keep_d * d13 + bo * (d13 + d15)) * inv_kept
+                    c14 = (keep_d * d14) * inv_kept
+                    c15 = (keep_d * d15) * inv_kept
+                    c16 = (keep_d * d16 + br * ((d16 + d18) + (d20 + d22)) + bo * (d16 + d18)) * inv_kept
+                    c17 = (keep_d * d17 + br * ((d17 + d19) + (d21 + d23)) + bo * (d17 + d19)) * inv_kept
+                    c18 = (keep_d * d18) * inv_kept
+                    c19 = (keep_d * d19) * inv_kept
+                    c20 = (keep_d * d20 + bo * (d20 + d22)) * inv_kept
+                    c21 = (keep_d * d21 + bo * (d21 + d23)) * inv_kept
+                    c22 = (keep_d * d22) * inv_kept
+                    c23 = (keep_d * d23) * inv_kept
+                    c24 = (keep_d * d24 + br * ((d24 + d26) + (d28 + d30)) + bo * (d24 + d26)) * inv_kept
+                    c25 = (keep_d * d25 + br * ((d25 + d27) + (d29 + d31)) + bo * (d25 + d27)) * inv_kept
+                    c26 = (keep_d * d26) * inv_kept
+                    c27 = (keep_d * d27) * inv_kept
+                    c28 = (keep_d * d28 + bo * (d28 + d30)) * inv_kept
+                    c29 = (keep_d * d29 + bo * (d29 + d31)) * inv_kept
+                    c30 = (keep_d * d30) * inv_kept
+                    c31 = (keep_d * d31) * inv_kept
+                    sg_free = f * (_1 - bb) * inv_kept
+                    sg_bel_o = (o + u * bb) * inv_kept
+                    pg_bel_o = ((((m2 + m4) + (m6 + m8)) + ((m10 + m12) + (m14 + m16))) + (((m18 + m20) + (m22 + m24)) + ((m26 + m28) + m30)))
+                    fo = m1 * sg_bel_o
+                    of = pg_bel_o * sg_free
+                    other = c0 - fo - of
+                    other = other if other > _0 else _0
+                    c0 = other if residual == 1 else _0
+                    c16 += fo
+                    c31 += of + (other if residual == 0 else _0)
+                    bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
+                    dynamic = fo + of
+                    z_up = z + inc
+                    z_up = z_up if z_up < _1 else _1
+                    z_down = z - dec
+                    z_down = z_down if z_down > _0 else _0
+                    z = z_up if ((bel_o >= gamma_o) & (dynamic <= gamma_c)) else (z_down if dynamic > gamma_c else z)
+                    g = c17 * z
+                    c17 -= g
+                    c1 += g
+                    g = c18 * z
+                    c18 -= g
+                    c2 += g
+                    g = c19 * z
+                    c19 -= g
+                    c3 += g
+                    g = c20 * z
+                    c20 -= g
+                    c4 += g
+                    g = c21 * z
+                    c21 -= g
+                    c5 += g
+                    g = c22 * z
+                    c22 -= g
+                    c6 += g
+                    g = c23 * z
+                    c23 -= g
+                    c7 += g
+                    g = c24 * z
+                    c24 -= g
+                    c8 += g
+                    g = c25 * z
+                    c25 -= g
+                    c9 += g
+                    g = c26 * z
+                    c26 -= g
+                    c10 += g
+                    g = c27 * z
+                    c27 -= g
+                    c11 += g
+                    g = c28 * z
+                    c28 -= g
+                    c12 += g
+                    g = c29 * z
+                    c29 -= g
+                    c13 += g
+                    g = c30 * z
+                    c30 -= g
+                    c14 += g
+                    g = c31 * z
+                    c31 -= g
+                    c15 += g
+                    g = c16 * z
+                    c16 -= g
+                    c8 += g if to_s else _0
+                    c0 += _0 if to_s else g
+                    buf[sbase + np.uint64(0 + l)] = c0
+                    buf[sbase + np.uint64(272 + l)] = c1
+                    buf[sbase + np.uint64(544 + l)] = c2
+                    buf[sbase + np.uint64(816 + l)] = c3
+                    buf[sbase + np.uint64(1088 + l)] = c4
+                    buf[sbase + np.uint64(1360 + l)] = c5
+                    buf[sbase + np.uint64(1632 + l)] = c6
+                    buf[sbase + np.uint64(1904 + l)] = c7
+                    buf[sbase + np.uint64(2176 + l)] = c8
+                    buf[sbase + np.uint64(2448 + l)] = c9
+                    buf[sbase + np.uint64(2720 + l)] = c10
+                    buf[sbase + np.uint64(2992 + l)] = c11
+                    buf[sbase + np.uint64(3264 + l)] = c12
+                    buf[sbase + np.uint64(3536 + l)] = c13
+                    buf[sbase + np.uint64(3808 + l)] = c14
+                    buf[sbase + np.uint64(4080 + l)] = c15
+                    buf[sbase + np.uint64(4352 + l)] = c16
+                    buf[sbase + np.uint64(4624 + l)] = c17
+                    buf[sbase + np.uint64(4896 + l)] = c18
+                    buf[sbase + np.uint64(5168 + l)] = c19
+                    buf[sbase + np.uint64(5440 + l)] = c20
+                    buf[sbase + np.uint64(5712 + l)] = c21
+                    buf[sbase + np.uint64(5984 + l)] = c22
+                    buf[sbase + np.uint64(6256 + l)] = c23
+                    buf[sbase + np.uint64(6528 + l)] = c24
+                    buf[sbase + np.uint64(6800 + l)] = c25
+                    buf[sbase + np.uint64(7072 + l)] = c26
+                    buf[sbase + np.uint64(7344 + l)] = c27
+                    buf[sbase + np.uint64(7616 + l)] = c28
+                    buf[sbase + np.uint64(7888 + l)] = c29
+                    buf[sbase + np.uint64(8160 + l)] = c30
+                    buf[sbase + np.uint64(8432 + l)] = c31
+                    buf[sbase + np.uint64(8704 + l)] = z
+                    norm = (((((c1 + c2) + (c3 + c4)) + ((c5 + c6) + (c7 + c8))) + (((c9 + c10) + (c11 + c12)) + ((c13 + c14) + (c15 + c16)))) + ((((c17 + c18) + (c19 + c20)) + ((c21 + c22) + (c23 + c24))) + (((c25 + c26) + (c27 + c28)) + ((c29 + c30) + c31))))
+                    inv_norm = (_1 / norm) if norm > tol else _0
+                    w1 = c1
+                    w2 = c2
+                    w3 = c3 * _INV2
+                    w4 = c4
+                    w5 = c5 * _INV2
+                    w6 = c6 * _INV2
+                    w7 = c7 * _INV3
+                    w8 = c8
+                    w9 = c9 * _INV2
+                    w10 = c10 * _INV2
+                    w11 = c11 * _INV3
+                    w12 = c12 * _INV2
+                    w13 = c13 * _INV3
+                    w14 = c14 * _INV3
+                    w15 = c15 * _INV4
+                    w16 = c16
+                    w17 = c17 * _INV2
+                    w18 = c18 * _INV2
+                    w19 = c19 * _INV3
+                    w20 = c20 * _INV2
+                    w21 = c21 * _INV3
+                    w22 = c22 * _INV3
+                    w23 = c23 * _INV4
+                    w24 = c24 * _INV2
+                    w25 = c25 * _INV3
+                    w26 = c26 * _INV3
+                    w27 = c27 * _INV4
+                    w28 = c28 * _INV3
+                    w29 = c29 * _INV4
+                    w30 = c30 * _INV4
+                    w31 = c31 * _INV5
+                    p_f = ((((w1 + w3) + (w5 + w7)) + ((w9 + w11) + (w13 + w15))) + (((w17 + w19) + (w21 + w23)) + ((w25 + w27) + (w29 + w31)))) * inv_norm
+                    p_i = ((((w2 + w3) + (w6 + w7)) + ((w10 + w11) + (w14 + w15))) + (((w18 + w19) + (w22 + w23)) + ((w26 + w27) + (w30 + w31)))) * inv_norm
+                    p_u = ((((w4 + w5) + (w6 + w7)) + ((w12 + w13) + (w14 + w15))) + (((w20 + w21) + (w22 + w23)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
+                    p_s = ((((w8 + w9) + (w10 + w11)) + ((w12 + w13) + (w14 + w15))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
+                    p_m = ((((w16 + w17) + (w18 + w19)) + ((w20 + w21) + (w22 + w23))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
+                    static = p_i + p_u + p_s
+                    code = c_free
+                    best = p_f
+                    code = c_moving if p_m > best else code
+                    best = p_m if p_m > best else best
+                    is_static = static > best
+                    code = c_static if is_static else code
+                    best = static if is_static else best
+                    fine_code = c_infra
+                    fine_best = p_i
+                    fine_code = c_unmapped if p_u > fine_best else fine_code
+                    fine_best = p_u if p_u > fine_best else fine_best
+                    fine_code = c_stopped if p_s > fine_best else fine_code
+                    fine_best = p_s if p_s > fine_best else fine_best
+                    least = p_i if p_i < p_u else p_u
+                    least = least if least < p_s else p_s
+                    fine_second = static - fine_best - least
+                    fine_ok = (fine_best >= _HALF) & (fine_best >= _HALF * static) & (fine_best - fine_second > _TIE)
+                    code = fine_code if (is_static & fine_ok) else code
+                    code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code
+                    buf[sbase + np.uint64(8976 + l)] = p_f
+                    buf[sbase + np.uint64(9248 + l)] = p_i
+                    buf[sbase + np.uint64(9520 + l)] = p_u
+                    buf[sbase + np.uint64(9792 + l)] = p_s
+                    buf[sbase + np.uint64(10064 + l)] = p_m
+                    buf[sbase + np.uint64(10336 + l)] = fo
+                    buf[sbase + np.uint64(10608 + l)] = of
+                    buf[sbase + np.uint64(10880 + l)] = other
+                    buf[sbase + np.uint64(11152 + l)] = code
+                    focal_lo = (((((_P0 if c0 != _0 else _0) + (_P1 if c1 != _0 else _0)) + ((_P2 if c2 != _0 else _0) + (_P3 if c3 != _0 else _0))) + (((_P4 if c4 != _0 else _0) + (_P5 if c5 != _0 else _0)) + ((_P6 if c6 != _0 else _0) + (_P7 if c7 != _0 else _0)))) + ((((_P8 if c8 != _0 else _0) + (_P9 if c9 != _0 else _0)) + ((_P10 if c10 != _0 else _0) + (_P11 if c11 != _0 else _0))) + (((_P12 if c12 != _0 else _0) + (_P13 if c13 != _0 else _0)) + ((_P14 if c14 != _0 else _0) + (_P15 if c15 != _0 else _0)))))
+                    focal_hi = (((((_P0 if c16 != _0 else _0) + (_P1 if c17 != _0 else _0)) + ((_P2 if c18 != _0 else _0) + (_P3 if c19 != _0 else _0))) + (((_P4 if c20 != _0 else _0) + (_P5 if c21 != _0 else _0)) + ((_P6 if c22 != _0 else _0) + (_P7 if c23 != _0 else _0)))) + ((((_P8 if c24 != _0 else _0) + (_P9 if c25 != _0 else _0)) + ((_P10 if c26 != _0 else _0) + (_P11 if c27 != _0 else _0))) + (((_P12 if c28 != _0 else _0) + (_P13 if c29 != _0 else _0)) + ((_P14 if c30 != _0 else _0) + (_P15 if c31 != _0 else _0)))))
+                    buf[sbase + np.uint64(11696 + l)] = focal_lo
+                    buf[sbase + np.uint64(11968 + l)] = focal_hi
+                    buf[sbase + np.uint64(11424 + l)] = _1 if ((focal_lo == _0) & (focal_hi == _P15) & (c31 == _1) & (z == _0)) else _0
+            new_mask = np.uint32(0)
+            for seg in range(2):
+                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
+                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
+                w = a1 - a0
+                if w > 0:
+                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    lb = a0 - j0
+                    for t in range(w):
+                        v = np.uint32(buf[np.uint64((43) * STRIDE + lb) + np.uint64(t)])
+                        v |= np.uint32(buf[np.uint64((44) * STRIDE + lb) + np.uint64(t)]) << np.uint32(16)
+                        fc[sc + np.uint64(t)] = v
+                        new_mask |= v
+            write_mask = old_mask | new_mask
+            # planes the body may have left non-zero in some lane of the buffer (all when it ran
+            # past l1, on lanes whose stale inputs are not known)
+            dirty |= new_mask if l1 % SUB == 0 else _ALL_PLANES
+            for a in range(32):
+                if (write_mask >> np.uint32(a)) & _ONE:
+                    for seg in range(2):
+                        a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
+                        a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
+                        w = a1 - a0
+                        if w > 0:
+                            sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                            lb = a0 - j0
+                            for t in range(w):
+                                st[np.uint64(a), sc + np.uint64(t)] = buf[np.uint64((0 + a) * STRIDE + lb) + np.uint64(t)]
+            for seg in range(2):
+                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
+                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
+                w = a1 - a0
+                if w > 0:
+                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    lb = a0 - j0
+                    for t in range(w):
+                        zt[sc + np.uint64(t)] = buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)]
+                    for t in range(w):
+                        fl[sc + np.uint64(t)] = np.uint8(buf[np.uint64((42) * STRIDE + lb) + np.uint64(t)])
+            for q0 in range(0, n, TILE):
+                q1 = min(n, q0 + TILE)
+                c0 = min(max(l0, q0), q1)  # [c0, c1): the tile's computed lanes
+                c1 = max(min(l1, q1), c0)
+                tile_mask = _OMEGA_BIT if (c0 > q0 or c1 < q1) else np.uint32(0)
+                for t in range(c0, c1):
+                    tile_mask |= np.uint32(buf[np.uint64((43) * STRIDE + 0) + np.uint64(t)]) | (np.uint32(buf[np.uint64((44) * STRIDE + 0) + np.uint64(t)]) << np.uint32(16))
+                qt[tile + np.uint64(q0 // TILE)] = tile_mask
+                for a in range(32):
+                    if (tile_mask >> np.uint32(a)) & _ONE:
+                        value = np.uint8(255) if a == 31 else np.uint8(0)
+                        for t in range(q0, c0):
+                            qr[pos + np.uint64(t - q0)] = value
+                        pl = pos + np.uint64(c0 - q0)
+                        for t in range(c1 - c0):
+                            v = buf[np.uint64((0 + a) * STRIDE + c0) + np.uint64(t)]
+                            v = v if v > _0 else _0
+                            v = v if v < _1 else _1
+                            qr[pl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
+                        for t in range(c1, q1):
+                            qr[pos + np.uint64(t - q0)] = value
+                        pos += np.uint64(q1 - q0)
+            for k in range(5):
+                for t in range(l1 - l0):
+                    v = buf[np.uint64((33 + k) * STRIDE + l0) + np.uint64(t)]
+                    v = v if v > _0 else _0
+                    v = v if v < _1 else _1
+                    qb[np.uint64(k), wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
+            for k in range(3):
+                for t in range(l1 - l0):
+                    v = buf[np.uint64((38 + k) * STRIDE + l0) + np.uint64(t)]
+                    v = v if v > _0 else _0
+                    v = v if v < _1 else _1
+                    qc[np.uint64(k), wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
+            for t in range(l1 - l0):
+                v = buf[np.uint64((32) * STRIDE + l0) + np.uint64(t)]
+                v = v if v > _0 else _0
+                v = v if v < _1 else _1
+                qz[wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
+            for t in range(l1 - l0):
+                qd[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * STRIDE + l0) + np.uint64(t)])
     q_length[0] = np.int64(pos)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evperc import fused_codegen
+from evperc import fused, fused_codegen
 from evperc.dst import total_conflict_tolerance
 from evperc.fused import (
     MASS_TILE,
@@ -659,3 +659,94 @@ def test_rows_of_several_blocks_match_numpy() -> None:
         f, d = compare((pg, zeta), out, want, near, params)
         flips, differences = flips + f, differences + d
     assert flips + differences <= 0.01 * 3 * shape[0] * shape[1]
+
+
+def lean_params(rng: np.random.Generator) -> FusionParams:
+    """Random options for which fused_step runs the lean kernel."""
+    params = random_params(rng)
+    rates = list(params.discount_rates)
+    rates[1] = 0.0
+    return FusionParams(**{**params.__dict__, "discount": "contextual",
+                           "discount_rates": tuple(rates),
+                           "residual_conflict": str(rng.choice(["omega", "empty"]))})
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_lean_kernel_equals_general(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The lean kernel (without the I butterfly, classical discounting and normalisation,
+    identities for its options) gives what the general kernel gives: state, ζ, focal sets
+    and both output kinds over scrolled frames, to float32 round-off (the same values up
+    to LLVM's reassociation of the sums that remain), decisions identical."""
+    rng = np.random.default_rng(900 + seed)
+    shape = (30, 300) if seed % 2 else (41, 97)
+    params = lean_params(rng)
+    pg, zeta = sparse_planar_state(rng, shape)
+    labels = rng.choice(np.array([0, 1, 2, NO_MAP], np.uint8), size=shape)
+    states = {lean: (pg.copy(), zeta.copy(), vacuous_flags(pg, zeta), focal_sets(pg))
+              for lean in (False, True)}
+    chosen = []
+    kernel = fused._kernel
+
+    def forced(floats: bool, lean: bool, force: list[bool]):
+        chosen.append(lean)
+        return kernel(floats, force[0])
+
+    offset = (0, 0)
+    for frame in range(5):
+        shift = (0, 0) if frame == 0 else tuple(int(v) for v in rng.integers(-7, 8, 2))
+        offset = ((offset[0] + shift[0]) % shape[0], (offset[1] + shift[1]) % shape[1])
+        free, occ = random_scan(rng, shape)
+        kind = StoredOutputs if frame % 2 else FusedOutputs
+        outs = {}
+        for lean, (s_pg, s_zeta, s_flags, s_focal) in states.items():
+            monkeypatch.setattr(fused, "_kernel",
+                                lambda floats, want, lean=lean: forced(floats, want, [lean]))
+            outs[lean] = planar_step(s_pg, s_zeta, free, occ, labels, (0.9, 0.9, 0.8), 0.1,
+                                     params, out=kind.empty(shape), flags=s_flags,
+                                     focal=s_focal, offset=offset, shift=shift)
+        (g_pg, g_zeta, g_flags, g_focal), (l_pg, l_zeta, l_flags, l_focal) = states.values()
+        np.testing.assert_allclose(l_pg, g_pg, rtol=0, atol=2e-6)
+        np.testing.assert_allclose(l_zeta, g_zeta, rtol=0, atol=2e-6)
+        # a vacuous flag or focal set may differ where one kernel rounds a mass to exactly
+        # 0 (or m(Ω) to exactly 1) and the other leaves it a few ulps away
+        vacuous = np.zeros(32, np.float32)
+        vacuous[31] = 1
+        near_vacuous = (np.abs(g_pg - vacuous[:, None, None]).max(axis=0) <= 2e-6) & (g_zeta == 0)
+        assert near_vacuous[l_flags != g_flags].all()
+        tiny = (np.abs(g_pg) <= 2e-6) & (np.abs(l_pg) <= 2e-6)
+        for a in range(32):
+            differ = ((l_focal >> a) & 1) != ((g_focal >> a) & 1)
+            assert tiny[a][differ].all()
+        general, lean_out = outs[False], outs[True]
+        np.testing.assert_array_equal(lean_out.decision, general.decision)
+        if kind is FusedOutputs:
+            np.testing.assert_allclose(lean_out.betp, general.betp, rtol=0, atol=2e-6)
+            np.testing.assert_allclose(lean_out.conflict, general.conflict, rtol=0, atol=2e-6)
+        else:
+            np.testing.assert_array_equal(lean_out.tile_masks, general.tile_masks)
+            for a, b in ((lean_out.masses(), general.masses()), (lean_out.betp, general.betp),
+                         (lean_out.zeta, general.zeta)):
+                assert np.abs(a.astype(int) - b.astype(int)).max() <= 1
+    assert all(chosen)  # these options pick the lean kernel
+
+
+@pytest.mark.parametrize(("change", "lean"), [
+    ({}, True),
+    ({"residual_conflict": "empty"}, True),
+    ({"discount_rates": (0.1, 0.05, 0.01, 0.02, 0.1)}, False),
+    ({"discount": "classical"}, False),
+    ({"residual_conflict": "normalise"}, False)])
+def test_lean_kernel_is_chosen_for_its_options(change: dict, lean: bool,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """fused_step runs the lean kernel exactly when its options make the left-out
+    operations identities: contextual discounting, α_I = 0, no normalisation."""
+    chosen = []
+    kernel = fused._kernel
+    monkeypatch.setattr(fused, "_kernel",
+                        lambda floats, want: chosen.append(want) or kernel(floats, want))
+    rng = np.random.default_rng(5)
+    pg, zeta = planar_random_state(rng, SHAPE)
+    free, occ = random_scan(rng, SHAPE)
+    params = FusionParams(**{**FusionParams().__dict__, **change})
+    planar_step(pg, zeta, free, occ, None, (0.9, 0.9, 0.8), 0.1, params)
+    assert chosen == [lean]
