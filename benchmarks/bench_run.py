@@ -21,7 +21,9 @@ with ``NUMBA_CACHE_DIR`` pointed at an empty directory (compiles) and then again
 In-process, on scan 11 of (a) with the state after 10 scans: our sensor grid (best of 5)
 and fused step (50 frames, the window moving one cell per frame: best and median) against
 the naive per-point Python sensor model (whole scan, timed once) and the naive dense
-pair-loop fusion (timed on 16,000 random cells, scaled ×10 to 160,000). The naive results
+pair-loop fusion (timed on 16,000 random cells, scaled ×10 to 160,000); the fused step
+with stored outputs also with the general kernel (the default options run the lean one,
+``evperc.fused._kernel``). The naive results
 are compared with ours (same decisions expected). Output precision: the first 10 frames of
 (a) recomputed in memory (float32) against what the run stored.
 
@@ -49,7 +51,7 @@ sys.path.insert(0, str(HERE))
 import naive  # noqa: E402
 from timing import best_and_median, best_of  # noqa: E402  (benchmarks/ is on sys.path)
 
-from evperc import load  # noqa: E402
+from evperc import fused, load  # noqa: E402
 from evperc.config import load_config  # noqa: E402
 from evperc.fused import FusedOutputs, StoredOutputs, fused_step, window_order  # noqa: E402
 from evperc.geo.prior import prior_masses  # noqa: E402
@@ -278,6 +280,14 @@ def in_process(sim: Path, config_path: Path, stored: Path) -> dict:
 
     ours_fusion, median_fusion = best_and_median(lambda: step(floats), FUSION_FRAMES)
     ours_stored, median_stored = best_and_median(lambda: step(out), FUSION_FRAMES)
+    # the general kernel (any option set; the default options run the lean one), stored kind
+    lean_or_general = fused._kernel
+    fused._kernel = lambda floats, lean: lean_or_general(floats, False)
+    try:
+        step(out)  # compiles it on a first benchmark run
+        general_stored, general_median = best_and_median(lambda: step(out), FUSION_FRAMES)
+    finally:
+        fused._kernel = lean_or_general
     # the stored kind once more from the state of the naive comparison
     pg[...], zeta[...], flags[...], focal[...] = state.pg, state.zeta, state.flags, state.focal
     fused_step(pg, zeta, free, occ, labels, betas, 0.1, params, out=floats, flags=flags,
@@ -300,6 +310,7 @@ def in_process(sim: Path, config_path: Path, stored: Path) -> dict:
             "sensor_agreement": sensor_agree, "ours_fusion_s": ours_fusion,
             "ours_stored_s": ours_stored, "naive_fusion_s": naive_fusion,
             "median_fusion_s": median_fusion, "median_stored_s": median_stored,
+            "general_stored_s": general_stored, "general_median_stored_s": general_median,
             "state_copy_s": copy_s,
             "naive_decisions_equal": float((naive_decision == floats.decision.ravel()[pick]
                                             ).mean()),
@@ -419,7 +430,9 @@ def rows_from(data: dict) -> list[dict]:
                  cols["a"]: f"same step writing the uint8 layers as stored (the run's kernel) "
                             f"{ip['ours_stored_s'] * 1e3:.2f} "
                             f"({1 / ip['ours_stored_s']:.0f} frames/s; median "
-                            f"{ip['median_stored_s'] * 1e3:.2f}); state copy (20 MB) "
+                            f"{ip['median_stored_s'] * 1e3:.2f}); the general kernel "
+                            f"(any options) {ip['general_stored_s'] * 1e3:.2f} (median "
+                            f"{ip['general_median_stored_s'] * 1e3:.2f}); state copy (20 MB) "
                             f"{ip['state_copy_s'] * 1e3:.2f}"})
     naive_frame = ip["naive_sensor_s"] + ip["naive_fusion_s"]
     rows.append({"measure": "whole frame: naive (sensor + fusion) s vs our run",
