@@ -228,7 +228,7 @@ def _kernel(floats: bool, lean: bool) -> Callable[..., None]:
     """The compiled step for ``floats`` (:class:`FusedOutputs`) or stored outputs; ``lean``:
     the variant without the operations that are identities for contextual discounting
     with α_I = 0 and a residual conflict that is not normalised (the default options;
-    10–15 % faster, see docs/performance.md). Each is compiled on its first use."""
+    10–16 % faster, see docs/performance.md). Each is compiled on its first use."""
     if lean:
         return fused_kernel.step_float_lean if floats else fused_kernel.step_stored_lean
     return fused_kernel.step_float if floats else fused_kernel.step_stored

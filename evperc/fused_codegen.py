@@ -36,7 +36,7 @@ Two variants of each kernel: the general one, and a *lean* one for the options w
 the I butterfly (α_I = 0), classical discounting and the ⊛ rule's normalisation are
 identities — contextual discounting with α_I = 0 and a residual conflict that is not
 normalised, the default configuration. Fewer operations spill fewer of the 32 + 32 + 32
-live values out of the registers: the lean step is 12–16 % faster (docs/performance.md).
+live values out of the registers: the lean step is 10–16 % faster (docs/performance.md).
 :func:`evperc.fused.fused_step` picks it; numba compiles a variant on its first use. Arrays are
 flattened once and indexed with unsigned integers: a signed index gets numba's
 negative-index fix-up (vector copies become scatters) and an array view costs two atomic

@@ -103,12 +103,21 @@ def yaw_quaternion(yaw: float) -> dict[str, float]:
 
 
 class DriveWriter:
-    """The MCAP of a simulated drive: lidar, odometry, tf, tf_static, GNSS."""
+    """The MCAP of a simulated drive: lidar, odometry, tf, tf_static, GNSS.
+
+    Messages go into the file in log-time order, as a recorder writes them: the pose,
+    transform and GNSS messages (all given before the scans) are queued and written
+    before the first scan stamped after them, so each chunk holds a scan and the poses
+    around it (written first, every pose of the drive would sit in the file's first
+    chunks, which a reader then decodes at once before the first scan)."""
 
     def __init__(self, path: Path) -> None:
         self._file = Path(path).open("wb")
         self._w = Writer(self._file)
         self._schemas: dict[str, Any] = {}
+        self._queued: list[tuple[int, int, str, str, dict[str, Any]]] = []
+        self._next = 0  # the first queued message not written yet
+        self._in_order = True
 
     def _schema(self, name: str) -> Any:
         if name not in self._schemas:
@@ -116,6 +125,26 @@ class DriveWriter:
         return self._schemas[name]
 
     def _write(self, topic: str, name: str, msg: dict[str, Any], ns: int) -> None:
+        """Queue a message (written by :meth:`_write_queued`)."""
+        self._queued.append((ns, len(self._queued), topic, name, msg))
+        self._in_order = False
+
+    def _write_queued(self, until_ns: int | None) -> None:
+        """Write the queued messages stamped at or before ``until_ns`` (all if None), in
+        log-time order (ties in the order they were given)."""
+        if not self._in_order:
+            rest = sorted(self._queued[self._next:])
+            self._queued[self._next:] = rest
+            self._in_order = True
+        queued = self._queued
+        while self._next < len(queued) and (until_ns is None or queued[self._next][0] <= until_ns):
+            ns, _, topic, name, msg = queued[self._next]
+            queued[self._next] = None  # type: ignore[call-overload]  # written: let it go
+            self._w.write_message(topic, self._schema(name), msg, log_time=ns, publish_time=ns)
+            self._next += 1
+
+    def _write_scan(self, topic: str, name: str, msg: dict[str, Any], ns: int) -> None:
+        self._write_queued(ns)
         self._w.write_message(topic, self._schema(name), msg, log_time=ns, publish_time=ns)
 
     def points(self, ns: int, xyz: np.ndarray, intensity: np.ndarray,
@@ -124,7 +153,7 @@ class DriveWriter:
         data = np.column_stack([xyz, intensity]).astype("<f4")
         fields = [{"name": n, "offset": 4 * i, "datatype": 7, "count": 1}
                   for i, n in enumerate(("x", "y", "z", "intensity"))]
-        self._write(topic, "sensor_msgs/PointCloud2", {
+        self._write_scan(topic, "sensor_msgs/PointCloud2", {
             "header": {"stamp": stamp(ns), "frame_id": frame_id}, "height": 1,
             "width": len(data), "fields": fields, "is_bigendian": False, "point_step": 16,
             "row_step": 16 * len(data), "data": data.tobytes(), "is_dense": True}, ns)
@@ -134,7 +163,7 @@ class DriveWriter:
              frame_id: str = "lidar") -> None:
         """LaserScan; missing returns are +inf (REP 117)."""
         r = np.where(np.isfinite(ranges), ranges, np.inf).astype(np.float32)
-        self._write(topic, "sensor_msgs/LaserScan", {
+        self._write_scan(topic, "sensor_msgs/LaserScan", {
             "header": {"stamp": stamp(ns), "frame_id": frame_id},
             "angle_min": angle_min, "angle_max": angle_min + angle_increment * (len(r) - 1),
             "angle_increment": angle_increment, "time_increment": 0.0, "scan_time": 0.1,
@@ -171,6 +200,7 @@ class DriveWriter:
             "position_covariance_type": 2}, ns)
 
     def close(self) -> None:
+        self._write_queued(None)
         self._w.finish()
         self._file.close()
 

@@ -14,7 +14,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from evperc.config import load_config
 from evperc.geo.window import Window, overlap
-from evperc.sim.drive import SimRequest, simulate
+from evperc.sim.drive import ODOM_HZ, SCAN_HZ, SimRequest, simulate
 from evperc.sim.truth import load_truth
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "osm"
@@ -82,6 +82,24 @@ def test_mcap_decodes_with_mcap_ros2(drive: Path) -> None:
     lat = np.array([m.latitude for _, m in fixes])
     lon = np.array([m.longitude for _, m in fixes])
     assert ((60.16 < lat) & (lat < 60.18) & (24.93 < lon) & (lon < 24.96)).all()
+
+
+def test_messages_are_in_log_time_order_in_the_file(drive: Path) -> None:
+    """As a recorder writes them: in file order (not the reader's log-time merge) every
+    message's log time is at or after the one before, so the poses of the drive are spread
+    over the scans' chunks instead of all sitting in the first ones."""
+    with (drive / "drive.mcap").open("rb") as f:
+        reader = make_reader(f)
+        in_file = [(channel.topic, message.log_time) for _, channel, message in
+                   reader.iter_messages(log_time_order=False)]
+    times = np.array([t for _, t in in_file])
+    assert (np.diff(times) >= 0).all()
+    topics = [topic for topic, _ in in_file]
+    first_scan, last_scan = topics.index("/lidar/points"), len(topics) - 1 - topics[::-1].index(
+        "/lidar/points")
+    between = topics[first_scan:last_scan]
+    assert between.count("/odom") == round(ODOM_HZ / SCAN_HZ) * 19  # between the 20 scans
+    assert topics.count("/lidar/points") == 20 and topics.count("/tf_static") == 1
 
 
 def test_truth_windows_follow_the_lidar_pose_from_odometry_and_origin(drive: Path) -> None:
