@@ -527,6 +527,19 @@ def written(out: FusedOutputs | StoredOutputs) -> tuple[np.ndarray, ...]:
     return (runs, *out.arrays()[1:])
 
 
+def scrolled_frames(rng: np.random.Generator, shape: tuple[int, int], frames: int,
+                    reach: int = 7):
+    """``(frame, shift, offset)`` of ``frames`` frames of a circular buffer: no move first,
+    then a random move of up to ``reach`` cells per axis (drawn from ``rng`` as each frame
+    is taken), and the buffer offset that follows it."""
+    offset = (0, 0)
+    for frame in range(frames):
+        shift = ((0, 0) if frame == 0 else
+                 tuple(int(v) for v in rng.integers(-reach, reach + 1, 2)))
+        offset = ((offset[0] + shift[0]) % shape[0], (offset[1] + shift[1]) % shape[1])
+        yield frame, shift, offset
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_compact_layout_equals_dense(seed: int) -> None:
     """SPEC §1: the compact layout (a block reads and writes only the planes its cells'
@@ -542,10 +555,7 @@ def test_compact_layout_equals_dense(seed: int) -> None:
     focal = focal_sets(pg)
     all_sets = np.full(shape, 0xFFFFFFFF, np.uint32)
     assert (focal != all_sets).all()  # planes to skip
-    offset = (0, 0)
-    for frame in range(5):
-        shift = (0, 0) if frame == 0 else tuple(int(v) for v in rng.integers(-7, 8, 2))
-        offset = ((offset[0] + shift[0]) % shape[0], (offset[1] + shift[1]) % shape[1])
+    for frame, shift, offset in scrolled_frames(rng, shape, 5):
         free, occ = random_scan(rng, shape)
         kind = StoredOutputs if frame % 2 else FusedOutputs
         got = planar_step(pg, zeta, free, occ, labels, (0.9, 0.9, 0.8), 0.1, params,
@@ -600,11 +610,8 @@ def test_stored_masses_are_the_state_in_tiles(seed: int, shape: tuple[int, int])
     params = FusionParams()
     pg, zeta = planar_random_state(rng, shape)
     flags, focal = vacuous_flags(pg, zeta), focal_sets(pg)
-    offset = (0, 0)
     idle_tiles = 0
-    for frame in range(4):
-        shift = (0, 0) if frame == 0 else tuple(int(v) for v in rng.integers(-9, 10, 2))
-        offset = ((offset[0] + shift[0]) % shape[0], (offset[1] + shift[1]) % shape[1])
+    for frame, shift, offset in scrolled_frames(rng, shape, 4, reach=9):
         free, occ = random_scan(rng, shape)
         free[: shape[0] // 2], occ[: shape[0] // 2] = 0, 0  # a band the scan does not see
         stored = planar_step(pg, zeta, free, occ, None, (0.9, 0.9, 0.8), 0.1, params,
@@ -684,23 +691,15 @@ def test_lean_kernel_equals_general(seed: int, monkeypatch: pytest.MonkeyPatch) 
     labels = rng.choice(np.array([0, 1, 2, NO_MAP], np.uint8), size=shape)
     states = {lean: (pg.copy(), zeta.copy(), vacuous_flags(pg, zeta), focal_sets(pg))
               for lean in (False, True)}
-    chosen = []
+    chosen = []  # the variant fused_step asked for
     kernel = fused._kernel
-
-    def forced(floats: bool, lean: bool, force: list[bool]):
-        chosen.append(lean)
-        return kernel(floats, force[0])
-
-    offset = (0, 0)
-    for frame in range(5):
-        shift = (0, 0) if frame == 0 else tuple(int(v) for v in rng.integers(-7, 8, 2))
-        offset = ((offset[0] + shift[0]) % shape[0], (offset[1] + shift[1]) % shape[1])
+    for frame, shift, offset in scrolled_frames(rng, shape, 5):
         free, occ = random_scan(rng, shape)
         kind = StoredOutputs if frame % 2 else FusedOutputs
         outs = {}
         for lean, (s_pg, s_zeta, s_flags, s_focal) in states.items():
-            monkeypatch.setattr(fused, "_kernel",
-                                lambda floats, want, lean=lean: forced(floats, want, [lean]))
+            monkeypatch.setattr(fused, "_kernel", lambda floats, want, lean=lean:
+                                chosen.append(want) or kernel(floats, lean))
             outs[lean] = planar_step(s_pg, s_zeta, free, occ, labels, (0.9, 0.9, 0.8), 0.1,
                                      params, out=kind.empty(shape), flags=s_flags,
                                      focal=s_focal, offset=offset, shift=shift)
