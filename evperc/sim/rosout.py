@@ -6,6 +6,8 @@ Schema text is the message definition followed by every type it uses, each after
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import math
 from pathlib import Path
 from typing import Any
@@ -115,9 +117,9 @@ class DriveWriter:
         self._file = Path(path).open("wb")
         self._w = Writer(self._file)
         self._schemas: dict[str, Any] = {}
+        # (log time, order given, topic, type, message): a heap, earliest first
         self._queued: list[tuple[int, int, str, str, dict[str, Any]]] = []
-        self._next = 0  # the first queued message not written yet
-        self._in_order = True
+        self._given = itertools.count()
 
     def _schema(self, name: str) -> Any:
         if name not in self._schemas:
@@ -126,22 +128,15 @@ class DriveWriter:
 
     def _write(self, topic: str, name: str, msg: dict[str, Any], ns: int) -> None:
         """Queue a message (written by :meth:`_write_queued`)."""
-        self._queued.append((ns, len(self._queued), topic, name, msg))
-        self._in_order = False
+        heapq.heappush(self._queued, (ns, next(self._given), topic, name, msg))
 
     def _write_queued(self, until_ns: int | None) -> None:
         """Write the queued messages stamped at or before ``until_ns`` (all if None), in
         log-time order (ties in the order they were given)."""
-        if not self._in_order:
-            rest = sorted(self._queued[self._next:])
-            self._queued[self._next:] = rest
-            self._in_order = True
         queued = self._queued
-        while self._next < len(queued) and (until_ns is None or queued[self._next][0] <= until_ns):
-            ns, _, topic, name, msg = queued[self._next]
-            queued[self._next] = None  # type: ignore[call-overload]  # written: let it go
+        while queued and (until_ns is None or queued[0][0] <= until_ns):
+            ns, _, topic, name, msg = heapq.heappop(queued)
             self._w.write_message(topic, self._schema(name), msg, log_time=ns, publish_time=ns)
-            self._next += 1
 
     def _write_scan(self, topic: str, name: str, msg: dict[str, Any], ns: int) -> None:
         self._write_queued(ns)
