@@ -413,6 +413,37 @@ def test_closure_of_focal_sets() -> None:
             assert set(np.flatnonzero(seen)) == expect
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_road_closure_holds_for_the_numpy_step(seed: int) -> None:
+    """fused_codegen.road_closure, which decides where the lean kernel may run its road
+    body: the numpy step (which knows nothing of it) never moves mass onto ROAD_ZERO in
+    cells without the building label, from states on the closure, over frames, with lean
+    options; it does with the building prior or with α_I > 0 (the closure depends on
+    both)."""
+    rng = np.random.default_rng(1300 + seed)
+    shape = (12, 40)
+    params = lean_params(rng)
+    params = FusionParams(**{**params.__dict__, "gamma_occupied": 0.2})  # ζ moves
+    closure = sorted(fused_codegen.road_closure())
+    assert len(closure) == 20 and not set(closure) & set(ROAD_ZERO)
+    pg = np.zeros((*shape, 32))
+    pg[..., closure] = rng.dirichlet(np.ones(len(closure)), size=shape)
+    zeta = rng.uniform(0, 1, shape)
+    labels = rng.choice(np.array([0, 1, NO_MAP], np.uint8), size=shape)
+    prior = numpy_prior(labels, (0.9, 0.9, 0.8), shape)
+    for _ in range(4):
+        free, occ = random_scan(rng, shape)
+        pg, zeta = numpy_step(pg, zeta, free, occ, prior, (free > 0) | (occ > 0), 0.1,
+                              params)[:2]
+        assert not pg[..., ROAD_ZERO].any()
+    building = numpy_prior(np.full(shape, 2, np.uint8), (0.9, 0.9, 0.8), shape)
+    with_i = FusionParams(**{**params.__dict__, "discount_rates": (0.1, 0.1, 0.1, 0.1, 0.1)})
+    for prior_, params_ in ((building, params), (prior, with_i)):
+        free, occ = random_scan(rng, shape)
+        moved = numpy_step(pg, zeta, free, occ, prior_, np.ones(shape, bool), 0.1, params_)[0]
+        assert moved[..., ROAD_ZERO].any()
+
+
 def test_rejects_bad_inputs() -> None:
     pg = np.zeros((2, 2, 32), np.float32)
     pg[..., 31] = 1
@@ -678,17 +709,53 @@ def lean_params(rng: np.random.Generator) -> FusionParams:
                            "residual_conflict": str(rng.choice(["omega", "empty"]))})
 
 
-@pytest.mark.parametrize("seed", range(4))
+ROAD_ZERO = sorted(fused_codegen.ROAD_ZERO)
+
+
+def road_scene(rng: np.random.Generator, shape: tuple[int, int]
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Planar state, ζ and labels of a street: road, other and unmapped ground with a few
+    square buildings; outside the buildings the cells have mass only on the road closure
+    (fused_codegen.road_closure), as after driving there, so that most sub-blocks of 16
+    cells run the kernel's road body."""
+    labels = rng.choice(np.array([0, 1, NO_MAP], np.uint8), size=shape, p=[0.5, 0.4, 0.1])
+    for _ in range(3):
+        r, c = int(rng.integers(0, shape[0] - 6)), int(rng.integers(0, shape[1] - 12))
+        labels[r:r + 6, c:c + 12] = 2
+    pg, zeta = sparse_planar_state(rng, shape)
+    road = labels != 2
+    moved = pg[ROAD_ZERO][:, road].sum(axis=0)
+    pg[np.ix_(ROAD_ZERO)] = np.where(road, 0, pg[ROAD_ZERO])
+    pg[31, road] += moved
+    return pg, zeta, labels
+
+
+def road_sub_blocks(labels: np.ndarray, focal: np.ndarray) -> float:
+    """Share of the sub-blocks of 16 window cells (of the lean kernel's blocks) with no
+    building label and no mass on ROAD_ZERO: those the road body computes."""
+    zero = np.uint32(sum(1 << a for a in ROAD_ZERO))
+    eligible = (labels != 2) & ((focal & zero) == 0)
+    cols = labels.shape[1] // 16 * 16
+    return float(eligible[:, :cols].reshape(labels.shape[0], -1, 16).all(axis=2).mean())
+
+
+@pytest.mark.parametrize("seed", range(6))
 def test_lean_kernel_equals_general(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
     """The lean kernel (without the I butterfly, classical discounting and normalisation,
-    identities for its options) gives what the general kernel gives: state, ζ, focal sets
-    and both output kinds over scrolled frames, to float32 round-off (the same values up
-    to LLVM's reassociation of the sums that remain), decisions identical."""
+    identities for its options, and with the road body for sub-blocks without buildings)
+    gives what the general kernel gives: state, ζ, focal sets and both output kinds over
+    scrolled frames, to float32 round-off (the same values up to LLVM's reassociation of
+    the sums that remain), decisions identical. Seeds 4, 5: a street scene where most
+    sub-blocks run the road body."""
     rng = np.random.default_rng(900 + seed)
     shape = (30, 300) if seed % 2 else (41, 97)
     params = lean_params(rng)
-    pg, zeta = sparse_planar_state(rng, shape)
-    labels = rng.choice(np.array([0, 1, 2, NO_MAP], np.uint8), size=shape)
+    if seed < 4:
+        pg, zeta = sparse_planar_state(rng, shape)
+        labels = rng.choice(np.array([0, 1, 2, NO_MAP], np.uint8), size=shape)
+    else:
+        pg, zeta, labels = road_scene(rng, shape)
+        assert road_sub_blocks(labels, focal_sets(pg)) > 0.6
     states = {lean: (pg.copy(), zeta.copy(), vacuous_flags(pg, zeta), focal_sets(pg))
               for lean in (False, True)}
     chosen = []  # the variant fused_step asked for
@@ -722,7 +789,13 @@ def test_lean_kernel_equals_general(seed: int, monkeypatch: pytest.MonkeyPatch) 
             np.testing.assert_allclose(lean_out.betp, general.betp, rtol=0, atol=2e-6)
             np.testing.assert_allclose(lean_out.conflict, general.conflict, rtol=0, atol=2e-6)
         else:
-            np.testing.assert_array_equal(lean_out.tile_masks, general.tile_masks)
+            # a tile's mask may differ in a set where all its cells have tiny masses only
+            tiny_window = window_order(tiny, offset)
+            for r, t in zip(*np.nonzero(lean_out.tile_masks != general.tile_masks),
+                            strict=True):
+                bits = int(lean_out.tile_masks[r, t] ^ general.tile_masks[r, t])
+                cells = tiny_window[:, r, t * MASS_TILE:(t + 1) * MASS_TILE]
+                assert all(cells[a].all() for a in range(32) if bits >> a & 1)
             for a, b in ((lean_out.masses(), general.masses()), (lean_out.betp, general.betp),
                          (lean_out.zeta, general.zeta)):
                 assert np.abs(a.astype(int) - b.astype(int)).max() <= 1
