@@ -57,6 +57,7 @@ RULES: dict[str, tuple] = {
     "fusion.zeta_decrement": ("range", *_UNIT_INTERVAL, False, False),
     "fusion.gamma_occupied": ("range", *_UNIT_INTERVAL, False, False),
     "fusion.gamma_conflict": ("range", *_UNIT_INTERVAL, False, False),
+    "fusion.threads": ("range", 0, 256, False, False),
     "decision.min_betp": ("range", *_UNIT_INTERVAL, False, False),
     "decision.max_ignorance": ("range", *_UNIT_INTERVAL, False, False),
     "input.max_pose_gap_s": ("range", 0.0, 1e6, True, False),

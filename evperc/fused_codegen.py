@@ -577,7 +577,8 @@ def _kernel(kind: str, lean: bool = False) -> list[str]:
         "@numba.njit(cache=True, nogil=True, fastmath=True, error_model=\"numpy\")",
         f"def step_{kind}{'_lean' if lean else ''}(state, zeta, flags, focal, off_r, off_c, dr, "
         "dc_, free, occ, labels,",
-        f"               observed, {PARAMS}, {outs}):  # pragma: no cover - compiled",
+        f"               observed, {PARAMS}, {outs}, band, bands, band_rows, chunk_ends):"
+        "  # pragma: no cover - compiled",
         "    rows, cols = state.shape[1], state.shape[2]",
         "    n_cells = rows * cols",
         "    st = state.reshape(32, n_cells)",
@@ -595,6 +596,11 @@ def _kernel(kind: str, lean: bool = False) -> list[str]:
         "    act = np.zeros(BLOCK, np.uint8)",
         "    dirty = np.uint32(0)  # planes that may be non-zero in some lane of buf",
         "    for r in range(rows):",
+        "        chunk = r // band_rows",
+        "        if chunk % bands != band:",
+        "            continue",
+        *(["        if r == chunk * band_rows:  # a chunk's runs start at its room",
+           "            pos = np.uint64(32 * cols * r)"] if kind == "stored" else []),
         "        buf_row = r + off_r",
         "        buf_row = buf_row - rows if buf_row >= rows else buf_row",
         "        rb = buf_row * cols",
@@ -629,7 +635,10 @@ def _kernel(kind: str, lean: bool = False) -> list[str]:
     lines += ["                    " + line for line in _body(lean)]
     lines += ["            " + line for line in _store_state() + _store_outputs(kind)]
     if kind == "stored":
-        lines.append("    q_length[0] = np.int64(pos)")
+        lines += ["        if r == min(rows, (chunk + 1) * band_rows) - 1:",
+                  "            chunk_ends[chunk] = np.int64(pos)",
+                  "    if bands == 1:",
+                  "        q_length[0] = np.int64(pos)"]
     return lines
 
 

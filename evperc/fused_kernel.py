@@ -48,7 +48,7 @@ ROAD_ZERO_MASK = np.uint32(0xccc0ccc)
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
-               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, betp, conflict, decision):  # pragma: no cover - compiled
+               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, betp, conflict, decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
     n_cells = rows * cols
     st = state.reshape(32, n_cells)
@@ -68,6 +68,9 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
     act = np.zeros(BLOCK, np.uint8)
     dirty = np.uint32(0)  # planes that may be non-zero in some lane of buf
     for r in range(rows):
+        chunk = r // band_rows
+        if chunk % bands != band:
+            continue
         buf_row = r + off_r
         buf_row = buf_row - rows if buf_row >= rows else buf_row
         rb = buf_row * cols
@@ -914,7 +917,7 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
-               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision):  # pragma: no cover - compiled
+               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
     n_cells = rows * cols
     st = state.reshape(32, n_cells)
@@ -938,6 +941,11 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
     act = np.zeros(BLOCK, np.uint8)
     dirty = np.uint32(0)  # planes that may be non-zero in some lane of buf
     for r in range(rows):
+        chunk = r // band_rows
+        if chunk % bands != band:
+            continue
+        if r == chunk * band_rows:  # a chunk's runs start at its room
+            pos = np.uint64(32 * cols * r)
         buf_row = r + off_r
         buf_row = buf_row - rows if buf_row >= rows else buf_row
         rb = buf_row * cols
@@ -1822,12 +1830,15 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                 qz[wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
             for t in range(l1 - l0):
                 qd[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * STRIDE + l0) + np.uint64(t)])
-    q_length[0] = np.int64(pos)
+        if r == min(rows, (chunk + 1) * band_rows) - 1:
+            chunk_ends[chunk] = np.int64(pos)
+    if bands == 1:
+        q_length[0] = np.int64(pos)
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
-               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, betp, conflict, decision):  # pragma: no cover - compiled
+               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, betp, conflict, decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
     n_cells = rows * cols
     st = state.reshape(32, n_cells)
@@ -1847,6 +1858,9 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
     act = np.zeros(BLOCK, np.uint8)
     dirty = np.uint32(0)  # planes that may be non-zero in some lane of buf
     for r in range(rows):
+        chunk = r // band_rows
+        if chunk % bands != band:
+            continue
         buf_row = r + off_r
         buf_row = buf_row - rows if buf_row >= rows else buf_row
         rb = buf_row * cols
@@ -2961,7 +2975,7 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
-               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision):  # pragma: no cover - compiled
+               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
     n_cells = rows * cols
     st = state.reshape(32, n_cells)
@@ -2985,6 +2999,11 @@ def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ
     act = np.zeros(BLOCK, np.uint8)
     dirty = np.uint32(0)  # planes that may be non-zero in some lane of buf
     for r in range(rows):
+        chunk = r // band_rows
+        if chunk % bands != band:
+            continue
+        if r == chunk * band_rows:  # a chunk's runs start at its room
+            pos = np.uint64(32 * cols * r)
         buf_row = r + off_r
         buf_row = buf_row - rows if buf_row >= rows else buf_row
         rb = buf_row * cols
@@ -4137,4 +4156,7 @@ def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ
                 qz[wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
             for t in range(l1 - l0):
                 qd[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * STRIDE + l0) + np.uint64(t)])
-    q_length[0] = np.int64(pos)
+        if r == min(rows, (chunk + 1) * band_rows) - 1:
+            chunk_ends[chunk] = np.int64(pos)
+    if bands == 1:
+        q_length[0] = np.int64(pos)

@@ -276,6 +276,7 @@ class Pipeline:
         self.betas = (config["map"]["beta_building"], config["map"]["beta_road"],
                       config["map"]["beta_other"])
         self.params = FusionParams.from_config(config)
+        self.fusion_threads = fusion_threads(config["fusion"]["threads"])
         self.sensor_params = SensorParams.from_config(config["sensor"], self.resolution)
         self._overlap_checked = False
         self.clock = StageClock()
@@ -404,13 +405,24 @@ class Pipeline:
         # evperc.pipeline is the numpy twin it is tested on
         fused_step(state.pg, state.zeta, inputs.free, inputs.occupied, inputs.labels,
                    self.betas, dt_s, self.params, out=out, flags=state.flags, focal=state.focal,
-                   offset=state.offset, shift=shift)
+                   offset=state.offset, shift=shift, threads=self.fusion_threads)
         state.frames += 1
         counts = count_codes(out.decision, len(state.decision_counts))
         state.decision_counts += counts
         clock.lap("fusion")
         return {"stamp_ns": inputs.stamp_ns, "pose": inputs.pose,
                 "origin": (window.row0, window.col0), "decision_counts": counts}
+
+
+def fusion_threads(configured: int) -> int:
+    """Threads of the fused step: ``configured``, or for 0 the cores this process may use
+    less the two that the decode and writer threads keep busy (at least 1). On two cores
+    the run is CPU-bound already (docs/performance.md): a second fusion thread would only
+    take turns with the decode thread."""
+    if configured > 0:
+        return configured
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, (cores or 1) - 2)
 
 
 def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:
@@ -494,6 +506,7 @@ def run(request: RunRequest, resume: bool = False,
         state.allocate((int(writer.manifest["rows"]), int(writer.manifest["cols"])))
     t0 = time.perf_counter()
     main_cpu0, writer_cpu0 = time.thread_time(), writer.thread_cpu_s
+    process_cpu0 = time.process_time()
     decode_cpu = [0.0]
     new_frames = 0
     # scans are read, decoded and turned into sensor grids in a thread (the second core)
@@ -536,6 +549,8 @@ def run(request: RunRequest, resume: bool = False,
     wall = time.perf_counter() - t0
     cpu_s = {"main": time.thread_time() - main_cpu0, "decode": decode_cpu[0],
              "writer": writer.thread_cpu_s - writer_cpu0}
+    # the fused step's other threads (fusion.threads > 1), and any other thread
+    cpu_s["other"] = max(0.0, time.process_time() - process_cpu0 - sum(cpu_s.values()))
     counts = state.decision_counts
     total = max(int(counts.sum()), 1)
     names = sorted(DECISION_CODES, key=DECISION_CODES.get)
@@ -548,6 +563,7 @@ def run(request: RunRequest, resume: bool = False,
                "skipped_scans": dict(pipeline.reader.stats),
                "resumed": resume,
                "sensor_grids_in_fusion_thread": pipeline.sensor_grids_in_step,
+               "fusion_threads": pipeline.fusion_threads,
                "stage_ms_per_frame": dict(clock.per_frame_ms(new_frames), writer_thread=round(
                    1e3 * writer.thread_seconds / max(new_frames, 1), 3)),
                # CPU time of each thread over the frame loop (wall times above include the

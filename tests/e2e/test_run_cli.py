@@ -51,9 +51,11 @@ def test_run_writes_a_complete_loadable_output(drive: Path, small_config: Path,
     assert manifest["complete"] is True
     assert manifest["frame_count"] == 40
     assert manifest["decision_codes"]["moving"] == 2
-    # CPU of the three threads over the frame loop, per frame
+    # CPU of the three threads over the frame loop, per frame, and of any other thread
     cpu = manifest["summary"]["cpu_ms_per_frame"]
-    assert set(cpu) == {"main", "decode", "writer"} and all(v > 0 for v in cpu.values())
+    assert set(cpu) == {"main", "decode", "writer", "other"}
+    assert all(cpu[k] > 0 for k in ("main", "decode", "writer")) and cpu["other"] >= 0
+    assert manifest["summary"]["fusion_threads"] >= 1
     assert 0 < manifest["summary"]["start_up_s"] < 60
     stages = manifest["summary"]["stage_ms_per_frame"]
     assert {"decode", "sensor", "fusion", "read", "writer_thread"} <= set(stages)
@@ -232,6 +234,38 @@ def test_the_thread_that_computes_a_sensor_grid_does_not_change_the_output(
         np.testing.assert_array_equal(a.masses, b.masses)
         np.testing.assert_array_equal(a.decision, b.decision)
         np.testing.assert_array_equal(a.zeta, b.zeta)
+
+
+def test_fusion_threads_do_not_change_the_output(drive: Path, tmp_path: Path) -> None:
+    """fusion.threads shares the fused step's rows among threads (evperc.fused, chunks of
+    16 rows; this 40 m window has 80): 1, 2 and 3 threads write the same frames, and the
+    summary says how many ran (0, the default, resolves to at least one)."""
+    frames = {}
+    for threads in (1, 2, 3, 0):
+        config = load_config(overrides={"grid.window_size_m": 40.0, "fusion.threads": threads})
+        out = tmp_path / f"threads-{threads}"
+        summary = run(RunRequest(log_path=drive, out_dir=out, config=config), progress=False)
+        assert summary["fusion_threads"] == threads or (threads == 0
+                                                        and summary["fusion_threads"] >= 1)
+        frames[threads] = list(evperc.load(out).frames)
+    for threads in (2, 3, 0):
+        for a, b in zip(frames[1], frames[threads], strict=True):
+            for layer in ("masses", "betp", "conflict", "zeta", "decision"):
+                np.testing.assert_array_equal(getattr(a, layer), getattr(b, layer))
+
+
+@pytest.mark.parametrize(("configured", "cores", "threads"),
+                         [(0, 1, 1), (0, 2, 1), (0, 3, 1), (0, 8, 6), (3, 2, 3), (1, 8, 1)])
+def test_fusion_threads_auto_leaves_two_cores(configured: int, cores: int, threads: int,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """fusion.threads = 0: the cores the process may use less the decode and writer
+    threads' two (on two cores a second fusion thread made the run slower:
+    docs/performance.md); a configured number is kept."""
+    from evperc import runner
+
+    monkeypatch.setattr(runner.os, "sched_getaffinity", lambda pid: set(range(cores)),
+                        raising=False)
+    assert runner.fusion_threads(configured) == threads
 
 
 def test_warm_up_pays_the_first_frames_one_off_costs_and_changes_nothing(

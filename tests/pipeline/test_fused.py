@@ -661,6 +661,34 @@ def test_stored_masses_are_the_state_in_tiles(seed: int, shape: tuple[int, int])
     assert idle_tiles > 0
 
 
+@pytest.mark.parametrize(("shape", "threads"), [((70, 150), 2), ((70, 150), 3),
+                                               ((41, 300), 2), ((33, 20), 5)])
+def test_threads_write_the_same_bytes(shape: tuple[int, int], threads: int) -> None:
+    """The rows shared out among threads in chunks of fused.CHUNK_ROWS (a last chunk
+    shorter than the others, more threads than chunks allow): state, ζ, vacuous flags,
+    focal sets and both output kinds are the bytes one thread writes, over scrolled frames
+    with unobserved bands (idle blocks, runs of different lengths per chunk)."""
+    rng = np.random.default_rng(1400 + threads)
+    params = FusionParams()
+    pg, zeta, labels = road_scene(rng, shape)
+    states = {n: (pg.copy(), zeta.copy(), vacuous_flags(pg, zeta), focal_sets(pg))
+              for n in (1, threads)}
+    for frame, shift, offset in scrolled_frames(rng, shape, 4):
+        free, occ = random_scan(rng, shape)
+        free[frame * 5:frame * 5 + 20], occ[frame * 5:frame * 5 + 20] = 0, 0
+        kind = StoredOutputs if frame % 2 else FusedOutputs
+        written_by = {}
+        for n, (s_pg, s_zeta, s_flags, s_focal) in states.items():
+            out = planar_step(s_pg, s_zeta, free, occ, labels, (0.9, 0.9, 0.8), 0.1, params,
+                              out=kind.empty(shape), flags=s_flags, focal=s_focal,
+                              offset=offset, shift=shift, threads=n)
+            written_by[n] = written(out)
+        for a, b in zip(*written_by.values(), strict=True):
+            np.testing.assert_array_equal(a, b)
+        for a, b in zip(*states.values(), strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_generated_kernel_is_up_to_date() -> None:
     """evperc/fused_kernel.py is what evperc/fused_codegen.py writes (regenerate with
     ``python -m evperc.fused_codegen``)."""
