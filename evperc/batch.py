@@ -117,7 +117,10 @@ def plan(request: BatchRequest) -> list[RunRequest]:
     from evperc.runner import RunRequest
 
     root = Path(request.out_root).expanduser().resolve()
-    return [RunRequest(log_path=path, out_dir=root / name, config=request.config,
+    config = request.config
+    if config["fusion"]["threads"] == 0:  # auto: the logs running side by side use the cores
+        config = {**config, "fusion": {**config["fusion"], "threads": 1}}
+    return [RunRequest(log_path=path, out_dir=root / name, config=config,
                     map_path=_absolute(request.map_path),
                     roads_path=_absolute(request.roads_path))
             for path, name in zip(logs, output_names(logs), strict=True)]
@@ -195,6 +198,11 @@ def _same_path(saved: str | None, wanted: Path | None) -> bool:
 
 
 def _canonical(config: Any) -> str:
+    """The config as compared between runs: without ``fusion.threads``, which does not
+    change the output (and which configs written before it existed do not have)."""
+    if isinstance(config, dict) and isinstance(config.get("fusion"), dict):
+        config = {**config, "fusion": {key: value for key, value in config["fusion"].items()
+                                       if key != "threads"}}
     return json.dumps(config, sort_keys=True, default=str)
 
 

@@ -105,3 +105,22 @@ def test_a_worker_reads_the_map_once_for_many_logs(tmp_path, monkeypatch):
     assert [row["status"] for row in rows] == ["ok", "ok"], rows
     assert rows[0]["frames"] == rows[1]["frames"] > 0
     assert len(reads) == 1
+
+
+def test_batch_runs_one_fusion_thread_per_log_unless_configured(tmp_path):
+    """fusion.threads = 0 (auto) would give every worker process the machine's cores less
+    two; the logs of a batch already run side by side, so each gets one fusion thread. A
+    configured number is kept, and the thread count is not part of the config compared
+    when a batch meets an output it made before (it does not change the output)."""
+    from evperc.batch import BatchRequest, _canonical, plan
+
+    logs = (tmp_path / "a.mcap", tmp_path / "b.mcap")
+    for threads, want in ((0, 1), (3, 3)):
+        config = load_config(overrides={"fusion.threads": threads})
+        tasks = plan(BatchRequest(logs=logs, out_root=tmp_path / "out", config=config))
+        assert [task.config["fusion"]["threads"] for task in tasks] == [want, want]
+    auto, two = load_config(), load_config(overrides={"fusion.threads": 2})
+    assert _canonical(auto) == _canonical(two)
+    assert _canonical(auto) != _canonical(load_config(overrides={"fusion.zeta_increment": 0.2}))
+    del auto["fusion"]["threads"]  # a manifest written before the key existed
+    assert _canonical(auto) == _canonical(two)
