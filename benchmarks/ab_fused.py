@@ -8,8 +8,12 @@ once to ``bench-out/ab-state.npz``; every frame moves the window by one cell, as
 driving. The old kernel is ``git archive REV evperc configs`` unpacked into a temporary
 folder.
 
-``python benchmarks/ab_fused.py [--base REV] [--rounds 6] [--frames 40] [--stored]``
-(default base: f17e282, the kernel before the compact focal-set layout).
+``--replay`` times the step over (a)'s own frames 10–99 instead, back to back with every
+scan's inputs prepared first (as ``bench_run.replay``; the window moving with the vehicle,
+a new scan each frame).
+
+``python benchmarks/ab_fused.py [--base REV] [--rounds 6] [--frames 40] [--stored]
+[--replay]`` (default base: f17e282, the kernel before the compact focal-set layout).
 """
 
 from __future__ import annotations
@@ -62,6 +66,34 @@ print(json.dumps(times[2:]))
 """
 
 
+#: ``--replay``: the step over (a)'s frames back to back (inputs prepared first), as
+#: bench_run.replay; times of frames 10 on. argv: simulated log folder, config, frames, kind
+REPLAY_CHILD = r"""
+import json, sys, time
+from pathlib import Path
+from evperc.config import load_config
+from evperc.fused import FusedOutputs, StoredOutputs, fused_step
+from evperc.runner import FusionState, Pipeline, RunRequest
+sim = Path(sys.argv[1])
+pipeline = Pipeline(RunRequest(log_path=sim / "drive.mcap", out_dir=sim / "unused",
+                               config=load_config(sys.argv[2]), map_path=sim / "map.geojson"))
+inputs = []
+for _, scan in pipeline.scans(-1):
+    prepared = pipeline.prepare(scan)
+    inputs.append(prepared if prepared.free is not None else pipeline.sensor_grid(prepared))
+out = (StoredOutputs if sys.argv[4] == "stored" else FusedOutputs).empty(inputs[0].free.shape)
+state, times = FusionState(), []
+for frame in inputs[:10 + int(sys.argv[3])]:
+    shift = state.move_to(frame.window)
+    t0 = time.perf_counter()
+    fused_step(state.pg, state.zeta, frame.free, frame.occupied, frame.labels, pipeline.betas,
+               0.1, pipeline.params, out=out, flags=state.flags, focal=state.focal,
+               offset=state.offset, shift=shift)
+    times.append(time.perf_counter() - t0)
+print(json.dumps(times[10:]))
+"""
+
+
 def save_state() -> None:
     """(a)'s state after SCANS scans and the next scan's inputs (default fusion config)."""
     sys.path.insert(0, str(ROOT))
@@ -100,9 +132,15 @@ def unpack(rev: str, into: Path) -> Path:
     return into
 
 
-def time_kernel(path: Path, cache: Path, frames: int, kind: str) -> list[float]:
+def time_kernel(path: Path, cache: Path, frames: int, kind: str, replay: bool = False
+                ) -> list[float]:
     env = {**os.environ, "PYTHONPATH": str(path), "NUMBA_CACHE_DIR": str(cache)}
-    done = subprocess.run([sys.executable, "-c", CHILD, str(STATE), str(frames), kind], env=env,
+    if replay:
+        command = [REPLAY_CHILD, str(ROOT / "bench-out" / "sim-hdl64-10s"),
+                   str(ROOT / "bench-out" / "configs" / "window200.toml")]
+    else:
+        command = [CHILD, str(STATE)]
+    done = subprocess.run([sys.executable, "-c", *command, str(frames), kind], env=env,
                           check=True, capture_output=True, text=True, cwd=path)
     return json.loads(done.stdout)
 
@@ -111,12 +149,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--base", default="f17e282", help="the older commit (default %(default)s)")
     parser.add_argument("--rounds", type=int, default=6)
-    parser.add_argument("--frames", type=int, default=40)
+    parser.add_argument("--frames", type=int, default=None,
+                        help="frames per round (default 40; 90, all of them, with --replay)")
     parser.add_argument("--stored", action="store_true",
                         help="time the kind the runner uses (uint8 layers as stored)")
+    parser.add_argument("--replay", action="store_true",
+                        help="time the step over (a)'s frames 10-99 back to back (inputs "
+                             "prepared first) instead of repeating the state after 10 scans")
     args = parser.parse_args()
     kind = "stored" if args.stored else "float"
-    if not STATE.exists():
+    frames = args.frames or (90 if args.replay else 40)
+    if not STATE.exists():  # also simulates (a) and writes its config
         save_state()
     with tempfile.TemporaryDirectory() as tmp:
         kernels = {args.base: unpack(args.base, Path(tmp) / "base"),
@@ -128,11 +171,12 @@ def main() -> None:
         best = dict.fromkeys(kernels, float("inf"))
         for _ in range(args.rounds):
             for name, path in kernels.items():
-                times = time_kernel(path, caches[name], args.frames, kind)
+                times = time_kernel(path, caches[name], frames, kind, args.replay)
                 medians[name].append(statistics.median(times))
                 best[name] = min(best[name], min(times))
-    print(f"fused step ({kind} outputs) on (a)'s state, {args.rounds} alternating rounds of "
-          f"{args.frames} frames")
+    where = "over (a)'s frames 10-99" if args.replay else "on (a)'s state after 10 scans"
+    print(f"fused step ({kind} outputs) {where}, {args.rounds} alternating rounds of "
+          f"{frames} frames")
     print(f"{'kernel':<14} {'median of medians ms':>21} {'best frame ms':>14}  round medians")
     for name in kernels:
         print(f"{name:<14} {statistics.median(medians[name]) * 1e3:>21.2f} "
