@@ -28,8 +28,10 @@ unobserved tile writes its Ω plane only).
 
 Arithmetic is float32 (``fastmath``: LLVM may reassociate sums), so results equal the numpy
 twin to float32 round-off (~1e-6), not bit for bit. The kernels are compiled once and
-cached (``cache=True``, ~7 s each on first use); the default options run a *lean* variant
-without the operations that are identities for them (:func:`_kernel`).
+cached (``cache=True``, ~10 s each on first use, ~19 s for the lean ones with their road
+body); the default options run a *lean* variant without the operations that are
+identities for them (:func:`_kernel`). ``threads`` shares a frame's rows among threads
+(the kernels release the GIL); the bytes written do not depend on it.
 
 Reachable focal sets (:func:`reachable_focal_sets`): all 31 non-empty subsets with
 contextual discounting, 15 with classical discounting, so the state keeps all 32 planes;
