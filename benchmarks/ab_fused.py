@@ -77,10 +77,7 @@ from evperc.runner import FusionState, Pipeline, RunRequest
 sim = Path(sys.argv[1])
 pipeline = Pipeline(RunRequest(log_path=sim / "drive.mcap", out_dir=sim / "unused",
                                config=load_config(sys.argv[2]), map_path=sim / "map.geojson"))
-inputs = []
-for _, scan in pipeline.scans(-1):
-    prepared = pipeline.prepare(scan)
-    inputs.append(prepared if prepared.free is not None else pipeline.sensor_grid(prepared))
+inputs = [prepared for _, prepared in pipeline.inputs(-1)]
 out = (StoredOutputs if sys.argv[4] == "stored" else FusedOutputs).empty(inputs[0].free.shape)
 state, times = FusionState(), []
 for frame in inputs[:10 + int(sys.argv[3])]:

@@ -209,6 +209,11 @@ def thread_cpu(run: dict) -> str:
     return " / ".join(f"{cpu.get(k, float('nan')):.2f}" for k in ("main", "decode", "writer"))
 
 
+def all_runs(run: dict) -> str:
+    """frames/s of each of a workload's runs, as "a, b, c"."""
+    return ", ".join(f"{v:.1f}" for v in run["all_frames_per_s"])
+
+
 def best_run(sim: Path, out: Path, config: Path | None = None) -> dict:
     """The fastest of REPEATS runs (the machine is shared); peak RSS is the largest seen."""
     runs = [run_evperc(sim, out, config) for _ in range(REPEATS)]
@@ -231,12 +236,16 @@ def numba_startup(sim: Path) -> tuple[float, float]:
 
 
 
+def sim_pipeline(sim: Path, config_path: Path) -> Pipeline:
+    """The run's pipeline on the simulated log and map in ``sim``, in memory."""
+    return Pipeline(RunRequest(log_path=sim / "drive.mcap", out_dir=CACHE / "unused",
+                               config=load_config(config_path), map_path=sim / "map.geojson"))
+
+
 def in_process(sim: Path, config_path: Path, stored: Path) -> dict:
     """Replays (a) in memory: precision of the stored frames, then ours vs naive on the next
     scan with the state after PRECISION_FRAMES scans."""
-    config = load_config(config_path)
-    pipeline = Pipeline(RunRequest(log_path=sim / "drive.mcap", out_dir=CACHE / "unused",
-                                   config=config, map_path=sim / "map.geojson"))
+    pipeline = sim_pipeline(sim, config_path)
     state = FusionState()
     scans = pipeline.scans(-1)
     run = load(stored)
@@ -328,14 +337,8 @@ def replay(sim: Path, config_path: Path) -> dict:
     growing), with nothing in between to evict the state from the caches. Median and 90th
     percentile over frames REPLAY_FROM on (the first frames hold few non-vacuous cells), for
     both output kinds."""
-    config = load_config(config_path)
-    pipeline = Pipeline(RunRequest(log_path=sim / "drive.mcap", out_dir=CACHE / "unused",
-                                   config=config, map_path=sim / "map.geojson"))
-    inputs = []
-    for _, scan in pipeline.scans(-1):
-        prepared = pipeline.prepare(scan)
-        inputs.append(prepared if prepared.free is not None
-                      else pipeline.sensor_grid(prepared))
+    pipeline = sim_pipeline(sim, config_path)
+    inputs = [prepared for _, prepared in pipeline.inputs(-1)]
     shape = inputs[0].window.shape
     result = {"frames": len(inputs), "from": REPLAY_FROM}
     for threads in (1, 2):
@@ -427,7 +430,7 @@ def rows_from(data: dict) -> list[dict]:
         run = r[run_key]
         whole[col] = f"{run['frames_per_s']:.1f}"
         if "all_frames_per_s" in run:
-            whole[col] += f" (runs: {', '.join(f'{v:.1f}' for v in run['all_frames_per_s'])})"
+            whole[col] += f" (runs: {all_runs(run)})"
         rss[col] = f"{run['peak_rss_mb']:.0f} ({max(run['rss_mb_samples'], default=0):.0f})"
         out[col] = f"{run['bytes_per_frame'] / 1e3:,.0f} kB"
         cores[col] = f"{run['cpu_s'] / run['wall_s']:.2f}"
@@ -440,7 +443,7 @@ def rows_from(data: dict) -> list[dict]:
     a_long = r["a_long"]
     rows.append({"measure": "(a) on a 30 s log (300 scans): whole run",
                  cols["a"]: f"{a_long['frames_per_s']:.1f} frames/s (runs: "
-                            f"{', '.join(f'{v:.1f}' for v in a_long['all_frames_per_s'])}); "
+                            f"{all_runs(a_long)}); "
                             f"CPU ms/frame main / decode / writer {thread_cpu(a_long)}; "
                             f"{a_long['peak_rss_mb']:.0f} MB peak"})
     rows.append({"measure": "(a) with output.chunk_frames = 10",
