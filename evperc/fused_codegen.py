@@ -390,11 +390,10 @@ def _load() -> list[str]:
     focal sets) is not read, and is zeroed only if an earlier block may have left values in
     it (``dirty``): neighbouring blocks mostly use the same planes, so few are."""
     inside = ("max(s0, j0 + l0)", "min(s1, j0 + l1)")
-    masks = _segments(["for t in range(w):", "    old_mask |= fc[sc + np.uint64(t)]"],
-                      "j0 + l0", "j0 + l1")
     return [
         "old_mask = np.uint32(0)",
-        *masks,
+        *_segments(["for t in range(w):", "    old_mask |= fc[sc + np.uint64(t)]"],
+                   "j0 + l0", "j0 + l1"),
         "entering = s0 > j0 + l0 or s1 < j0 + l1",
         "if entering:  # some lanes entered the window: vacuous",
         "    for a in range(31):",

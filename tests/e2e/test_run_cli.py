@@ -204,7 +204,7 @@ def test_chunks_count_each_frames_decisions(drive: Path, small_config: Path,
     assert invoke("run", str(drive), "--no-map", "--config", str(small_config), "--out",
                   str(out), "--end", "1.0").exit_code == 0
     manifest = json.loads((out / "manifest.json").read_text())
-    frames = list(evperc.load(out).frames)
+    frames = _all_frames(out)
     assert len(frames) == 10
     assert manifest["first_stamp_ns"] == frames[0].stamp_ns
     for frame in frames:
@@ -229,7 +229,7 @@ def test_the_thread_that_computes_a_sensor_grid_does_not_change_the_output(
         out = tmp_path / f"fusion-{in_fusion}"
         summary = run(RunRequest(log_path=drive, out_dir=out, config=config), progress=False)
         assert summary["sensor_grids_in_fusion_thread"] == (40 if in_fusion else 0)
-        outputs[in_fusion] = list(evperc.load(out).frames)
+        outputs[in_fusion] = _all_frames(out)
     for a, b in zip(outputs[False], outputs[True], strict=True):
         np.testing.assert_array_equal(a.masses, b.masses)
         np.testing.assert_array_equal(a.decision, b.decision)
@@ -247,7 +247,7 @@ def test_fusion_threads_do_not_change_the_output(drive: Path, tmp_path: Path) ->
         summary = run(RunRequest(log_path=drive, out_dir=out, config=config), progress=False)
         assert summary["fusion_threads"] == threads or (threads == 0
                                                         and summary["fusion_threads"] >= 1)
-        frames[threads] = list(evperc.load(out).frames)
+        frames[threads] = _all_frames(out)
     for threads in (2, 3, 0):
         for a, b in zip(frames[1], frames[threads], strict=True):
             for layer in ("masses", "betp", "conflict", "zeta", "decision"):
