@@ -41,14 +41,18 @@ SCANS = 10
 CHILD = r"""
 import inspect, json, sys, time
 import numpy as np
-from evperc.fused import FusedOutputs, StoredOutputs, fused_step
-from evperc.pipeline import FusionParams
+try:
+    from evperc.fusion.fused import FusedOutputs, StoredOutputs, fused_step
+    from evperc.fusion.twin import FusionParams
+except ImportError:  # a commit before the evperc/fusion/ layout
+    from evperc.fused import FusedOutputs, StoredOutputs, fused_step
+    from evperc.pipeline import FusionParams
 with np.load(sys.argv[1]) as npz:
     z = {name: npz[name] for name in npz.files}
 pg, zeta, flags = z["pg"].copy(), z["zeta"].copy(), z["flags"].copy()
 kwargs = {}
 if "focal" in inspect.signature(fused_step).parameters:
-    from evperc.fused import focal_sets
+    focal_sets = sys.modules[fused_step.__module__].focal_sets
     kwargs["focal"] = focal_sets(pg)
 shape = flags.shape
 out = (StoredOutputs if sys.argv[3] == "stored" else FusedOutputs).empty(shape)
@@ -72,7 +76,10 @@ REPLAY_CHILD = r"""
 import json, sys, time
 from pathlib import Path
 from evperc.config import load_config
-from evperc.fused import FusedOutputs, StoredOutputs, fused_step
+try:
+    from evperc.fusion.fused import FusedOutputs, StoredOutputs, fused_step
+except ImportError:  # a commit before the evperc/fusion/ layout
+    from evperc.fused import FusedOutputs, StoredOutputs, fused_step
 from evperc.runner import FusionState, Pipeline, RunRequest
 sim = Path(sys.argv[1])
 pipeline = Pipeline(RunRequest(log_path=sim / "drive.mcap", out_dir=sim / "unused",
@@ -98,7 +105,7 @@ def save_state() -> None:
     import bench_run
 
     from evperc.config import load_config
-    from evperc.fused import StoredOutputs
+    from evperc.fusion.fused import StoredOutputs
     from evperc.runner import FusionState, Pipeline, RunRequest
 
     sim = bench_run.simulate("sim-hdl64-10s", "hdl64", 10.0)

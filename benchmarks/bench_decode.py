@@ -10,7 +10,7 @@ Columns:
   structured numpy view of the payload, three ``astype`` copies, a stacked array, a finite
   mask over it, a boolean-index copy), swapped in for the measurement;
 - ``after_ms``: the reader as it is (strided views of the payload, one compiled pass);
-- ``prefetched_ms``: the same scans through ``evperc.io.prefetch.prefetched`` (the consumer
+- ``prefetched_ms``: the same scans through ``evperc.plumbing.prefetched`` (the consumer
   does nothing: the producer thread's throughput);
 - ``serial_work_ms`` / ``overlap_work_ms``: wall time per scan when the consumer spends
   ``WORK_MS`` per scan in a GIL-free compiled loop (a stand-in for the fusion kernels),
@@ -37,10 +37,10 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-import evperc.io.mcap_messages as mcap_messages  # noqa: E402
-from evperc.io.log import open_log  # noqa: E402
-from evperc.io.pointcloud import XYZ, MissingFieldsError  # noqa: E402
-from evperc.io.prefetch import prefetched  # noqa: E402
+import evperc.logs.mcap_messages as mcap_messages  # noqa: E402
+from evperc.logs.factory import open_log  # noqa: E402
+from evperc.logs.pointcloud import XYZ, MissingFieldsError  # noqa: E402
+from evperc.plumbing import prefetched  # noqa: E402
 
 WORKLOADS = [("a: hdl64 10 s", "sim-hdl64-10s", "hdl64", 10),
              ("b: ibeo4 20 s", "sim-ibeo4-20s", "ibeo4", 20)]

@@ -1,5 +1,5 @@
-"""The fused numba step (evperc.fused) against numpy fusion_step + decide and the per-cell
-plain-Python reference (tests/pipeline/reference.py), on 160,000 cells (400 × 400) and 40,000
+"""The fused numba step (evperc.fusion.fused) against numpy fusion_step + decide and the per-cell
+plain-Python reference (tests/fusion/reference.py), on 160,000 cells (400 × 400) and 40,000
 cells (200 × 200, the default 100 m window at 0.5 m), after ~20 frames of a plausible scene.
 
 The scene: a street grid (roads, pavements, buildings) seen by a ray-cast sensor driving
@@ -28,9 +28,8 @@ sys.path.insert(0, str(ROOT))
 from timing import best_of  # noqa: E402  (benchmarks/ is on sys.path)
 
 from evperc.config import load_config  # noqa: E402
-from evperc.fused import FusedOutputs, StoredOutputs, focal_sets, fused_step  # noqa: E402
-from evperc.geo.prior import prior_masses  # noqa: E402
-from evperc.pipeline import (  # noqa: E402
+from evperc.fusion.fused import FusedOutputs, StoredOutputs, focal_sets, fused_step  # noqa: E402
+from evperc.fusion.twin import (  # noqa: E402
     FusionParams,
     decide,
     fusion_step,
@@ -38,7 +37,8 @@ from evperc.pipeline import (  # noqa: E402
     sensor_masses,
     vacuous,
 )
-from tests.pipeline import reference as ref  # noqa: E402
+from evperc.geo.prior import prior_masses  # noqa: E402
+from tests.fusion import reference as ref  # noqa: E402
 
 WARM_FRAMES = 20
 REPEATS = 5
@@ -109,8 +109,8 @@ _COMPILE_PROBE = """
 import time
 t0 = time.perf_counter()
 import numpy as np
-from evperc.fused import fused_step
-from evperc.pipeline import FusionParams
+from evperc.fusion.fused import fused_step
+from evperc.fusion.twin import FusionParams
 t1 = time.perf_counter()
 pg = np.zeros((32, 4, 4), np.float32); pg[31] = 1
 z = np.zeros((4, 4), np.float32); f = np.zeros((4, 4), np.float32)
@@ -235,7 +235,7 @@ def run() -> list[dict]:
              config["map"]["beta_other"])
     rows = bench_side(400, params, betas, 400) + bench_side(200, params, betas, 200)
     import_s, cold_s, cached_s = compile_times()
-    rows.append({"stage": "import evperc.fused (numba)", "ms": import_s * 1e3})
+    rows.append({"stage": "import evperc.fusion.fused (numba)", "ms": import_s * 1e3})
     rows.append({"stage": "first call, empty numba cache (compile)", "ms": cold_s * 1e3})
     rows.append({"stage": "first call, numba cache filled (load)", "ms": cached_s * 1e3})
     state_bytes = 160_000 * 32 * 4

@@ -1,4 +1,4 @@
-"""Writing output chunks: ``evperc.io.npz.write_npz`` (ISA-L deflate) against the former
+"""Writing output chunks: ``evperc.output.npz.write_npz`` (ISA-L deflate) against the former
 zipfile + zlib level 1 writer, measured in the same run on the real planes of workload (a).
 
 Planes: the full 9-frame chunks of an ``evperc run`` of (a) (hdl64 10 s, 200 m window:
@@ -30,8 +30,8 @@ from isal import isal_zlib
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from evperc.io import npz  # noqa: E402
-from evperc.io.writer import FORMAT_VERSION  # noqa: E402
+from evperc.output import npz  # noqa: E402
+from evperc.output.manifest import FORMAT_VERSION  # noqa: E402
 
 CACHE = ROOT / "bench-out"
 SIM = "sim-hdl64-10s"
@@ -39,7 +39,7 @@ OUT = CACHE / "npz-a"
 
 
 def zlib_write_npz(path: Path, arrays: dict[str, np.ndarray], compress: bool) -> None:
-    """The writer before evperc.io.npz (evperc/io/writer.py at 26025a8): zipfile, zlib 1."""
+    """The writer before evperc.output.npz (evperc/output/writer.py at 26025a8): zipfile, zlib 1."""
     tmp = path.with_name(f".{path.name}.tmp")
     mode = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
     try:
@@ -143,7 +143,7 @@ def run(repeats: int = 3) -> list[dict]:
     writers = {"zlib": zlib_write_npz, "isal": npz.write_npz}
     timed = time_writers(chunks, writers, repeats)
     rows = [row("write_npz: zipfile + zlib 1 (before)", *timed["zlib"]),
-            row(f"write_npz: evperc.io.npz (isal {npz.DEFLATE_LEVEL})", *timed["isal"])]
+            row(f"write_npz: evperc.output.npz (isal {npz.DEFLATE_LEVEL})", *timed["isal"])]
     buffers = [memoryview(a.reshape(-1).view(np.uint8)) for a in arrays]
     for name, make in raw_codecs().items():
         rows.append(row(f"raw deflate, {name}", *time_raw(buffers, make, repeats)))

@@ -17,9 +17,9 @@ import pyproj
 from timing import best_of  # noqa: E402  (benchmarks/ is on sys.path)
 
 from evperc.config import default_config
+from evperc.geo.maps import load_map
 from evperc.geo.prior import PriorRasteriser, prior_masses
 from evperc.geo.window import Window
-from evperc.io.maps import load_map
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "osm"
 CENTRE_LONLAT = (24.944, 60.170)

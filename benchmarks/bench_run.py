@@ -23,7 +23,7 @@ and fused step (50 frames, the window moving one cell per frame: best and median
 the naive per-point Python sensor model (whole scan, timed once) and the naive dense
 pair-loop fusion (timed on 16,000 random cells, scaled ×10 to 160,000); the fused step
 with stored outputs also with the general kernel (the default options run the lean one,
-``evperc.fused._kernel``). The naive results
+``evperc.fusion.fused._kernel``). The naive results
 are compared with ours (same decisions expected). Output precision: the first 10 frames of
 (a) recomputed in memory (float32) against what the run stored. The fused step over the
 log's own frames (:func:`replay`): every scan's inputs prepared first, then the step on
@@ -53,11 +53,12 @@ sys.path.insert(0, str(HERE))
 import naive  # noqa: E402
 from timing import best_and_median, best_of  # noqa: E402  (benchmarks/ is on sys.path)
 
-from evperc import fused, load  # noqa: E402
+from evperc import load  # noqa: E402
 from evperc.config import load_config  # noqa: E402
-from evperc.fused import FusedOutputs, StoredOutputs, fused_step, window_order  # noqa: E402
+from evperc.fusion import fused  # noqa: E402
+from evperc.fusion.fused import FusedOutputs, StoredOutputs, fused_step, window_order  # noqa: E402
+from evperc.fusion.twin import decide  # noqa: E402
 from evperc.geo.prior import prior_masses  # noqa: E402
-from evperc.pipeline import decide  # noqa: E402
 from evperc.runner import FusionState, Pipeline, RunRequest  # noqa: E402
 from evperc.sensor import sensor_grid  # noqa: E402
 
@@ -73,7 +74,7 @@ FUSION_FRAMES = 50
 #: frames of the replay (bench_run.replay) before its timing starts
 REPLAY_FROM = 10
 WINDOW_200 = "[grid]\nwindow_size_m = 200.0\n"
-#: the run with glibc's own malloc thresholds (evperc.runner.keep_freed_memory off)
+#: the run with glibc's own malloc thresholds (evperc.plumbing.keep_freed_memory off)
 GLIBC_DEFAULTS = {"EVPERC_GLIBC_MALLOC_DEFAULTS": "1"}
 #: stages of the manifest summary, in pipeline order, with the issue's names
 STAGES = [("read", "read + decode: wait for the decode thread"),

@@ -6,7 +6,7 @@ straight from the textbook definitions (issue 7).
   cells only): SG ⊕ GG (one pair loop), contextual discounting (one disjunctive pair loop per
   class, five), PG ∩ SG' (one pair loop), the conflict parts, ⊛, ζ, the specialisation and
   betP by direct sums; float64 throughout. The decision rule on betP is
-  :func:`evperc.pipeline.decide` (whole-array numpy, negligible next to the pair loops).
+  :func:`evperc.fusion.twin.decide` (whole-array numpy, negligible next to the pair loops).
 - Sensor grid (SPEC §3): the per-point / per-cell plain-Python oracle
   ``tests/sensor/reference.py`` (one Python iteration per point, per cell, per polar cell).
 
@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from evperc.dst import reference as pairs  # noqa: E402
-from evperc.pipeline import (  # noqa: E402
+from evperc.fusion.twin import (  # noqa: E402
     DECISION_CODES,
     OCCUPIED,
     OMEGA,
@@ -43,7 +43,7 @@ def dense_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One fusion step + decision on ``n`` cells: ``pg`` (n, 32), ``zeta`` (n,), ``free``,
     ``occupied``, ``observed`` (n,), ``prior`` GG (n, 32). Returns ``(pg, zeta, betp,
-    decision)``. Same maths as :func:`evperc.pipeline.fusion_step` + ``decide``."""
+    decision)``. Same maths as :func:`evperc.fusion.twin.fusion_step` + ``decide``."""
     n = len(pg)
     sg = np.zeros((n, 32))
     sg[:, F] = free

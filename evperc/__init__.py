@@ -11,8 +11,8 @@ __version__ = "0.1.0"
 __all__ = ["__version__", "load"]
 
 
-def load(out_dir):  # noqa: ANN001, ANN201 - thin re-export, documented in evperc.io.run_reader
-    """Open an `evperc run` output directory; see :func:`evperc.io.run_reader.load`."""
-    from evperc.io.run_reader import load as _load
+def load(out_dir):  # noqa: ANN001, ANN201 - thin re-export, documented in evperc.output.reader
+    """Open an `evperc run` output directory; see :func:`evperc.output.reader.load`."""
+    from evperc.output.reader import load as _load
 
     return _load(out_dir)

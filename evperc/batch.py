@@ -149,8 +149,7 @@ def process_log(task: RunRequest) -> dict[str, Any]:
 
 
 def _skip_resume_or_run(task: RunRequest) -> dict[str, Any]:
-    from evperc.io.run_reader import read_manifest
-    from evperc.io.writer import MANIFEST
+    from evperc.output.manifest import MANIFEST, read_manifest
     from evperc.runner import request_from_manifest, run
 
     if (task.out_dir / MANIFEST).is_file():

@@ -147,7 +147,7 @@ def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None
     """Summarise LOG.mcap: topics, message counts, time span, detected lidar/pose/GNSS."""
     import json
 
-    from evperc.io.log import open_log
+    from evperc.logs.factory import open_log
 
     info = open_log(log_path, lidar_topic=lidar_topic, pose_topic=pose_topic,
                     strict=False).info()
@@ -196,7 +196,7 @@ def render_command(out_dir: Path, dest: Path | None, frames_text: str | None, la
                    map_path: Path | None, roads_path: Path | None, cell_px: int | None,
                    overwrite: bool) -> None:
     """Draw the grids of OUT (an `evperc run` folder) as PNG frames and/or a GIF."""
-    from evperc.io.run_reader import load
+    from evperc.output.reader import load
     from evperc.render.frame import parse_layers
     from evperc.render.run_render import RenderRequest, outlines_for, parse_frames, render_run
 
@@ -229,8 +229,8 @@ def render_command(out_dir: Path, dest: Path | None, frames_text: str | None, la
 def export_command(out_dir: Path, mcap_path: Path, frames_text: str | None, frame_id: str,
                    overwrite: bool) -> None:
     """Export the grids of OUT to MCAP for Foxglove."""
-    from evperc.io.foxglove_export import export_mcap
-    from evperc.io.run_reader import load
+    from evperc.output.export import export_mcap
+    from evperc.output.reader import load
     from evperc.render.run_render import parse_frames
 
     frames = parse_frames(frames_text)
@@ -289,7 +289,7 @@ def evaluate_command(out_dir: Path, truth_dir: Path, compare_dir: Path | None,
     import json
 
     from evperc.eval.metrics import evaluate, format_report
-    from evperc.io.run_reader import load
+    from evperc.output.reader import load
     from evperc.sim.truth import load_truth
 
     truth = load_truth(truth_dir)

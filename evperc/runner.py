@@ -1,14 +1,11 @@
 """The `evperc run` driver: log + map in, output directory out. Reads like its table of
 contents: open inputs, geo-reference, then for each scan sensor grid → fusion step →
-decision → write. The maths lives in :mod:`evperc.pipeline` and the modules it calls."""
+decision → write. The maths lives in :mod:`evperc.fusion.twin` and the modules it calls."""
 
 from __future__ import annotations
 
-import ctypes
-import functools
 import logging
 import math
-import os
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -20,20 +17,21 @@ import numpy as np
 from tqdm import tqdm
 
 from evperc.errors import GeoreferenceError, OutputError, PoseError
-from evperc.fused import StoredOutputs, count_codes, focal_sets, fused_step, vacuous_flags
+from evperc.fusion.fused import StoredOutputs, count_codes, focal_sets, fused_step, vacuous_flags
+from evperc.fusion.twin import CLASSES, DECISION_CODES, OMEGA, FusionParams
 from evperc.geo import georef as georef_mod
 from evperc.geo.crs import working_crs
+from evperc.geo.maps import MapData, check_overlap, load_map, load_map_cached
 from evperc.geo.prior import PriorRasteriser
 from evperc.geo.window import Window
-from evperc.io.log import PosedScan, open_log
-from evperc.io.maps import MapData, check_overlap, load_map, load_map_cached
-from evperc.io.npz import write_npz
-from evperc.io.prefetch import prefetched
-from evperc.io.quantise import dequantise, dequantise_planar
-from evperc.io.run_reader import read_manifest
-from evperc.io.transforms import extrinsic_matrix
-from evperc.io.writer import RunWriter
-from evperc.pipeline import CLASSES, DECISION_CODES, OMEGA, FusionParams
+from evperc.logs.factory import open_log
+from evperc.logs.scan import PosedScan
+from evperc.logs.transforms import extrinsic_matrix
+from evperc.output.manifest import read_manifest
+from evperc.output.npz import write_npz
+from evperc.output.quantise import dequantise, dequantise_planar
+from evperc.output.writer import RunWriter
+from evperc.plumbing import fusion_threads, keep_freed_memory, prefetched
 from evperc.sensor import SensorParams, sensor_grid
 
 log = logging.getLogger(__name__)
@@ -150,7 +148,7 @@ class FusionState:
 
     ``pg`` (planar ``(32, rows, cols)`` masses) and ``zeta`` are circular buffers: window
     cell ``(r, c)`` is buffer cell ``((r + offset[0]) % rows, (c + offset[1]) % cols)``
-    (:func:`evperc.fused.fused_step`); ``flags`` marks the exactly vacuous cells and
+    (:func:`evperc.fusion.fused.fused_step`); ``flags`` marks the exactly vacuous cells and
     ``focal`` holds each cell's focal sets (bitmask), both derived from ``pg`` on load."""
 
     window: Window | None = None
@@ -185,7 +183,7 @@ class FusionState:
 
     def move_to(self, window: Window) -> tuple[int, int]:
         """Make ``window`` the state's window; returns the shift ``(dr, dc)`` that
-        :func:`evperc.fused.fused_step` reads the previous cells with. The first window
+        :func:`evperc.fusion.fused.fused_step` reads the previous cells with. The first window
         starts vacuous; a moved one keeps its cells in the circular buffers (the offset
         follows the move)."""
         shift = (0, 0)
@@ -402,7 +400,7 @@ class Pipeline:
         dt_s = 0.0 if state.prev_ns is None else (inputs.stamp_ns - state.prev_ns) * 1e-9
         state.prev_ns = inputs.stamp_ns
         # SPEC §5 and §6 in one compiled pass, quantised straight into the chunk buffer;
-        # evperc.pipeline is the numpy twin it is tested on
+        # evperc.fusion.twin is the numpy twin it is tested on
         fused_step(state.pg, state.zeta, inputs.free, inputs.occupied, inputs.labels,
                    self.betas, dt_s, self.params, out=out, flags=state.flags, focal=state.focal,
                    offset=state.offset, shift=shift, threads=self.fusion_threads)
@@ -414,49 +412,12 @@ class Pipeline:
                 "origin": (window.row0, window.col0), "decision_counts": counts}
 
 
-def fusion_threads(configured: int) -> int:
-    """Threads of the fused step: ``configured``, or for 0 the cores this process may use
-    less the two that the decode and writer threads keep busy (at least 1). On two cores
-    the run is CPU-bound already (docs/performance.md): a second fusion thread would only
-    take turns with the decode thread."""
-    if configured > 0:
-        return configured
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return max(1, (cores or 1) - 2)
-
-
 def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:
     """The stored layers of a frame as float arrays, interleaved ``(rows, cols, k)`` as
     :func:`evperc.load` gives them (for ``on_frame`` consumers such as live rendering)."""
     return {"masses": dequantise_planar(out.masses()), "betp": dequantise_planar(out.betp),
             "decision": out.decision.copy(), "zeta": dequantise(out.zeta),
             "conflict": dequantise_planar(out.conflict)}
-
-
-#: glibc mallopt parameters: M_MMAP_THRESHOLD (-3), M_TRIM_THRESHOLD (-1)
-_MALLOC_SETTINGS = ((-3, 32 << 20), (-1, 256 << 20))
-
-
-@functools.cache
-def keep_freed_memory() -> bool:
-    """Make glibc keep freed blocks (up to 32 MB each, 256 MB at the heap's top) for reuse
-    instead of returning them to the system; True if it could (glibc only).
-
-    Every frame allocates a few fresh megabytes (the sensor grid, the labels, the decoded
-    scan) that the next frame allocates again: by default glibc hands such blocks back and
-    the next frame takes a page fault for every 4 kB of them (~300 a frame of workload (a)
-    in the decode thread, ~0.4 ms of its CPU). Kept, they are reused as they are; the
-    working set is the same from frame to frame, so memory stays bounded. Process-wide;
-    once per process. ``EVPERC_GLIBC_MALLOC_DEFAULTS=1`` leaves glibc as it is (to measure
-    the difference: ``benchmarks/bench_run.py``)."""
-    if os.environ.get("EVPERC_GLIBC_MALLOC_DEFAULTS") == "1":
-        return False
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-        applied = [libc.mallopt(option, value) == 1 for option, value in _MALLOC_SETTINGS]
-        return all(applied)
-    except (OSError, AttributeError):  # not glibc (macOS, musl): nothing to tune
-        return False
 
 
 def run(request: RunRequest, resume: bool = False,
@@ -466,7 +427,7 @@ def run(request: RunRequest, resume: bool = False,
     into the manifest. ``on_frame`` sees every frame's arrays (e.g. to render as it goes);
     ``progress``: show the per-frame bar (``None``: only on a terminal); ``reuse_map``: take
     the map read by the previous run in this process if it is the same
-    (:func:`evperc.io.maps.load_map_cached`; ``evperc batch`` workers)."""
+    (:func:`evperc.geo.maps.load_map_cached`; ``evperc batch`` workers)."""
     started = time.perf_counter()
     keep_freed_memory()
     pipeline = Pipeline(request, reuse_map=reuse_map)

@@ -11,7 +11,7 @@ markdown tables (mean ± sample standard deviation over the seeds):
 Tune mode (``--tune``) — a grid search of the ``[fusion]`` / ``[decision]`` parameters on the
 tuning seeds, with the map, in process: the sensor grids and map labels of every scan are
 computed once per drive (they do not depend on the tuned keys), then each candidate replays the
-fusion (:func:`evperc.fused.fused_step`, the runner's kernel) and is scored with
+fusion (:func:`evperc.fusion.fused.fused_step`, the runner's kernel) and is scored with
 :func:`evperc.eval.metrics.evaluate`, exactly as `evperc run` + `evperc evaluate` would score it:
 
     .venv/bin/python scripts/evaluation_study.py --tune --work /tmp/evstudy  # tuning seeds 1,2
@@ -446,8 +446,8 @@ def _init_worker(directories: Sequence[str]) -> None:
 
 def replay(prepared: Any, overrides: dict[str, dict[str, float]], with_map: bool = True) -> Any:
     """The decisions `evperc run` would write with ``overrides``, as a run-like object."""
-    from evperc.fused import fused_step
-    from evperc.pipeline import DECISION_CODES, FusionParams
+    from evperc.fusion.fused import fused_step
+    from evperc.fusion.twin import DECISION_CODES, FusionParams
     from evperc.runner import FusionState
 
     config = {s: dict(prepared.base[s]) for s in ("fusion", "decision")}

@@ -1,4 +1,4 @@
-"""evperc.runner.keep_freed_memory: freed frame buffers are reused, not faulted in anew."""
+"""evperc.plumbing.keep_freed_memory: freed frame buffers are reused, not faulted in anew."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 FRAME_LOOP = """
 import queue, resource, sys, threading
 import numpy as np
-from evperc.runner import keep_freed_memory
+from evperc.plumbing import keep_freed_memory
 assert keep_freed_memory() is True
 items, out = queue.Queue(maxsize=2), {}
 def produce():

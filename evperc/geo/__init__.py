@@ -1,1 +1,2 @@
-"""Geometry: the working CRS, geo-referencing, the map prior grid, the scrolling window."""
+"""Geometry and maps: the working CRS, geo-referencing, map files, the map prior grid, the
+scrolling window."""

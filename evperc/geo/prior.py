@@ -22,8 +22,8 @@ from collections import OrderedDict
 import numpy as np
 import shapely
 
+from evperc.geo.maps import MapData
 from evperc.geo.window import Window
-from evperc.io.maps import MapData
 
 log = logging.getLogger(__name__)
 

@@ -8,8 +8,8 @@ from typing import Any
 
 import imageio.v3 as iio
 
+from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
-from evperc.pipeline import DECISION_CODES
 from evperc.render.frame import DEFAULT_LAYERS, FrameRenderer
 from evperc.render.run_render import PNG_COMPRESS_LEVEL, prepare_dest
 

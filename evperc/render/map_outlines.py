@@ -41,7 +41,7 @@ class MapOutlines:
 
     @classmethod
     def from_map_data(cls, map_data: Any) -> MapOutlines:
-        """From an ``evperc.io.maps.MapData`` (``.buildings``, ``.roads``)."""
+        """From an ``evperc.geo.maps.MapData`` (``.buildings``, ``.roads``)."""
         return cls(getattr(map_data, "buildings", ()), getattr(map_data, "roads", ()))
 
     def segments_in(self, bounds: tuple[float, float, float, float]

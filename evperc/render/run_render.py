@@ -90,8 +90,8 @@ def match_frames(marked_a: Iterator[tuple[Any, bool]], frames_b: Iterator[Any],
 
 
 def outlines_for(run: Any, map_path: Path, roads_path: Path | None = None) -> MapOutlines:
-    """The map at ``map_path`` (read by ``evperc.io.maps.load_map``) in the run's CRS."""
-    from evperc.io.maps import load_map
+    """The map at ``map_path`` (read by ``evperc.geo.maps.load_map``) in the run's CRS."""
+    from evperc.geo.maps import load_map
 
     crs = run.manifest.get("crs", "local")
     if crs in ("", "local", None):

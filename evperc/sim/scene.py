@@ -105,7 +105,7 @@ def read_map_layers(map_path: Path, roads_path: Path | None = None) -> MapLayers
     with a ``building`` value or in a layer named ``buildings``; roads: LineStrings with a
     ``highway`` value or in a layer named ``roads`` / ``streets`` (class ``unclassified``).
 
-    Kept behind this one function so it can be replaced by ``evperc.io.maps.load_map``.
+    Kept behind this one function so it can be replaced by ``evperc.geo.maps.load_map``.
     """
     import fiona
 

@@ -28,7 +28,7 @@ import shapely
 
 from evperc.errors import OutputError
 from evperc.geo.window import Window
-from evperc.io.writer import atomic_write_bytes, write_json
+from evperc.output.writer import atomic_write_bytes, write_json
 from evperc.sim.lidar import GROUND, Hits
 from evperc.sim.scene import (
     BOX,

@@ -10,7 +10,7 @@ import pytest
 from evperc.batch import format_table, output_names, process_log, read_log_list
 from evperc.config import load_config
 from evperc.errors import UsageError
-from evperc.io import maps
+from evperc.geo import maps
 from evperc.runner import RunRequest
 from tests.batch.logs import write_street_log
 
@@ -93,7 +93,7 @@ def test_table_lists_every_log_with_dashes_for_missing_numbers():
 
 def test_a_worker_reads_the_map_once_for_many_logs(tmp_path, monkeypatch):
     """Two logs on one map in the same worker process: the map is read for the first and
-    reused for the second (io.maps.load_map_cached); both runs complete."""
+    reused for the second (geo.maps.load_map_cached); both runs complete."""
     reads = []
     real = maps.load_map
     monkeypatch.setattr(maps, "_last_map", None)

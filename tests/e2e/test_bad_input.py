@@ -176,7 +176,7 @@ def test_output_not_writable(drive: Path, tmp_path: Path) -> None:
 def test_disk_full_while_writing(drive: Path, tmp_path: Path, monkeypatch) -> None:
     import errno
 
-    import evperc.io.npz as npz_mod
+    import evperc.output.npz as npz_mod
 
     def full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")

@@ -15,7 +15,7 @@ from click.testing import CliRunner
 
 import evperc
 from evperc.cli import cli
-from evperc.pipeline import DECISION_CODES
+from evperc.fusion.twin import DECISION_CODES
 from tests.mcap_writers import write_kitti_odometry_mcap
 
 KITTI = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "kitti00"

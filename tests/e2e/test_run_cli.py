@@ -17,7 +17,7 @@ from click.testing import CliRunner
 import evperc
 from evperc.cli import cli
 from evperc.config import load_config
-from evperc.pipeline import DECISION_CODES
+from evperc.fusion.twin import DECISION_CODES
 from evperc.runner import RunRequest, run
 
 from .scenes import write_street_drive
@@ -237,7 +237,7 @@ def test_the_thread_that_computes_a_sensor_grid_does_not_change_the_output(
 
 
 def test_fusion_threads_do_not_change_the_output(drive: Path, tmp_path: Path) -> None:
-    """fusion.threads shares the fused step's rows among threads (evperc.fused, chunks of
+    """fusion.threads shares the fused step's rows among threads (evperc.fusion.fused, chunks of
     16 rows; this 40 m window has 80): 1, 2 and 3 threads write the same frames, and the
     summary says how many ran (0, the default, resolves to at least one)."""
     frames = {}
@@ -261,11 +261,11 @@ def test_fusion_threads_auto_leaves_two_cores(configured: int, cores: int, threa
     """fusion.threads = 0: the cores the process may use less the decode and writer
     threads' two (on two cores a second fusion thread made the run slower:
     docs/performance.md); a configured number is kept."""
-    from evperc import runner
+    from evperc import plumbing
 
-    monkeypatch.setattr(runner.os, "sched_getaffinity", lambda pid: set(range(cores)),
+    monkeypatch.setattr(plumbing.os, "sched_getaffinity", lambda pid: set(range(cores)),
                         raising=False)
-    assert runner.fusion_threads(configured) == threads
+    assert plumbing.fusion_threads(configured) == threads
 
 
 def test_warm_up_pays_the_first_frames_one_off_costs_and_changes_nothing(

@@ -14,7 +14,7 @@ from evperc.cli import cli
 from evperc.config import load_config
 from evperc.eval.metrics import evaluate
 from evperc.geo.window import Window
-from evperc.io.writer import RunWriter
+from evperc.output.writer import RunWriter
 from evperc.sim.truth import TruthFrame, TruthWriter, load_truth
 
 CODES = {"unknown": 0, "free": 1, "moving": 2, "static": 3, "stopped": 4,

@@ -12,6 +12,7 @@ import shapely
 import shapely.affinity
 
 from evperc.config import default_config
+from evperc.geo.maps import MapData, load_map
 from evperc.geo.prior import (
     CONTEXT_BUILDING,
     CONTEXT_OTHER,
@@ -20,7 +21,6 @@ from evperc.geo.prior import (
     prior_masses,
 )
 from evperc.geo.window import Window
-from evperc.io.maps import MapData, load_map
 
 DATA = Path(__file__).parents[1] / "data" / "osm"
 UTM35 = pyproj.CRS.from_epsg(32635)

@@ -10,7 +10,7 @@ import pytest
 
 from evperc.config import load_config
 from evperc.geo.window import Window
-from evperc.io.writer import RunWriter
+from evperc.output.writer import RunWriter
 
 CODES = {"unknown": 0, "free": 1, "moving": 2, "static": 3, "stopped": 4, "infrastructure": 5,
          "unmapped": 6}

@@ -13,7 +13,7 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from evperc.cli import cli
-from evperc.io.log import open_log
+from evperc.logs.factory import open_log
 from tests.render.conftest import CODES, make_frame, write_run
 
 ROWS, COLS, RES = 3, 4, 0.5

@@ -1,1 +1,0 @@
-"""Readers (MCAP logs, map files) and writers (NPZ chunks, manifest)."""

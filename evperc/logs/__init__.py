@@ -1,0 +1,2 @@
+"""Log sources: lidar scans with their poses, from every kind of log, behind one reader
+interface (:func:`evperc.logs.factory.open_log`)."""

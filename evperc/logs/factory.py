@@ -1,0 +1,44 @@
+"""``open_log(path)``: the reader for whatever kind of log ``path`` is, as KISS-ICP keeps its
+dataloaders — one module per source kind, each listed once in :data:`SOURCES` with the test
+that recognises it (by content, not by name) and the function that opens it.
+
+Every reader offers what :class:`evperc.logs.mcap_log.LogReader` offers (docs/architecture.md:
+``scans()``, ``start_ns`` / ``end_ns``, ``stats``, ``gnss_fixes()``, ``positions_at()``,
+``info()``, …). Adding a source is a new module and one row here; nothing else changes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from evperc.logs import mcap_log
+
+
+class Source(NamedTuple):
+    """One kind of log: its name (``evperc info`` prints it), a test on the path and the
+    opener, called with ``open_log``'s keyword options."""
+
+    kind: str
+    recognises: Callable[[Path], bool]
+    open: Callable[..., Any]
+
+
+#: every log kind evperc reads, tried in order; the last one (MCAP) takes any other file and
+#: gives the one-line error of a file that is no log evperc knows
+SOURCES: list[Source] = [
+    Source("mcap", lambda path: True, mcap_log.open_mcap),
+]
+
+
+def open_log(path: str | Path, **options: Any) -> Any:
+    """Open the log at ``path`` with the reader of its kind (:data:`SOURCES`); ``options``
+    are the reader's (topics, world frame, extrinsic, ``max_pose_gap_s``, ``strict``: see
+    :func:`evperc.logs.mcap_log.open_mcap`). Raises :class:`~evperc.errors.LogError` for a
+    missing or unreadable file."""
+    path = Path(path)
+    for source in SOURCES:
+        if source.recognises(path):
+            return source.open(path, **options)
+    raise AssertionError("the last source takes every path")  # pragma: no cover

@@ -1,0 +1,464 @@
+"""Reading logged drives: MCAP lidar scans joined with the poses at their stamps.
+
+``open_mcap(path)`` (what :func:`evperc.logs.factory.open_log` calls for an MCAP file)
+finds the topics (by schema name, see :mod:`evperc.logs.mcap_messages`):
+
+- lidar: ``sensor_msgs/msg/PointCloud2``, ``sensor_msgs/msg/LaserScan``,
+  ``foxglove.PointCloud``, ``foxglove.LaserScan``;
+- poses, in order of preference when none is chosen: a pose topic (``nav_msgs/msg/Odometry``,
+  ``geometry_msgs/msg/PoseStamped``, ``geometry_msgs/msg/PoseWithCovarianceStamped``,
+  ``foxglove.PoseInFrame``, ``foxglove.Odometry``), else the TF tree (``tf2_msgs/msg/TFMessage``,
+  ``foxglove.FrameTransform(s)``; topics ending in ``tf_static`` hold static transforms);
+- GNSS: ``sensor_msgs/msg/NavSatFix``, ``foxglove.LocationFix``.
+
+Several candidates for one role raise :class:`TopicError` listing a ready-to-paste option per
+candidate; none raises naming the schemas the file has.
+
+``LogReader.scans()`` streams the log in log-time order (file order if it has no index). Scans
+wait in a short queue until a pose at or after their stamp arrives; the pose at the scan stamp
+is interpolated (linear position, slerp orientation). A scan is skipped, and counted in
+``LogReader.stats`` under its reason, when:
+
+- ``before_pose_span`` / ``after_pose_span``: its stamp lies outside the poses (a scan still
+  waiting ``max_pose_gap_s + 1 s`` of log time after its stamp counts as after);
+- ``pose_gap``: the two poses around it are more than ``max_pose_gap_s`` apart;
+- ``no_transform_chain``: TF never links its frame to the world frame;
+- ``duplicate_stamp`` / ``backwards_stamp``: its stamp equals / precedes the previous scan's
+  (time going backwards on the lidar topic: later scans are kept, the older one dropped);
+- ``undecodable``: the message could not be decoded.
+
+``pose_duplicate_stamp`` counts pose samples dropped because their edge already had a sample
+with that stamp (pose samples arriving out of order are re-sorted, not dropped). Memory is
+bounded by the queue (scans within ``max_pose_gap_s + 1 s``) and the pose samples since the
+oldest waiting scan; it does not grow with the log's length.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from evperc.errors import LogError, TopicError
+from evperc.logs.mcap_messages import (
+    GNSS_ADAPTERS,
+    LIDAR_ADAPTERS,
+    POSE_ADAPTERS,
+    TF_ADAPTERS,
+    ScanRecord,
+    is_static_tf_topic,
+)
+from evperc.logs.mcap_poses import OK, WAIT, PoseSource, PoseTopicSource, TfSource
+from evperc.logs.mcap_source import McapSource, RawMessage
+from evperc.logs.pointcloud import MissingFieldsError
+from evperc.logs.scan import PosedScan
+
+log = logging.getLogger(__name__)
+
+#: extra log time a scan may wait for its pose beyond max_pose_gap_s (message latency)
+WAIT_SLACK_NS = 1_000_000_000
+#: scans decoded by ``info()`` to estimate the mean points per scan
+INFO_SAMPLE_SCANS = 20
+
+
+def open_mcap(path: str | Path, *, lidar_topic: str | None = None,
+             pose_topic: str | None = None, gnss_topic: str | None = None,
+             world_frame: str | None = None, extrinsic: np.ndarray | None = None,
+             max_pose_gap_s: float = 1.0, strict: bool = True) -> LogReader:
+    """Open an MCAP log and choose its lidar and pose topics.
+
+    ``extrinsic`` (4×4, T_vehicle_lidar) is used when poses describe the vehicle and the log
+    has no static transform to the lidar frame. Empty strings count as "not given".
+    ``strict=False`` defers topic errors to the first read (``info()`` reports them instead).
+    Raises :class:`LogError` for a missing or non-MCAP file, :class:`TopicError` when no topic
+    or several topics fit a role.
+    """
+    source = McapSource.open(path)
+    reader = LogReader(source, lidar_topic=lidar_topic or None, pose_topic=pose_topic or None,
+                       gnss_topic=gnss_topic or None, world_frame=world_frame or None,
+                       extrinsic=extrinsic, max_pose_gap_s=max_pose_gap_s)
+    if strict:
+        reader.lidar_topic  # noqa: B018 - detect now, fail fast
+        reader.pose_topics  # noqa: B018
+    return reader
+
+
+class LogReader:
+    """Scans with poses, GNSS fixes and a summary of one MCAP log; see the module docstring."""
+
+    def __init__(self, source: McapSource, *, lidar_topic: str | None, pose_topic: str | None,
+                 gnss_topic: str | None, world_frame: str | None, extrinsic: np.ndarray | None,
+                 max_pose_gap_s: float):
+        self.source = source
+        self.path = source.path
+        self.world_frame = world_frame
+        self.extrinsic = extrinsic
+        self.max_gap_ns = int(round(max_pose_gap_s * 1e9))
+        self._requested = {"lidar": lidar_topic, "pose": pose_topic, "gnss": gnss_topic}
+        self._chosen: dict[str, Any] = {}
+        self._lidar_frame: str | None = None
+        self._gnss_frame: str | None = None
+        self._said: set = set()  # one-time log messages already given
+        self._static: list | None = None  # the static transforms' pose samples, once read
+        self.stats: dict[str, int] = {}
+        #: the frame of the posed scans' ``T_world_sensor`` (named in the log), once a scan
+        #: has been posed by :meth:`scans`
+        self.posed_in: str | None = None
+
+    # --- the log's extent ----------------------------------------------------------------
+
+    @property
+    def start_ns(self) -> int:
+        """Log time of the first message (ns)."""
+        return int(self.source.start_ns or 0)
+
+    @property
+    def end_ns(self) -> int:
+        """Log time just after the last message (ns; ranges are half-open)."""
+        return int(self.source.end_ns or 0) + 1
+
+    # --- topic detection -----------------------------------------------------------------
+
+    @property
+    def lidar_topic(self) -> str:
+        if "lidar" not in self._chosen:
+            topic = self._choose("lidar", LIDAR_ADAPTERS, "--lidar-topic")
+            if topic is None:
+                raise TopicError(
+                    f"{self.path}: no lidar topic; it has {self._schemas_text()}; evperc reads "
+                    f"{', '.join(LIDAR_ADAPTERS)}")
+            self._chosen["lidar"] = topic
+        return self._chosen["lidar"]
+
+    @property
+    def pose_topics(self) -> tuple[str, list[str]]:
+        """("topic", [pose topic]) or ("tf", [dynamic TF topics]); static TF is read apart."""
+        if "pose" not in self._chosen:
+            self._chosen["pose"] = self._choose_pose()
+        return self._chosen["pose"]
+
+    @property
+    def gnss_topic(self) -> str | None:
+        if "gnss" not in self._chosen:
+            self._chosen["gnss"] = self._choose("gnss", GNSS_ADAPTERS, "input.gnss_topic =")
+        return self._chosen["gnss"]
+
+    @property
+    def static_tf_topics(self) -> list[str]:
+        return [t.topic for t in self.source.topics.values()
+                if t.schema in TF_ADAPTERS and is_static_tf_topic(t.topic) and t.messages]
+
+    def _candidates(self, adapters: dict) -> list[str]:
+        return sorted(t.topic for t in self.source.topics.values()
+                      if t.schema in adapters and t.messages > 0)
+
+    def _choose(self, role: str, adapters: dict, option: str) -> str | None:
+        requested = self._requested[role]
+        if requested is not None:
+            return self._check_requested(role, requested, adapters)
+        candidates = self._candidates(adapters)
+        if len(candidates) > 1:
+            quote = '"' if option.endswith("=") else ""
+            options = " | ".join(f"{option} {quote}{t}{quote}" for t in candidates)
+            raise TopicError(f"{self.path}: {len(candidates)} {role} topics fit; choose one: "
+                             f"{options}")
+        return candidates[0] if candidates else None
+
+    def _check_requested(self, role: str, topic: str, adapters: dict) -> str:
+        info = self.source.topics.get(topic)
+        if info is None:
+            fits = ", ".join(self._candidates(adapters)) or "none"
+            raise TopicError(f"{self.path}: no topic {topic}; {role} topics in the log: {fits}")
+        if info.schema not in adapters:
+            raise TopicError(f"{self.path}: topic {topic} has schema {info.schema or '(none)'},"
+                             f" not a {role} schema ({', '.join(adapters)})")
+        return topic
+
+    def _choose_pose(self) -> tuple[str, list[str]]:
+        requested = self._requested["pose"]
+        if requested is not None:
+            both = {**POSE_ADAPTERS, **TF_ADAPTERS}
+            topic = self._check_requested("pose", requested, both)
+            kind = "topic" if self.source.topics[topic].schema in POSE_ADAPTERS else "tf"
+            return kind, [topic]
+        poses = self._candidates(POSE_ADAPTERS)
+        if len(poses) > 1:
+            options = " | ".join(f"--pose-topic {t}" for t in poses)
+            raise TopicError(f"{self.path}: {len(poses)} pose topics fit; choose one: {options}")
+        if poses:
+            return "topic", poses
+        tf = [t for t in self._candidates(TF_ADAPTERS) if not is_static_tf_topic(t)]
+        if tf:
+            return "tf", tf
+        raise TopicError(
+            f"{self.path}: no pose topic; it has {self._schemas_text()}; evperc reads "
+            f"{', '.join(POSE_ADAPTERS)} or a TF tree ({', '.join(TF_ADAPTERS)} on /tf)")
+
+    def _schemas_text(self) -> str:
+        schemas = sorted({f"{t.schema or '(no schema)'}" for t in self.source.topics.values()})
+        return f"schemas {', '.join(schemas)}" if schemas else "no topics"
+
+    # --- decoding ------------------------------------------------------------------------
+
+    def _scan(self, raw: RawMessage) -> ScanRecord:
+        adapter = LIDAR_ADAPTERS[self.source.topics[raw.topic].schema]
+        try:
+            return adapter(self.source.decode(raw), raw.message.log_time)
+        except MissingFieldsError as err:
+            raise LogError(f"{self.path}: topic {raw.topic}: point cloud has no x/y/z fields "
+                           f"(fields: {', '.join(err.present) or 'none'}); evperc needs x, y, z"
+                           ) from err
+
+    def _pose_records(self, raw: RawMessage) -> list:
+        """The pose samples of one pose or TF message; none if it cannot be decoded (counted
+        as ``pose_undecodable``, like undecodable scans: one bad message must not end the
+        run; a log without any usable pose still fails with a clear error)."""
+        schema = self.source.topics[raw.topic].schema
+        try:
+            decoded = self.source.decode(raw)
+            if schema in POSE_ADAPTERS:
+                return [POSE_ADAPTERS[schema](decoded, raw.message.log_time)]
+            return TF_ADAPTERS[schema](decoded, raw.message.log_time)
+        except LogError:
+            raise
+        except Exception as err:
+            if "pose_undecodable" not in self.stats:
+                log.warning("%s: topic %s: cannot decode a pose message at log time %d ns "
+                            "(%s); skipping such messages", self.path, raw.topic,
+                            raw.message.log_time, err)
+            self._count("pose_undecodable")
+            return []
+
+    def _pose_source(self) -> PoseSource:
+        kind, topics = self.pose_topics
+        source: PoseSource
+        if kind == "topic":
+            source = PoseTopicSource(str(self.path), topics[0], self.max_gap_ns,
+                                     self.world_frame, self.extrinsic, self._said)
+        else:
+            source = TfSource(str(self.path), self.max_gap_ns, self.world_frame, self._said)
+        if self._static is None:  # read once: each scans() would read them again
+            self._static = [self._pose_records(raw)
+                            for raw in self.source.iter_raw(self.static_tf_topics)]
+        for records in self._static:
+            source.add_static(records)
+        return source
+
+    # --- streaming -----------------------------------------------------------------------
+
+    def scans(self, start_ns: int | None = None, end_ns: int | None = None
+              ) -> Iterator[PosedScan]:
+        """Posed scans with stamp in [start_ns, end_ns), in stamp order; see the module doc.
+
+        ``stats`` is reset at each call and complete when the iterator is exhausted.
+        """
+        lidar = self.lidar_topic
+        poses = self._pose_source()
+        pose_topics = set(self.pose_topics[1])
+        self.stats = {}
+        margin = self.max_gap_ns + WAIT_SLACK_NS
+        pending: deque[ScanRecord] = deque()
+        last_stamp: int | None = None
+        read_from = None if start_ns is None else start_ns - margin
+        read_to = None if end_ns is None else end_ns + margin
+        for raw in self.source.iter_raw([lidar, *pose_topics], read_from, read_to):
+            now = raw.message.log_time
+            if raw.topic == lidar:
+                scan = self._decode_scan(raw)
+                if scan is None or not _in_range(scan.stamp_ns, start_ns, end_ns):
+                    pass
+                elif last_stamp is not None and scan.stamp_ns <= last_stamp:
+                    self._count("duplicate_stamp" if scan.stamp_ns == last_stamp
+                                else "backwards_stamp")
+                else:
+                    last_stamp = scan.stamp_ns
+                    pending.append(scan)
+            if raw.topic in pose_topics:
+                self._count("pose_duplicate_stamp", poses.add(self._pose_records(raw)))
+            yield from self._release(pending, poses, deadline=now - margin)
+            horizon = pending[0].stamp_ns if pending else (
+                last_stamp if last_stamp is not None else now - margin)
+            poses.prune(horizon)
+        yield from self._release(pending, poses, deadline=None)
+
+    def _release(self, pending: deque[ScanRecord], poses: PoseSource,
+                 deadline: int | None) -> Iterator[PosedScan]:
+        """Pose the waiting scans that can be; drop those past ``deadline`` (None: all)."""
+        while pending:
+            scan = pending[0]
+            status, T = poses.lookup(scan.frame_id, scan.stamp_ns)
+            if status == WAIT:
+                if deadline is not None and scan.stamp_ns >= deadline:
+                    return
+                status = poses.abandon_reason(scan.frame_id)
+            pending.popleft()
+            if status != OK:
+                self._count(status)
+                continue
+            if scan.T_frame_sensor is not None:
+                T = T @ scan.T_frame_sensor
+            self.posed_in = poses.world_frame_name
+            yield PosedScan(scan.stamp_ns, scan.points, scan.planar, T, scan.frame_id)
+
+    def _decode_scan(self, raw: RawMessage) -> ScanRecord | None:
+        try:
+            return self._scan(raw)
+        except LogError:
+            raise
+        except Exception as err:  # one bad message must not end the run
+            if "undecodable" not in self.stats:
+                log.warning("%s: topic %s: cannot decode a message at log time %d ns (%s); "
+                            "skipping such messages", self.path, raw.topic,
+                            raw.message.log_time, err)
+            self._count("undecodable")
+            return None
+
+    def _count(self, reason: str, n: int = 1) -> None:
+        if n:
+            self.stats[reason] = self.stats.get(reason, 0) + n
+
+    # --- other queries -------------------------------------------------------------------
+
+    def positions_at(self, stamps_ns: np.ndarray, frame: str | None = None) -> np.ndarray:
+        """(K, 3) world-frame position of ``frame`` (default: the lidar) at each stamp; NaN
+        rows where no pose fits.
+
+        Uses the same pose source and interpolation as :meth:`scans`.
+        """
+        stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+        out = np.full((stamps.size, 3), np.nan)
+        if stamps.size == 0:
+            return out
+        frame = self.lidar_frame if frame is None else frame
+        poses = self._pose_source()
+        order = np.argsort(stamps, kind="stable")
+        queue = deque(int(i) for i in order)
+        margin = self.max_gap_ns + WAIT_SLACK_NS
+
+        def release(deadline: int | None) -> None:
+            while queue:
+                status, T = poses.lookup(frame, int(stamps[queue[0]]))
+                if status == WAIT and deadline is not None and stamps[queue[0]] >= deadline:
+                    return
+                i = queue.popleft()
+                if status == OK:
+                    out[i] = T[:3, 3]
+
+        for raw in self.source.iter_raw(self.pose_topics[1], int(stamps.min()) - margin,
+                                        int(stamps.max()) + margin):
+            poses.add(self._pose_records(raw))
+            release(raw.message.log_time - margin)
+            if queue:
+                poses.prune(int(stamps[queue[0]]))
+        release(None)
+        return out
+
+    @property
+    def lidar_frame(self) -> str:
+        """frame_id of the first lidar message."""
+        if self._lidar_frame is None:
+            self._lidar_frame = ""
+            for raw in self.source.iter_raw([self.lidar_topic]):
+                self._lidar_frame = self._scan(raw).frame_id
+                break
+        return self._lidar_frame
+
+    def gnss_antenna_frame(self) -> str:
+        """The frame the GNSS fixes locate: their ``frame_id`` when the pose source can place
+        it (the vehicle body of the pose topic, or a frame TF links to it); otherwise the
+        vehicle body of a pose topic, otherwise the lidar frame (each fallback logged once)."""
+        frame = self._gnss_frame
+        if frame is None:
+            self.gnss_fixes()
+            frame = self._gnss_frame or ""
+        poses = self._pose_source()
+        kind, _ = self.pose_topics
+        if kind == "topic":
+            for raw in self.source.iter_raw(self.pose_topics[1]):
+                poses.add(self._pose_records(raw))
+                break
+            body = poses.body_frame
+            if frame and (frame == body or poses.static.static_transform(body, frame)
+                          is not None):
+                return frame
+            log.info("%s: GNSS frame '%s' is not linked to the vehicle body '%s' by TF; "
+                     "taking the fixes at the body", self.path, frame, body)
+            return body
+        # TF: the frame may only appear in dynamic TF; positions_at gives NaN if it never does
+        return frame or self.lidar_frame
+
+    def gnss_fixes(self) -> np.ndarray:
+        """(K, 4) float64 rows (stamp_ns, lat_deg, lon_deg, alt_m), sorted by stamp, unique
+        stamps; fixes without a position (NavSatFix status −1, NaN) are left out. Empty (0, 4)
+        when the log has no GNSS topic."""
+        topic = self.gnss_topic
+        if topic is None:
+            return np.empty((0, 4))
+        adapter = GNSS_ADAPTERS[self.source.topics[topic].schema]
+        rows = []
+        for raw in self.source.iter_raw([topic]):
+            fix = adapter(self.source.decode(raw), raw.message.log_time)
+            if fix is not None:
+                if self._gnss_frame is None:
+                    self._gnss_frame = fix.frame_id
+                rows.append((fix.stamp_ns, fix.lat_deg, fix.lon_deg, fix.alt_m))
+        if not rows:
+            return np.empty((0, 4))
+        fixes = np.asarray(rows, dtype=np.float64)
+        _, first = np.unique(fixes[:, 0], return_index=True)
+        return fixes[first]
+
+    def info(self) -> dict[str, Any]:
+        """Summary for ``evperc info``: file, index, topics, time span, detected topics, and the
+        mean finite points per scan over the first ``INFO_SAMPLE_SCANS`` lidar messages."""
+        topics = [{"topic": t.topic, "schema": t.schema, "encoding": t.message_encoding,
+                   "messages": t.messages} for t in sorted(self.source.topics.values(),
+                                                           key=lambda t: t.topic)]
+        start, end = self.source.start_ns, self.source.end_ns
+        out: dict[str, Any] = {
+            "path": str(self.path),
+            "indexed": self.source.indexed,
+            "complete": self.source.stop_reason is None,
+            "stopped": self.source.stop_reason,
+            "start_ns": start,
+            "end_ns": end,
+            "duration_s": None if start is None else (end - start) / 1e9,
+            "topics": topics,
+        }
+        detected: dict[str, Any] = {}
+        for role, getter in (("lidar_topic", lambda: self.lidar_topic),
+                             ("pose_source", lambda: _pose_text(self.pose_topics)),
+                             ("gnss_topic", lambda: self.gnss_topic)):
+            try:
+                detected[role] = getter()
+            except TopicError as err:
+                detected[role] = None
+                detected[f"{role}_problem"] = str(err)
+        detected["static_tf_topics"] = self.static_tf_topics
+        out["detected"] = detected
+        if detected.get("lidar_topic"):
+            counts, frame = [], None
+            for raw in self.source.iter_raw([detected["lidar_topic"]]):
+                scan = self._decode_scan(raw)
+                if scan is not None:
+                    counts.append(len(scan.points))
+                    frame = frame or scan.frame_id
+                if len(counts) >= INFO_SAMPLE_SCANS:
+                    break
+            out["lidar_frame"] = frame
+            out["mean_points_per_scan"] = float(np.mean(counts)) if counts else None
+            out["points_sample_scans"] = len(counts)
+        return out
+
+
+def _pose_text(pose: tuple[str, list[str]]) -> str:
+    kind, topics = pose
+    return topics[0] if kind == "topic" else f"TF tree ({', '.join(topics)})"
+
+
+def _in_range(stamp: int, start: int | None, end: int | None) -> bool:
+    return (start is None or stamp >= start) and (end is None or stamp < end)

@@ -1,0 +1,18 @@
+"""What every log source yields: one lidar scan with the sensor's pose at its stamp."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PosedScan:
+    """One lidar scan with the sensor pose at its stamp (docs/architecture.md)."""
+
+    stamp_ns: int
+    points: np.ndarray          # (N, 3) float32, sensor frame, finite only
+    planar: bool                # True for 2-D scans (LaserScan): every point is an obstacle
+    T_world_sensor: np.ndarray  # (4, 4) float64: sensor pose in the log's world frame
+    frame_id: str

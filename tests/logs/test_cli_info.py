@@ -1,0 +1,62 @@
+"""`evperc info` through click's CliRunner."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from click.testing import CliRunner
+
+from evperc.cli import cli
+from tests.logs.reference import S0
+from tests.mcap_writers import transform, write_ros2_mcap
+
+MS = 1_000_000
+
+
+def _log(tmp_path, **kwargs):
+    clouds = [(S0 + i * 100 * MS, np.ones((40, 3)) * (i + 1), "velodyne") for i in range(3)]
+    odometry = [(S0 + i * 50 * MS, transform(x=i)) for i in range(6)]
+    fixes = [(S0, 60.0, 25.0, 10.0)]
+    return write_ros2_mcap(tmp_path / "drive.mcap", clouds=clouds, odometry=odometry,
+                           fixes=fixes, tf_static=[("base_link", "velodyne", np.eye(4))],
+                           **kwargs)
+
+
+def test_info_prints_topics_and_counts(tmp_path):
+    path = _log(tmp_path)
+    result = CliRunner().invoke(cli, ["info", str(path)])
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    assert lines[0] == f"{path}  (indexed)"
+    assert "time span: 0.250 s" in lines
+    rows = {line.split()[0]: line.split()[1:3] for line in lines[1:] if line.startswith("/")}
+    assert rows == {"/fix": ["1", "sensor_msgs/msg/NavSatFix"],
+                    "/odom": ["6", "nav_msgs/msg/Odometry"],
+                    "/points": ["3", "sensor_msgs/msg/PointCloud2"],
+                    "/tf_static": ["1", "tf2_msgs/msg/TFMessage"]}
+    assert "lidar topic: /points" in lines and "pose source: /odom" in lines
+    assert "gnss topic: /fix" in lines
+    assert "lidar frame: velodyne; mean points per scan 40.0 (first 3 scans)" in lines
+
+
+def test_info_json(tmp_path):
+    path = _log(tmp_path)
+    result = CliRunner().invoke(cli, ["info", "--json", str(path)])
+    assert result.exit_code == 0
+    info = json.loads(result.output)
+    assert info["indexed"] is True and info["duration_s"] == 0.25
+    assert info["detected"]["lidar_topic"] == "/points"
+
+
+def test_info_reports_ambiguous_topics_instead_of_failing(tmp_path):
+    path = _log(tmp_path, extra_cloud_topics=["/points2"])
+    result = CliRunner().invoke(cli, ["info", str(path)])
+    assert result.exit_code == 0
+    assert "--lidar-topic /points | --lidar-topic /points2" in result.output
+
+
+def test_info_missing_file(tmp_path):
+    result = CliRunner().invoke(cli, ["info", str(tmp_path / "none.mcap")])
+    assert result.exit_code == 2
+    assert result.output == f"evperc: error: {tmp_path / 'none.mcap'}: log file not found\n"
