@@ -73,13 +73,21 @@ class PosedScan:
     planar: bool                # True for 2-D scans (LaserScan): every point is an obstacle
     T_world_sensor: np.ndarray  # (4, 4) float64: sensor pose in the log's world frame
     frame_id: str
+    #: the scan's own number, if the source numbers its scans (a KITTI file number)
+    number: int | None = None
+    #: points in the source cloud before non-finite ones were dropped (None: len(points))
+    source_count: int | None = None
+    #: (N,) index in the source cloud of each row of ``points`` (None: 0..N-1)
+    source_index: np.ndarray | None = None
 
 
 def open_log(path: str | Path, *, lidar_topic: str | None = None,
              pose_topic: str | None = None, gnss_topic: str | None = None,
              world_frame: str | None = None, extrinsic: np.ndarray | None = None,
              max_pose_gap_s: float = 1.0, strict: bool = True) -> LogReader:
-    """Open an MCAP log and choose its lidar and pose topics.
+    """Open an MCAP log and choose its lidar and pose topics; a KITTI sequence folder
+    (:func:`evperc.logs.kitti.is_kitti_sequence`) opens as a :class:`~evperc.logs.kitti.KittiLog`
+    (the topic options do not apply to it).
 
     ``extrinsic`` (4×4, T_vehicle_lidar) is used when poses describe the vehicle and the log
     has no static transform to the lidar frame. Empty strings count as "not given".
@@ -87,6 +95,12 @@ def open_log(path: str | Path, *, lidar_topic: str | None = None,
     Raises :class:`LogError` for a missing or non-MCAP file, :class:`TopicError` when no topic
     or several topics fit a role.
     """
+    from evperc.logs.kitti import KittiLog, is_kitti_sequence
+
+    folder = Path(path)
+    if folder.is_dir() and (is_kitti_sequence(folder) or (folder / "velodyne").is_dir()
+                            or not any(folder.iterdir())):
+        return KittiLog(folder)  # its errors name what the folder lacks  # type: ignore[return-value]
     source = McapSource.open(path)
     reader = LogReader(source, lidar_topic=lidar_topic or None, pose_topic=pose_topic or None,
                        gnss_topic=gnss_topic or None, world_frame=world_frame or None,
@@ -312,7 +326,8 @@ class LogReader:
             if scan.T_frame_sensor is not None:
                 T = T @ scan.T_frame_sensor
             self.posed_in = poses.world_frame_name
-            yield PosedScan(scan.stamp_ns, scan.points, scan.planar, T, scan.frame_id)
+            yield PosedScan(scan.stamp_ns, scan.points, scan.planar, T, scan.frame_id,
+                            source_count=scan.source_count, source_index=scan.source_index)
 
     def _decode_scan(self, raw: RawMessage) -> ScanRecord | None:
         try:
