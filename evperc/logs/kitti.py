@@ -116,9 +116,9 @@ class KittiLog:
                 if m:
                     bins.append((int(m.group(1)), entry))
         if not bins:
-            raise LogError(f"{root}: no scans (velodyne/NNNNNN.bin) in the folder; give a KITTI "
-                           "sequence folder (velodyne/, poses.txt, calib.txt, times.txt) or an "
-                           "MCAP file")
+            raise LogError(f"{root}: is a directory with no scans (velodyne/NNNNNN.bin); give "
+                           "a KITTI sequence folder (velodyne/, poses.txt, calib.txt, times.txt) "
+                           "or an MCAP file")
         bins.sort()
         self.numbers = np.array([n for n, _ in bins], dtype=np.int64)
         self.bins = [p for _, p in bins]

@@ -150,7 +150,7 @@ def test_error_empty_folder(tmp_path: Path) -> None:
     empty.mkdir()
     with pytest.raises(LogError, match="no scans"):
         open_log(empty)
-    assert "no scans (velodyne/NNNNNN.bin)" in _info_error(empty)
+    assert "is a directory with no scans (velodyne/NNNNNN.bin)" in _info_error(empty)
     (empty / "velodyne").mkdir()  # the layout, but no scan in it
     assert "no scans" in _info_error(empty)
 
