@@ -63,7 +63,7 @@ def cli(verbose: int, quiet: int) -> None:
 
 
 @cli.command("run")
-@click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path), required=False)
+@click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path), required=False)
 @click.option("--map", "map_path", type=click.Path(path_type=Path),
               help="Buildings (or one OSM-style file with buildings and highways).")
 @click.option("--roads", "roads_path", type=click.Path(path_type=Path),
@@ -84,17 +84,22 @@ def cli(verbose: int, quiet: int) -> None:
 @click.option("--pose-topic", help="Pose topic, if the log has several.")
 @click.option("--render", "render_dir", type=click.Path(path_type=Path),
               help="Also render each frame to PNG in this directory as the run goes.")
+@click.option("--point-labels", is_flag=True,
+              help="Also write OUT/labels/NNNNNN.label: per input point 251 moving, 9 static, "
+                   "0 unknown (SemanticKITTI-MOS).")
 @user_errors
 def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path | None,
                 no_map: bool, config_path: Path | None, out_dir: Path | None, overwrite: bool,
                 resume_dir: Path | None, start_s: float | None, end_s: float | None, every: int,
                 lidar_topic: str | None, pose_topic: str | None,
-                render_dir: Path | None) -> None:
-    """Fuse LOG.mcap with the map into evidential grids, frame by frame.
+                render_dir: Path | None, point_labels: bool) -> None:
+    """Fuse LOG (an MCAP file or a KITTI sequence folder) with the map into evidential
+    grids, frame by frame.
 
     \b
     evperc run drive.mcap --map buildings.geojson [--roads roads.geojson]
     evperc run drive.mcap --no-map
+    evperc run semantickitti/08 --no-map --point-labels
     evperc run --resume evperc-out/drive
     """
     from evperc.config import load_config
@@ -108,14 +113,15 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
         out_dir = resume_dir
     else:
         if log_path is None:
-            raise UsageError("give LOG.mcap (or --resume DIR)")
+            raise UsageError("give LOG.mcap or a KITTI sequence folder (or --resume DIR)")
         check_map_options(map_path, roads_path, no_map)
         config = load_config(config_path)
         out_dir = out_dir or Path("evperc-out") / log_path.stem
         request = RunRequest(log_path=log_path, out_dir=out_dir, config=config,
                              map_path=map_path, roads_path=roads_path, overwrite=overwrite,
                              start_s=start_s, end_s=end_s, every=every,
-                             lidar_topic=lidar_topic, pose_topic=pose_topic)
+                             lidar_topic=lidar_topic, pose_topic=pose_topic,
+                             point_labels=point_labels)
     on_frame = None
     if render_dir is not None:
         from evperc.render.live import LiveRenderer
@@ -137,14 +143,15 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
 
 
 @cli.command("info")
-@click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path))
+@click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
 @click.option("--lidar-topic", help="Lidar topic, if the log has several.")
 @click.option("--pose-topic", help="Pose topic, if the log has several.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @user_errors
 def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None,
                  as_json: bool) -> None:
-    """Summarise LOG.mcap: topics, message counts, time span, detected lidar/pose/GNSS."""
+    """Summarise LOG (MCAP or KITTI sequence folder): topics, message counts, time span,
+    detected lidar/pose/GNSS."""
     import json
 
     from evperc.logs.factory import open_log
@@ -155,7 +162,9 @@ def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None
         click.echo(json.dumps(info, indent=2))
         return
     span = "empty" if info["duration_s"] is None else f"{info['duration_s']:.3f} s"
-    click.echo(f"{info['path']}  ({'indexed' if info['indexed'] else 'no index'}"
+    kind = "KITTI sequence folder" if info.get("kind") == "kitti" else (
+        "indexed" if info["indexed"] else "no index")
+    click.echo(f"{info['path']}  ({kind}"
                f"{'' if info['complete'] else ', TRUNCATED: ' + info['stopped']})")
     click.echo(f"time span: {span}")
     width = max([len(t["topic"]) for t in info["topics"]] + [5])
@@ -273,8 +282,13 @@ def simulate_command(map_path: Path, roads_path: Path | None, out_dir: Path, pro
 
 @cli.command("evaluate")
 @click.argument("out_dir", metavar="OUT", type=click.Path(path_type=Path))
-@click.option("--truth", "truth_dir", required=True, type=click.Path(path_type=Path),
+@click.option("--truth", "truth_dir", type=click.Path(path_type=Path),
               help="truth/ folder written by `evperc simulate`.")
+@click.option("--semantickitti", "seq_dir", type=click.Path(path_type=Path),
+              help="SemanticKITTI sequence folder: score OUT/labels (--point-labels) "
+                   "against its labels/, as the LiDAR-MOS benchmark does.")
+@click.option("--warmup", type=click.IntRange(min=0), default=2, show_default=True,
+              help="With --semantickitti: the first K scans, pooled apart.")
 @click.option("--compare", "compare_dir", type=click.Path(path_type=Path),
               help="Second run scored beside OUT (e.g. the --no-map baseline).")
 @click.option("--json", "json_path", type=click.Path(path_type=Path),
@@ -283,10 +297,31 @@ def simulate_command(map_path: Path, roads_path: Path | None, out_dir: Path, pro
               show_default=True,
               help="Score cells ever observed so far, or only those the sensor sees now.")
 @user_errors
-def evaluate_command(out_dir: Path, truth_dir: Path, compare_dir: Path | None,
-                     json_path: Path | None, cells: str) -> None:
-    """Score OUT (an `evperc run` folder) against simulated ground truth."""
+def evaluate_command(out_dir: Path, truth_dir: Path | None, seq_dir: Path | None,
+                     warmup: int, compare_dir: Path | None, json_path: Path | None,
+                     cells: str) -> None:
+    """Score OUT (an `evperc run` folder) against simulated ground truth (--truth) or
+    SemanticKITTI point labels (--semantickitti)."""
     import json
+
+    if (truth_dir is None) == (seq_dir is None):
+        raise UsageError("give one of --truth DIR (a simulated drive) or --semantickitti "
+                         "SEQ_DIR")
+    if seq_dir is not None:
+        from evperc.eval.semantickitti import evaluate_semantickitti, format_semantickitti
+
+        if compare_dir is not None:
+            raise UsageError("--compare works with --truth; score the second run with its "
+                             "own `evperc evaluate --semantickitti`")
+        result = evaluate_semantickitti(out_dir, seq_dir, warmup=warmup)
+        click.echo(format_semantickitti(result), nl=False)
+        if json_path is not None:
+            try:
+                json_path.write_text(json.dumps(dict(result, run=str(out_dir),
+                                                     sequence=str(seq_dir)), indent=1))
+            except OSError as err:
+                raise OutputError(f"{json_path}: cannot write JSON ({err.strerror})") from err
+        return
 
     from evperc.eval.metrics import evaluate, format_report
     from evperc.output.reader import load

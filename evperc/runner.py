@@ -27,6 +27,7 @@ from evperc.geo.window import Window
 from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
+from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
 from evperc.output.manifest import read_manifest
 from evperc.output.npz import write_npz
 from evperc.output.quantise import dequantise, dequantise_planar
@@ -52,6 +53,7 @@ class RunRequest:
     every: int = 1
     lidar_topic: str | None = None
     pose_topic: str | None = None
+    point_labels: bool = False  # also write OUT/labels/NNNNNN.label (objects.point_labels)
 
 
 @dataclass(frozen=True)
@@ -67,6 +69,8 @@ class FrameInputs:
     seconds: dict[str, float]     # time spent preparing it, per stage
     scan: PosedScan | None = None  # the scan whose sensor grid is still to compute
     t_crs: np.ndarray | None = None  # its sensor pose in the working CRS
+    #: (scan, t_crs, point kinds) kept for the per-point labels (``--point-labels``)
+    labelling: tuple[PosedScan, np.ndarray, np.ndarray] | None = None
 
 
 def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
@@ -308,7 +312,13 @@ class Pipeline:
                 "map": str(self.request.map_path) if self.request.map_path else None,
                 "roads": str(self.request.roads_path) if self.request.roads_path else None,
                 "request": {k: (str(v) if isinstance(v, Path) else v)
-                            for k, v in request.items()}}
+                            for k, v in request.items()},
+                # docs/output-format.md, "Per-point labels"
+                "point_labels": ({"dir": LABELS_DIR, "convention": "SemanticKITTI-MOS",
+                                  "codes": {"unknown": 0, "static": 9, "moving": 251},
+                                  "naming": "the scan's file number" if self.request.point_labels
+                                  and hasattr(self.reader, "numbers") else "frame index"}
+                                 if self.request.point_labels else None)}
 
     def warm_up_inputs(self) -> None:
         """Read and prepare the first scan of the requested span, and drop it: the one-off
@@ -359,11 +369,14 @@ class Pipeline:
         if inputs.scan is None:
             return inputs
         t0 = time.perf_counter()
-        free, occupied = sensor_grid(inputs.scan.points, inputs.scan.planar, inputs.t_crs,
-                                     inputs.window, self.sensor_params)
+        scan = inputs.scan
+        kinds = np.empty(len(scan.points), np.uint8) if self.request.point_labels else None
+        free, occupied = sensor_grid(scan.points, scan.planar, inputs.t_crs, inputs.window,
+                                     self.sensor_params, kinds_out=kinds)
         seconds = {**inputs.seconds, "sensor": time.perf_counter() - t0}
+        labelling = (scan, inputs.t_crs, kinds) if kinds is not None else None
         return replace(inputs, free=free, occupied=occupied, seconds=seconds, scan=None,
-                       t_crs=None)
+                       t_crs=None, labelling=labelling)
 
     def inputs(self, after_index: int, defer: threading.Event | None = None
                ) -> Iterator[tuple[int, FrameInputs]]:
@@ -408,8 +421,16 @@ class Pipeline:
         counts = count_codes(out.decision, len(state.decision_counts))
         state.decision_counts += counts
         clock.lap("fusion")
-        return {"stamp_ns": inputs.stamp_ns, "pose": inputs.pose,
-                "origin": (window.row0, window.col0), "decision_counts": counts}
+        frame = {"stamp_ns": inputs.stamp_ns, "pose": inputs.pose,
+                 "origin": (window.row0, window.col0), "decision_counts": counts}
+        if inputs.labelling is not None:  # a separate pass over the points, after the step
+            scan, t_crs, kinds = inputs.labelling
+            labels = point_labels(scan.points, kinds, t_crs, window, out.decision,
+                                  scan.source_count, scan.source_index)
+            number = scan.number if scan.number is not None else state.frames - 1
+            frame["point_labels"] = (number, labels)
+            clock.lap("point_labels")
+        return frame
 
 
 def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:
@@ -485,6 +506,10 @@ def run(request: RunRequest, resume: bool = False,
         for index, inputs in bar:
             out = writer.frame_slot()
             frame = pipeline.step(state, inputs, out)
+            labelled = frame.pop("point_labels", None)
+            if labelled is not None:  # before the manifest counts the frame (resume redoes it)
+                write_labels(out_dir, *labelled)
+                clock.lap("point_labels")
             state.scan_index = index
             new_frames += 1
             if on_frame is not None:

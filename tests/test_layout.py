@@ -17,6 +17,7 @@ ALLOWED = {
     "sensor": {"geo"},
     "output": {"geo", "render"},  # export colours its grids as render does
     "fusion": {"geo", "output"},  # the kernel writes the output format's layers
+    "objects": {"geo", "sensor", "fusion", "output"},  # after the step: decisions → points
     "render": {"geo", "output", "fusion"},
     "eval": {"geo", "output", "fusion", "sim"},
     "sim": {"geo", "logs", "output", "fusion"},

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from evperc.logs import mcap_log
+from evperc.logs import kitti, mcap_log
 
 
 class Source(NamedTuple):
@@ -28,6 +28,7 @@ class Source(NamedTuple):
 #: every log kind evperc reads, tried in order; the last one (MCAP) takes any other file and
 #: gives the one-line error of a file that is no log evperc knows
 SOURCES: list[Source] = [
+    Source("kitti", kitti.claims, lambda path, **_: kitti.KittiLog(path)),
     Source("mcap", lambda path: True, mcap_log.open_mcap),
 ]
 

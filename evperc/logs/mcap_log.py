@@ -302,7 +302,8 @@ class LogReader:
             if scan.T_frame_sensor is not None:
                 T = T @ scan.T_frame_sensor
             self.posed_in = poses.world_frame_name
-            yield PosedScan(scan.stamp_ns, scan.points, scan.planar, T, scan.frame_id)
+            yield PosedScan(scan.stamp_ns, scan.points, scan.planar, T, scan.frame_id,
+                            source_count=scan.source_count, source_index=scan.source_index)
 
     def _decode_scan(self, raw: RawMessage) -> ScanRecord | None:
         try:

@@ -17,7 +17,12 @@ from typing import Any
 import numpy as np
 
 from evperc.logs.mcap_source import json_bytes
-from evperc.logs.pointcloud import foxglove_fields, planar_points, ros_fields, xyz_from_packed
+from evperc.logs.pointcloud import (
+    foxglove_fields,
+    planar_points_indexed,
+    ros_fields,
+    xyz_indexed_from_packed,
+)
 from evperc.logs.transforms import pose_matrix
 
 IDENTITY_QUATERNION = (0.0, 0.0, 0.0, 1.0)
@@ -33,6 +38,10 @@ class ScanRecord:
     points: np.ndarray
     planar: bool
     T_frame_sensor: np.ndarray | None = None
+    #: points in the message before invalid ones were dropped (None: len(points))
+    source_count: int | None = None
+    #: index in the message's point order of each row of ``points`` (None: 0..N-1)
+    source_index: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -112,13 +121,13 @@ def _pose_matrix(pose: Any) -> np.ndarray | None:
 
 def ros_pointcloud2(msg: Any, log_time_ns: int) -> ScanRecord:
     header = get(msg, "header")
-    points = xyz_from_packed(
+    points, index, count = xyz_indexed_from_packed(
         _bytes(get(msg, "data", b"")), ros_fields(get(msg, "fields", [])),
         point_step=int(get(msg, "point_step", 0)), width=int(get(msg, "width", 0)),
         height=int(get(msg, "height", 1)), row_step=int(get(msg, "row_step", 0)),
         big_endian=bool(get(msg, "is_bigendian", False)))
     return ScanRecord(stamp_of(get(header, "stamp"), log_time_ns), str(get(header, "frame_id", "")),
-                      points, planar=False)
+                      points, planar=False, source_count=count, source_index=index)
 
 
 def ros_laserscan(msg: Any, log_time_ns: int) -> ScanRecord:
@@ -126,20 +135,22 @@ def ros_laserscan(msg: Any, log_time_ns: int) -> ScanRecord:
     ranges = np.asarray(get(msg, "ranges", []), dtype=np.float64)
     angles = float(get(msg, "angle_min", 0.0)) + float(
         get(msg, "angle_increment", 0.0)) * np.arange(ranges.size)
-    points = planar_points(ranges, angles, float(get(msg, "range_min", 0.0)),
-                           float(get(msg, "range_max", np.inf)))
+    points, index, count = planar_points_indexed(ranges, angles,
+                                                 float(get(msg, "range_min", 0.0)),
+                                                 float(get(msg, "range_max", np.inf)))
     return ScanRecord(stamp_of(get(header, "stamp"), log_time_ns), str(get(header, "frame_id", "")),
-                      points, planar=True)
+                      points, planar=True, source_count=count, source_index=index)
 
 
 def foxglove_pointcloud(msg: Any, log_time_ns: int) -> ScanRecord:
     data = _bytes(get(msg, "data", b""))
     stride = int(get(msg, "point_stride", 0))
     n = (len(data) if not isinstance(data, np.ndarray) else data.size) // stride if stride else 0
-    points = xyz_from_packed(data, foxglove_fields(get(msg, "fields", [])), point_step=stride,
-                             width=n)
+    points, index, count = xyz_indexed_from_packed(
+        data, foxglove_fields(get(msg, "fields", [])), point_step=stride, width=n)
     return ScanRecord(stamp_of(get(msg, "timestamp"), log_time_ns), str(get(msg, "frame_id", "")),
-                      points, planar=False, T_frame_sensor=_pose_matrix(get(msg, "pose")))
+                      points, planar=False, T_frame_sensor=_pose_matrix(get(msg, "pose")),
+                      source_count=count, source_index=index)
 
 
 def foxglove_laserscan(msg: Any, log_time_ns: int) -> ScanRecord:
@@ -147,9 +158,10 @@ def foxglove_laserscan(msg: Any, log_time_ns: int) -> ScanRecord:
     start, end = float(get(msg, "start_angle", 0.0)), float(get(msg, "end_angle", 0.0))
     angles = np.linspace(start, end, ranges.size) if ranges.size > 1 else np.full(ranges.size,
                                                                                    start)
+    points, index, count = planar_points_indexed(ranges, angles)
     return ScanRecord(stamp_of(get(msg, "timestamp"), log_time_ns), str(get(msg, "frame_id", "")),
-                      planar_points(ranges, angles), planar=True,
-                      T_frame_sensor=_pose_matrix(get(msg, "pose")))
+                      points, planar=True, T_frame_sensor=_pose_matrix(get(msg, "pose")),
+                      source_count=count, source_index=index)
 
 
 # --- poses --------------------------------------------------------------------------------

@@ -44,6 +44,18 @@ def xyz_from_packed(data: bytes | bytearray | memoryview | np.ndarray,
     Raises :class:`MissingFieldsError` when x, y or z is absent, ValueError when a field does
     not fit in the point.
     """
+    return xyz_indexed_from_packed(data, fields, point_step, width, height, row_step,
+                                   big_endian)[0]
+
+
+def xyz_indexed_from_packed(data: bytes | bytearray | memoryview | np.ndarray,
+                            fields: Mapping[str, tuple[int, str]], point_step: int, width: int,
+                            height: int = 1, row_step: int | None = None,
+                            big_endian: bool = False
+                            ) -> tuple[np.ndarray, np.ndarray | None, int]:
+    """:func:`xyz_from_packed` with ``(points, index, count)``: ``count`` points in the
+    buffer (complete rows), ``index`` the position in the buffer's point order of each kept
+    row (None when none was dropped; computed only then, from the same float32 values)."""
     if not all(name in fields for name in XYZ):
         raise MissingFieldsError(sorted(fields))
     order = ">" if big_endian else "<"
@@ -53,18 +65,23 @@ def xyz_from_packed(data: bytes | bytearray | memoryview | np.ndarray,
             raise ValueError(f"field {name} ({dtype.str} at byte {fields[name][0]}) does not "
                              f"fit in a {point_step}-byte point")
     if height <= 0 or width <= 0 or point_step <= 0:
-        return np.empty((0, 3), np.float32)
+        return np.empty((0, 3), np.float32), None, 0
     raw = _byte_view(data)
     packed_row = width * point_step
     row_step = max(row_step or packed_row, packed_row)
     n_rows = min(height, (raw.size + row_step - packed_row) // row_step)  # complete rows only
     if n_rows <= 0:
-        return np.empty((0, 3), np.float32)
+        return np.empty((0, 3), np.float32), None, 0
     x, y, z = (_column(raw, fields[name][0], dtype, (n_rows, width), (row_step, point_step))
                for name, dtype in zip(XYZ, dtypes, strict=True))
     out = np.empty((n_rows * width, 3), np.float32)
     kept = _finite_xyz(x, y, z, out)
-    return out if kept == out.shape[0] else out[:kept]
+    if kept == out.shape[0]:
+        return out, None, kept
+    finite = np.ones((n_rows, width), bool)
+    for column in (x, y, z):
+        finite &= np.isfinite(column.astype(np.float32))
+    return out[:kept], np.flatnonzero(finite.ravel()), out.shape[0]
 
 
 def _byte_view(data: bytes | bytearray | memoryview | np.ndarray) -> np.ndarray:
@@ -133,12 +150,24 @@ def planar_points(ranges: np.ndarray, angles: np.ndarray, range_min: float = 0.0
 
     Returns (N, 3) float32. A range of zero or below is never a return.
     """
+    return planar_points_indexed(ranges, angles, range_min, range_max)[0]
+
+
+def planar_points_indexed(ranges: np.ndarray, angles: np.ndarray, range_min: float = 0.0,
+                          range_max: float = np.inf
+                          ) -> tuple[np.ndarray, np.ndarray | None, int]:
+    """Points (r cos a, r sin a, 0) of a 2-D scan, keeping finite r in [range_min, range_max].
+
+    Returns (N, 3) float32. A range of zero or below is never a return.
+    """
     r = np.asarray(ranges, dtype=np.float64)
     a = np.asarray(angles, dtype=np.float64)[: r.size]
     r = r[: a.size]
     keep = np.isfinite(r) & (r > 0.0) & (r >= range_min) & (r <= range_max) & np.isfinite(a)
+    index = None if keep.all() else np.flatnonzero(keep)
     r, a = r[keep], a[keep]
-    return np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)], axis=-1).astype(np.float32)
+    points = np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)], axis=-1)
+    return points.astype(np.float32), index, keep.size
 
 
 def _attr(obj: object, name: str) -> object:

@@ -44,7 +44,8 @@ _scratch = _Scratch()
 
 
 def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, window: Window,
-                params: SensorParams) -> tuple[np.ndarray, np.ndarray]:
+                params: SensorParams, kinds_out: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
     """``(free, occupied)``: float32 ``window.shape`` arrays of m({F}) and m({O}) for one scan;
     m(Ω_SG) = 1 − free − occupied and a cell has at most one of the two nonzero.
 
@@ -58,6 +59,9 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
 
     Compiled (numba) passes over the points and the cells on per-thread work arrays that are
     reused from call to call; the returned grids are new arrays (views of one block).
+    ``kinds_out`` (uint8 (N,), optional) receives each point's kind from the ground split
+    (:data:`~evperc.sensor.ground.IGNORED` — out of range, non-finite or above
+    ``max_obstacle_height_m`` —, ``GROUND``, ``OBSTACLE``), for the per-point labels.
     """
     layout = PolarLayout.build(params.azimuth_resolution_deg,
                                params.range_bin_m or window.resolution_m,
@@ -82,6 +86,8 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
     classify_points(z, range_m, az_bin, layout.n_az, layout.max_range_m, bool(planar),
                     np.float32(params.sensor_height_m), np.float32(params.ground_threshold_m),
                     np.float32(params.max_obstacle_height_m), hist, kind)
+    if kinds_out is not None:
+        kinds_out[:] = kind
 
     obstacle_bin = np.empty(layout.n_az, np.int32)
     free_end = np.empty(layout.n_az, np.int32)

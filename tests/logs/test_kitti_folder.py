@@ -1,0 +1,179 @@
+"""KITTI / SemanticKITTI sequence folders read directly (evperc.logs.kitti): the small copy in
+tests/data/semantickitti05 (scans 0, 3, 6, 9 of sequence 05, cropped), the shared slices when
+present, and the one-line errors."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scipy.spatial import cKDTree
+
+from evperc.cli import cli
+from evperc.errors import LogError, PoseError
+from evperc.logs.factory import open_log
+from evperc.logs.kitti import KittiLog, is_kitti_sequence
+from tests.mcap_writers import KITTI_BASE_NS, kitti_lidar_poses, write_kitti_odometry_mcap
+
+SMALL = Path(__file__).resolve().parents[1] / "data" / "semantickitti05"
+SHARED = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "semantickitti"
+needs_shared = pytest.mark.skipif(not (SHARED / "05" / "poses.txt").exists(),
+                                  reason=f"shared SemanticKITTI slices not found at {SHARED} "
+                                         "(../shared relative to the repo root)")
+
+
+def _bin(path: Path) -> np.ndarray:
+    return np.fromfile(path, "<f4").reshape(-1, 4)
+
+
+def test_small_copy_reads_scan_by_scan_with_its_file_numbers() -> None:
+    assert is_kitti_sequence(SMALL)
+    log = open_log(SMALL)
+    assert isinstance(log, KittiLog)
+    scans = list(log.scans())
+    assert [s.number for s in scans] == [0, 3, 6, 9]
+    # stamps: times.txt line of the file number, seconds -> integer ns
+    times = [float(line) for line in (SMALL / "times.txt").read_text().split()]
+    assert [s.stamp_ns for s in scans] == [round(times[n] * 1e9) for n in (0, 3, 6, 9)]
+    assert log.start_ns == scans[0].stamp_ns and log.end_ns == scans[-1].stamp_ns + 1
+    for s in scans:
+        np.testing.assert_array_equal(s.points, _bin(SMALL / "velodyne" / f"{s.number:06d}.bin")
+                                      [:, :3])
+        assert s.frame_id == "velodyne" and not s.planar and s.source_index is None
+    # the pose chain written out independently (tests.mcap_writers, all 10 poses lines)
+    expected = kitti_lidar_poses(SMALL, 10, world="lidar0")
+    for s in scans:
+        np.testing.assert_allclose(s.T_world_sensor, expected[s.number], atol=1e-9)
+    np.testing.assert_allclose(scans[0].T_world_sensor, np.eye(4), atol=1e-12)
+    assert log.posed_in == "kitti_lidar0" and log.stats == {}
+    # only the requested span is read
+    assert [s.number for s in log.scans(scans[1].stamp_ns, scans[3].stamp_ns)] == [3, 6]
+    # positions between scans: linear (the car drives straight here)
+    mid = (scans[0].stamp_ns + scans[1].stamp_ns) // 2
+    pos = log.positions_at(np.array([mid, scans[0].stamp_ns - 1]))
+    np.testing.assert_allclose(pos[0], (expected[0][:3, 3] + expected[3][:3, 3]) / 2, atol=0.01)
+    assert np.isnan(pos[1]).all()
+    assert log.gnss_fixes().shape == (0, 4)
+
+
+def _static_structure(scan, labels: np.ndarray) -> np.ndarray:
+    """World points of a scan that are static and not road: SemanticKITTI class > 1, not
+    moving (< 252), more than 0.5 m above the road (lidar z > -1.23, the lidar 1.73 m up)."""
+    cls = labels & 0xFFFF
+    keep = (cls > 1) & (cls < 252) & (scan.points[:, 2] > -1.23)
+    p = scan.points[keep].astype(np.float64)
+    return p @ scan.T_world_sensor[:3, :3].T + scan.T_world_sensor[:3, 3]
+
+
+def test_pose_chain_aligns_static_structure_of_first_and_last_scan() -> None:
+    """Nearest-neighbour distance (scipy cKDTree) from each static point of scan 9 to those of
+    scan 0 in the world frame. Median below 0.3 m (the issue's bound: the cropped copy keeps
+    every 12th point, so a perfectly posed surface is sampled ~0.1 m apart); without the poses
+    (both scans in their own lidar frame, the car 7 m on) it is over 1 m."""
+    log = open_log(SMALL)
+    scans = {s.number: s for s in log.scans()}
+    lab = {n: np.fromfile(SMALL / "labels" / f"{n:06d}.label", "<u4") for n in (0, 9)}
+    a, b = _static_structure(scans[0], lab[0]), _static_structure(scans[9], lab[9])
+    assert len(a) > 2000 and len(b) > 2000
+    d, _ = cKDTree(a).query(b)
+    assert np.median(d) < 0.3, np.median(d)
+    raw = [scans[n].points[((lab[n] & 0xFFFF) > 1) & (scans[n].points[:, 2] > -1.23)]
+           for n in (0, 9)]
+    d0, _ = cKDTree(raw[0]).query(raw[1])
+    assert np.median(d0) > 1.0
+
+
+@needs_shared
+@pytest.mark.parametrize("seq", ["00", "05", "10"])
+def test_mcap_written_from_the_same_folder_gives_the_same_scans_and_poses(tmp_path, seq):
+    """tests.mcap_writers writes the folder as ROS 2 MCAP (its own pose chain, quaternions,
+    a base_link 1.73 m below the lidar): evperc reads the same scans and poses from both."""
+    n = 3
+    folder = SHARED / seq
+    mcap = open_log(write_kitti_odometry_mcap(folder, tmp_path / "k.mcap", n, point_stride=1))
+    a, b = list(open_log(folder).scans())[:n], list(mcap.scans())
+    assert len(b) == n
+    for sa, sb in zip(a, b, strict=True):
+        assert sb.stamp_ns - KITTI_BASE_NS == sa.stamp_ns
+        np.testing.assert_array_equal(sa.points, sb.points)
+        # quaternions of KITTI's 3x4 rotations (orthonormal to ~1e-7) differ by ~1e-6
+        np.testing.assert_allclose(sa.T_world_sensor, sb.T_world_sensor, atol=2e-6)
+
+
+def _copy(tmp_path: Path) -> Path:
+    dest = tmp_path / "seq"
+    shutil.copytree(SMALL, dest)
+    return dest
+
+
+def _info_error(path: Path) -> str:
+    result = CliRunner().invoke(cli, ["info", str(path)])
+    assert result.exit_code == 2, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("evperc: error: "), result.output
+    return lines[0]
+
+
+def test_error_no_tr_line(tmp_path: Path) -> None:
+    seq = _copy(tmp_path)
+    calib = seq / "calib.txt"
+    calib.write_text("\n".join(line for line in calib.read_text().splitlines()
+                               if not line.startswith("Tr:")))
+    with pytest.raises(PoseError, match="no Tr: line"):
+        open_log(seq)
+    assert "calib.txt: no Tr: line" in _info_error(seq)
+
+
+def test_error_fewer_poses_than_scans(tmp_path: Path) -> None:
+    seq = _copy(tmp_path)
+    lines = (seq / "poses.txt").read_text().splitlines()
+    (seq / "poses.txt").write_text("\n".join(lines[:8]) + "\n")  # scan 9 needs line 10
+    with pytest.raises(PoseError, match="8 poses for scans up to 000009.bin"):
+        open_log(seq)
+    assert "fewer poses than scans" in _info_error(seq)
+
+
+def test_error_truncated_bin(tmp_path: Path) -> None:
+    seq = _copy(tmp_path)
+    path = seq / "velodyne" / "000006.bin"
+    path.write_bytes(path.read_bytes()[:-6])
+    with pytest.raises(LogError, match="000006.bin: truncated scan"):
+        open_log(seq)
+    assert "truncated scan" in _info_error(seq)
+
+
+def test_error_empty_folder(tmp_path: Path) -> None:
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(LogError, match="no scans"):
+        open_log(empty)
+    assert "is a directory with no scans (velodyne/NNNNNN.bin)" in _info_error(empty)
+    (empty / "velodyne").mkdir()  # the layout, but no scan in it
+    assert "no scans" in _info_error(empty)
+
+
+def test_info_names_the_folder_and_its_scans() -> None:
+    result = CliRunner().invoke(cli, ["info", str(SMALL)])
+    assert result.exit_code == 0, result.output
+    assert "KITTI sequence folder" in result.output
+    assert "velodyne/" in result.output and "labels/" in result.output
+    info = open_log(SMALL).info()
+    assert info["topics"][0]["messages"] == 4 and info["labels"] == 4
+    sizes = [(SMALL / "velodyne" / f"{n:06d}.bin").stat().st_size // 16 for n in (0, 3, 6, 9)]
+    assert info["mean_points_per_scan"] == pytest.approx(np.mean(sizes))
+
+
+def test_non_finite_points_are_dropped_with_their_index(tmp_path: Path) -> None:
+    seq = _copy(tmp_path)
+    path = seq / "velodyne" / "000003.bin"
+    pts = _bin(path).copy()
+    pts[[0, 5], 1] = np.nan
+    pts.tofile(path)
+    scan = [s for s in open_log(seq).scans() if s.number == 3][0]
+    assert scan.source_count == len(pts) and len(scan.points) == len(pts) - 2
+    np.testing.assert_array_equal(scan.source_index,
+                                  np.delete(np.arange(len(pts)), [0, 5]))
+    np.testing.assert_array_equal(scan.points, pts[scan.source_index, :3])
