@@ -54,6 +54,7 @@ from evperc.io.mcap_messages import (
     TF_ADAPTERS,
     ScanRecord,
     is_static_tf_topic,
+    schema_list,
 )
 from evperc.io.mcap_poses import OK, WAIT, PoseSource, PoseTopicSource, TfSource
 from evperc.io.mcap_source import McapSource
@@ -182,7 +183,7 @@ class LogReader:
             if topic is None:
                 raise TopicError(
                     f"{self.path}: no lidar topic; it has {self._schemas_text()}; evperc reads "
-                    f"{', '.join(LIDAR_ADAPTERS)}")
+                    f"{schema_list(LIDAR_ADAPTERS)}")
             self._chosen["lidar"] = topic
         return self._chosen["lidar"]
 
@@ -248,7 +249,7 @@ class LogReader:
             return "tf", tf
         raise TopicError(
             f"{self.path}: no pose topic; it has {self._schemas_text()}; evperc reads "
-            f"{', '.join(POSE_ADAPTERS)} or a TF tree ({', '.join(TF_ADAPTERS)} on /tf)")
+            f"{schema_list(POSE_ADAPTERS)} or a TF tree ({schema_list(TF_ADAPTERS)} on /tf)")
 
     def _schemas_text(self) -> str:
         schemas = sorted({f"{t.schema or '(no schema)'}" for t in self.source.topics.values()})

@@ -265,6 +265,13 @@ for _table in (LIDAR_ADAPTERS, POSE_ADAPTERS, TF_ADAPTERS, GNSS_ADAPTERS):
 TF_ADAPTERS["tf/tfMessage"] = TF_ADAPTERS["tf/msg/tfMessage"] = ros_tf
 
 
+def schema_list(table: dict[str, Any]) -> str:
+    """The schema names of an adapter table for a message: the ROS 2 and foxglove ones, the
+    ROS 1 spellings summarised."""
+    names = [n for n in table if "/msg/" in n or "/" not in n]
+    return ", ".join(names) + " (and their ROS 1 names, without /msg/)"
+
+
 def is_static_tf_topic(topic: str) -> bool:
     """Transforms on ``/tf_static`` (or any topic ending in ``tf_static``) hold for all time."""
     return topic.rstrip("/").endswith("tf_static")
