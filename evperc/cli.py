@@ -63,7 +63,7 @@ def cli(verbose: int, quiet: int) -> None:
 
 
 @cli.command("run")
-@click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path), required=False)
+@click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path), required=False)
 @click.option("--map", "map_path", type=click.Path(path_type=Path),
               help="Buildings (or one OSM-style file with buildings and highways).")
 @click.option("--roads", "roads_path", type=click.Path(path_type=Path),
@@ -90,7 +90,8 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
                 resume_dir: Path | None, start_s: float | None, end_s: float | None, every: int,
                 lidar_topic: str | None, pose_topic: str | None,
                 render_dir: Path | None) -> None:
-    """Fuse LOG.mcap with the map into evidential grids, frame by frame.
+    """Fuse LOG with the map into evidential grids, frame by frame. LOG: an MCAP file (ROS 2,
+    ROS 1 or Foxglove messages), a ROS 1 .bag, or a ROS 2 bag directory (.db3 or .mcap).
 
     \b
     evperc run drive.mcap --map buildings.geojson [--roads roads.geojson]
@@ -108,7 +109,7 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
         out_dir = resume_dir
     else:
         if log_path is None:
-            raise UsageError("give LOG.mcap (or --resume DIR)")
+            raise UsageError("give LOG (or --resume DIR)")
         check_map_options(map_path, roads_path, no_map)
         config = load_config(config_path)
         out_dir = out_dir or Path("evperc-out") / log_path.stem
@@ -137,14 +138,15 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
 
 
 @cli.command("info")
-@click.argument("log_path", metavar="LOG.mcap", type=click.Path(path_type=Path))
+@click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
 @click.option("--lidar-topic", help="Lidar topic, if the log has several.")
 @click.option("--pose-topic", help="Pose topic, if the log has several.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @user_errors
 def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None,
                  as_json: bool) -> None:
-    """Summarise LOG.mcap: topics, message counts, time span, detected lidar/pose/GNSS."""
+    """Summarise LOG (MCAP, ROS 1 .bag, ROS 2 bag directory): topics, message counts, time
+    span, detected lidar/pose/GNSS."""
     import json
 
     from evperc.io.log import open_log
@@ -155,7 +157,7 @@ def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None
         click.echo(json.dumps(info, indent=2))
         return
     span = "empty" if info["duration_s"] is None else f"{info['duration_s']:.3f} s"
-    click.echo(f"{info['path']}  ({'indexed' if info['indexed'] else 'no index'}"
+    click.echo(f"{info['path']}  ({info['kind']}, {'indexed' if info['indexed'] else 'no index'}"
                f"{'' if info['complete'] else ', TRUNCATED: ' + info['stopped']})")
     click.echo(f"time span: {span}")
     width = max([len(t["topic"]) for t in info["topics"]] + [5])
@@ -332,8 +334,8 @@ def batch_command(logs: tuple[Path, ...], list_path: Path | None, map_path: Path
                   roads_path: Path | None, no_map: bool, out_root: Path,
                   config_path: Path | None, workers: int | None, scheduler: str | None,
                   json_path: Path | None) -> None:
-    """Run `evperc run` on many logs as tasks on a Dask cluster; skip finished outputs,
-    resume interrupted ones. Exit code 1 if any log failed.
+    """Run `evperc run` on many logs (of any kind it reads) as tasks on a Dask cluster; skip
+    finished outputs, resume interrupted ones. Exit code 1 if any log failed.
 
     \b
     evperc batch logs/*.mcap --map city.geojson --out runs/

@@ -6,8 +6,8 @@ message; ROS 2: ``metadata.yaml`` and the storage's topic table) and builds the 
 from the definitions the bag carries (types the bag does not define come from rosbags' bundled
 store, ``DEFAULT_STORE``). ``iter_raw`` then streams messages in log-time order (ROS 1: a merge
 of the per-connection indexes, one decompressed chunk in memory at a time; ROS 2 sqlite3: one
-``ORDER BY timestamp`` query per storage file, read row by row), so memory does not grow with
-the bag's length beyond the ROS 1 index (~100 bytes per message). ``decode`` deserialises with
+``ORDER BY timestamp`` query per storage file, read row by row), so memory does not grow
+with the bag's length beyond the ROS 1 index (~200 bytes per message). ``decode`` deserialises with
 the bag's type store into rosbags' message dataclasses (attribute access; ``uint8[]`` as a
 numpy array), which the adapters of :mod:`evperc.io.mcap_messages` read as they read ROS 2
 MCAP messages: rosbags spells every type name the ROS 2 way (``sensor_msgs/msg/PointCloud2``,
