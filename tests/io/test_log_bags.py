@@ -268,3 +268,22 @@ def test_unknown_content_names_what_was_found(tmp_path):
     text = str(err.value)
     assert "\n" not in text
     assert text.startswith(f"{png}: not an MCAP file or bag: it starts with 89 50 4e 47")
+
+
+def test_damaged_bag_chunk_ends_the_stream_with_one_warning(drive, tmp_path, caplog):
+    """Zeroed bytes in the middle of a .bag (its index intact): the scans before the damage
+    are read, the stream then ends with one warning, and info says the log is incomplete."""
+    data = bytearray(drive["bag"].read_bytes())
+    middle = len(data) // 2
+    data[middle:middle + 20_000] = bytes(20_000)
+    bad = tmp_path / "damaged.bag"
+    bad.write_bytes(bytes(data))
+    log = open_log(bad)
+    with caplog.at_level("WARNING"):
+        scans = list(log.scans())
+        list(log.scans())  # a second pass: no second warning
+    assert 0 < len(scans) < 20
+    warnings = [r for r in caplog.records if "truncated or damaged" in r.getMessage()]
+    assert len(warnings) == 1 and "damaged.bag" in warnings[0].getMessage()
+    info = log.info()
+    assert info["complete"] is False and "unreadable data" in info["stopped"]
