@@ -8,7 +8,7 @@ message definitions, so the types come from the bag itself.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from evperc.errors import LogError
 from evperc.logs.rosbags_source import RosbagsSource
@@ -27,6 +27,12 @@ class Rosbag1Source(RosbagsSource):
     @classmethod
     def claims(cls, path: Path, head: bytes) -> bool:
         return head.startswith(MAGIC)
+
+    @classmethod
+    def _reader(cls, path: Path) -> Any:
+        from rosbags.rosbag1 import Reader
+
+        return Reader(path)
 
     @classmethod
     def _schema_encoding(cls, fmt: str) -> str:

@@ -13,7 +13,7 @@ reads are the same in Foxy, Galactic and Humble).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from evperc.errors import LogError
 from evperc.logs.rosbags_source import RosbagsSource
@@ -36,14 +36,15 @@ class Rosbag2Source(RosbagsSource):
         return head.startswith(SQLITE_MAGIC)
 
     @classmethod
-    def _rosbags_paths(cls, path: Path) -> list[Path]:
-        if path.is_dir():
-            return [path]
-        if not (path.parent / METADATA).is_file():
+    def _reader(cls, path: Path) -> Any:
+        """The reader of the bag directory (of ``path`` itself, or the one a .db3 is in)."""
+        from rosbags.rosbag2 import Reader
+
+        if not path.is_dir() and not (path.parent / METADATA).is_file():
             raise LogError(f"{path}: a ROS 2 sqlite3 bag file without the {METADATA} of its "
                            f"bag directory ({path.parent}); restore it with `ros2 bag reindex "
                            f"{path.parent}`, then give the directory")
-        return [path.parent]
+        return Reader(path if path.is_dir() else path.parent)
 
     @classmethod
     def _open_error(cls, path: Path, why: str) -> LogError:

@@ -1,5 +1,7 @@
-"""Bags read through rosbags' :class:`~rosbags.highlevel.AnyReader`: the part ROS 1 ``.bag``
-files (:mod:`evperc.logs.rosbag1`) and ROS 2 bag directories (:mod:`evperc.logs.rosbag2`) share.
+"""Bags read through rosbags' readers (``rosbags.rosbag1.Reader``, ``rosbags.rosbag2.Reader``):
+the part ROS 1 ``.bag`` files (:mod:`evperc.logs.rosbag1`) and ROS 2 bag directories
+(:mod:`evperc.logs.rosbag2`) share. The readers are used directly rather than through
+``AnyReader``, which picks the bag version by the file's suffix: evperc goes by content.
 
 Opening reads the bag's index (ROS 1: the connection and chunk records and one small entry per
 message; ROS 2: ``metadata.yaml`` and the storage's topic table) and builds the message types
@@ -33,6 +35,8 @@ log = logging.getLogger(__name__)
 
 #: the largest rosbags timestamp means "no messages" (rosbags' convention)
 _NO_TIME = 2**63 - 1
+#: the line between concatenated IDL definitions (ROS 2 bags)
+_IDL_SEPARATOR = "=" * 80 + "\n"
 
 
 @dataclass
@@ -54,11 +58,13 @@ class RosbagsSource:
     #: rosbags' bundled type store for types the bag does not define
     DEFAULT_STORE: ClassVar[str] = "latest"
 
-    def __init__(self, path: Path, reader: Any) -> None:
+    def __init__(self, path: Path, reader: Any, store: Any) -> None:
         self.path = path
+        self._deserialize = (store.deserialize_ros1 if self.message_encoding == "ros1"
+                             else store.deserialize_cdr)
         self.indexed = True  # both bag kinds stream in log-time order
         self.stop_reason: str | None = None
-        self._reader = reader
+        self._bag = reader
         self._lock = threading.Lock()  # one file handle / sqlite connection for all streams
         self._warned = False
         self.topics: dict[str, TopicInfo] = {}
@@ -80,9 +86,9 @@ class RosbagsSource:
         return {"MSG": "ros2msg", "IDL": "ros2idl"}.get(fmt, "")
 
     @classmethod
-    def _rosbags_paths(cls, path: Path) -> list[Path]:
-        """The paths handed to AnyReader."""
-        return [path]
+    def _reader(cls, path: Path) -> Any:
+        """The rosbags reader of ``path`` (not opened)."""
+        raise NotImplementedError
 
     @classmethod
     def _open_error(cls, path: Path, why: str) -> LogError:
@@ -90,24 +96,22 @@ class RosbagsSource:
 
     @classmethod
     def open(cls, path: str | Path) -> RosbagsSource:
-        """Open the bag at ``path`` and read its index; LogError if it cannot be read."""
-        from rosbags.highlevel import AnyReader
-        from rosbags.typesys import get_typestore
+        """Open the bag at ``path``, read its index and build its message types; LogError if
+        it cannot be read."""
+        from rosbags.typesys import Stores, get_typestore
 
         path = Path(path)
-        reader = AnyReader(cls._rosbags_paths(path))
+        reader = cls._reader(path)
         try:
             reader.open()
         except Exception as err:  # rosbags raises its own and plain errors for a bad bag
             raise cls._open_error(path, _text(err)) from err
-        _add_missing_types(reader, get_typestore(cls._default_store()))
-        return cls(path, reader)
-
-    @classmethod
-    def _default_store(cls) -> Any:
-        from rosbags.typesys import Stores
-
-        return Stores(cls.DEFAULT_STORE)
+        try:
+            store = _typestore(reader.connections, get_typestore(Stores(cls.DEFAULT_STORE)))
+        except Exception as err:
+            raise LogError(f"{path}: cannot parse the message definitions in this {cls.kind} "
+                           f"({_text(err)})") from err
+        return cls(path, reader, store)
 
     # --- reading ---------------------------------------------------------------------------
 
@@ -121,7 +125,7 @@ class RosbagsSource:
             connections = [c for t in set(topics) for c in self._connections.get(t, [])]
         if not connections:
             return
-        stream = self._reader.messages(connections=connections, start=start_ns, stop=end_ns)
+        stream = self._bag.messages(connections=connections, start=start_ns, stop=end_ns)
         count = 0
         try:
             while True:
@@ -150,30 +154,40 @@ class RosbagsSource:
 
     def decode(self, raw: BagMessage) -> Any:
         """The rosbags message object of ``raw`` (deserialised with the bag's type store)."""
-        return self._reader.deserialize(raw.data, raw.connection.msgtype)
+        return self._deserialize(raw.data, raw.connection.msgtype)
 
 
-def _add_missing_types(reader: Any, store: Any) -> None:
-    """Register, from rosbags' bundled ``store``, the types a bag uses but does not define
-    (ROS 2 bags before Iron carry no definitions; AnyReader uses a default store only when no
-    topic has one)."""
-    missing = {c.msgtype for c in reader.connections
-               if c.msgtype not in reader.typestore.fielddefs}
-    if not missing:
-        return
+def _typestore(connections: list[Any], bundled: Any) -> Any:
+    """A rosbags type store with the types the bag defines (``.msg`` text, ROS 1 and ROS 2, or
+    ROS 2 IDL, one or several concatenated definitions) and, from the ``bundled`` store, those
+    it uses without defining them (ROS 2 bags before Iron carry no definitions)."""
+    from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+
+    types: dict[str, Any] = {}
+    for connection in connections:
+        fmt, text = connection.msgdef.format.name, connection.msgdef.data
+        if fmt == "MSG":
+            types.update(get_types_from_msg(text, connection.msgtype))
+        elif fmt == "IDL":
+            for part in text.split(_IDL_SEPARATOR):
+                if part.startswith("IDL: "):
+                    part = part.split("\n", 1)[1]
+                if part.strip():
+                    types.update(get_types_from_idl(part))
+    store = get_typestore(Stores.EMPTY)
+    store.register(types)
+    todo = [c.msgtype for c in connections]
     wanted: dict[str, Any] = {}
-    todo = list(missing)
-    while todo:  # the types and everything they use
+    while todo:  # the undefined types and everything they use
         name = todo.pop()
-        if name in wanted or name in reader.typestore.fielddefs or name not in store.fielddefs:
+        if name in wanted or name in store.fielddefs or name not in bundled.fielddefs:
             continue
-        wanted[name] = store.fielddefs[name]
-        _, fields = store.fielddefs[name]
-        for _, (_, desc) in fields:
-            for part in _type_names(desc):
-                todo.append(part)
+        wanted[name] = bundled.fielddefs[name]
+        for _, (_, desc) in bundled.fielddefs[name][1]:
+            todo.extend(_type_names(desc))
     if wanted:
-        reader.typestore.register(wanted)
+        store.register(wanted)
+    return store
 
 
 def _type_names(desc: Any) -> Iterator[str]:
