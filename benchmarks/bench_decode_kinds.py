@@ -5,6 +5,8 @@ The (a) log of ``bench_decode.py`` / ``bench_run.py`` (``bench-out/sim-hdl64-10s
 MCAP with zstd chunks as ``evperc simulate`` writes it) rewritten once, with the test suite's
 third-party writers (tests/bag_writers.py), into ``bench-out/sim-hdl64-10s-kinds/``:
 
+- ``ros2-uncompressed.mcap``: the same records copied into chunks without compression
+  (mcap's writer), to tell the cost of zstd from that of the container;
 - ``ros1.mcap``: ROS 1 messages in MCAP (mcap-ros1-support's writer: zstd chunks of 1 MiB,
   as ``mcap convert`` writes), decoded by mcap-ros1-support (genpy);
 - ``drive.bag``: ROS 1 bag (rosbags' writer, uncompressed chunks, as ``rosbag record`` by
@@ -47,7 +49,8 @@ def logs() -> dict[str, Path]:
 
     src = _log_path(*SOURCE)
     out = ROOT / "bench-out" / f"{SOURCE[0]}-kinds"
-    paths = {"ros2 mcap": src, "ros1 mcap": out / "ros1.mcap", "rosbag1 .bag": out / "drive.bag",
+    paths = {"ros2 mcap": src, "ros2 mcap, no zstd": out / "ros2-uncompressed.mcap",
+             "ros1 mcap": out / "ros1.mcap", "rosbag1 .bag": out / "drive.bag",
              "rosbag2 .db3": out / "drive_db3"}
     if not (out / ".done").exists():
         from tests.bag_writers import (  # noqa: PLC0415
@@ -58,11 +61,34 @@ def logs() -> dict[str, Path]:
 
         shutil.rmtree(out, ignore_errors=True)
         out.mkdir(parents=True)
+        _uncompressed_copy(src, paths["ros2 mcap, no zstd"])
         write_ros1_mcap(src, paths["ros1 mcap"])
         write_rosbag1(src, paths["rosbag1 .bag"])
         write_rosbag2_sqlite(src, paths["rosbag2 .db3"])
         (out / ".done").touch()
     return paths
+
+
+def _uncompressed_copy(src: Path, out: Path) -> None:
+    """``src``'s schemas, channels and messages, as they are, in uncompressed chunks."""
+    from mcap.reader import make_reader  # noqa: PLC0415
+    from mcap.writer import CompressionType, Writer  # noqa: PLC0415
+
+    with src.open("rb") as f, out.open("wb") as g:
+        writer = Writer(g, compression=CompressionType.NONE)
+        writer.start(profile="ros2")
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding,
+                                                            schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id])
+            writer.add_message(channels[channel.id], message.log_time, message.data,
+                               message.publish_time)
+        writer.finish()
 
 
 def _one_pass(reader) -> tuple[float, float]:

@@ -86,7 +86,7 @@ def open_log(path: str | Path, *, lidar_topic: str | None = None,
              pose_topic: str | None = None, gnss_topic: str | None = None,
              world_frame: str | None = None, extrinsic: np.ndarray | None = None,
              max_pose_gap_s: float = 1.0, strict: bool = True) -> LogReader:
-    """Open an MCAP log and choose its lidar and pose topics.
+    """Open a log (any kind :func:`open_source` recognises) and choose its lidar and pose topics.
 
     ``extrinsic`` (4×4, T_vehicle_lidar) is used when poses describe the vehicle and the log
     has no static transform to the lidar frame. Empty strings count as "not given".
