@@ -93,8 +93,9 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
                 resume_dir: Path | None, start_s: float | None, end_s: float | None, every: int,
                 lidar_topic: str | None, pose_topic: str | None,
                 render_dir: Path | None, point_labels: bool) -> None:
-    """Fuse LOG (an MCAP file or a KITTI sequence folder) with the map into evidential
-    grids, frame by frame.
+    """Fuse LOG with the map into evidential grids, frame by frame. LOG: an MCAP file (ROS 2,
+    ROS 1 or Foxglove messages), a ROS 1 .bag, a ROS 2 bag directory (.db3 or .mcap), or a
+    KITTI odometry / SemanticKITTI sequence folder.
 
     \b
     evperc run drive.mcap --map buildings.geojson [--roads roads.geojson]
@@ -113,7 +114,8 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
         out_dir = resume_dir
     else:
         if log_path is None:
-            raise UsageError("give LOG.mcap or a KITTI sequence folder (or --resume DIR)")
+            raise UsageError("give LOG (an MCAP, .bag, ROS 2 bag or KITTI sequence folder) "
+                             "or --resume DIR")
         check_map_options(map_path, roads_path, no_map)
         config = load_config(config_path)
         out_dir = out_dir or Path("evperc-out") / log_path.stem
@@ -150,8 +152,8 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
 @user_errors
 def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None,
                  as_json: bool) -> None:
-    """Summarise LOG (MCAP or KITTI sequence folder): topics, message counts, time span,
-    detected lidar/pose/GNSS."""
+    """Summarise LOG (MCAP, ROS 1 .bag, ROS 2 bag directory, KITTI sequence folder): topics,
+    message counts, time span, detected lidar/pose/GNSS."""
     import json
 
     from evperc.logs.factory import open_log
@@ -163,7 +165,7 @@ def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None
         return
     span = "empty" if info["duration_s"] is None else f"{info['duration_s']:.3f} s"
     kind = "KITTI sequence folder" if info.get("kind") == "kitti" else (
-        "indexed" if info["indexed"] else "no index")
+        f"{info['kind']}, {'indexed' if info['indexed'] else 'no index'}")
     click.echo(f"{info['path']}  ({kind}"
                f"{'' if info['complete'] else ', TRUNCATED: ' + info['stopped']})")
     click.echo(f"time span: {span}")
@@ -367,8 +369,8 @@ def batch_command(logs: tuple[Path, ...], list_path: Path | None, map_path: Path
                   roads_path: Path | None, no_map: bool, out_root: Path,
                   config_path: Path | None, workers: int | None, scheduler: str | None,
                   json_path: Path | None) -> None:
-    """Run `evperc run` on many logs as tasks on a Dask cluster; skip finished outputs,
-    resume interrupted ones. Exit code 1 if any log failed.
+    """Run `evperc run` on many logs (of any kind it reads) as tasks on a Dask cluster; skip
+    finished outputs, resume interrupted ones. Exit code 1 if any log failed.
 
     \b
     evperc batch logs/*.mcap --map city.geojson --out runs/

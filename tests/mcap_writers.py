@@ -152,7 +152,8 @@ def write_ros2_mcap(path: str | Path, *, clouds: Sequence[Cloud] = (),
                     odometry: Sequence[StampedPose] = (), odom_topic: str = "/odom",
                     odom_frames: tuple[str, str] = ("map", "base_link"),
                     pose_stamped: Sequence[StampedPose] = (), pose_topic: str = "/pose",
-                    pose_frame: str = "map", tf: Sequence[StampedTransform] = (),
+                    pose_frame: str = "map", pose_covariance: bool = False,
+                    tf: Sequence[StampedTransform] = (),
                     tf_static: Sequence[StaticTransform] = (), fixes: Sequence[Fix] = (),
                     fix_topic: str = "/fix", extra_cloud_topics: Sequence[str] = (),
                     chunk_size: int = 1024 * 1024, compression: str = "zstd") -> Path:
@@ -162,6 +163,7 @@ def write_ros2_mcap(path: str | Path, *, clouds: Sequence[Cloud] = (),
 
     ``laserscans`` items are (stamp_ns, ranges, angle_min, angle_increment, frame_id).
     ``extra_cloud_topics`` repeat every cloud on more topics (for ambiguity tests).
+    ``pose_covariance`` writes ``pose_stamped`` as PoseWithCovarianceStamped.
     """
     from mcap_ros2.writer import Writer
 
@@ -186,8 +188,13 @@ def write_ros2_mcap(path: str | Path, *, clouds: Sequence[Cloud] = (),
                                 "angular": {"x": 0.0, "y": 0.0, "z": 0.0}},
                       "covariance": [0.0] * 36}}))
     for ns, T in pose_stamped:
-        messages.append((ns, pose_topic, "geometry_msgs/msg/PoseStamped",
-                         {"header": _header(ns, pose_frame), "pose": _pose(T)}))
+        if pose_covariance:
+            messages.append((ns, pose_topic, "geometry_msgs/msg/PoseWithCovarianceStamped",
+                             {"header": _header(ns, pose_frame),
+                              "pose": {"pose": _pose(T), "covariance": [0.01] * 36}}))
+        else:
+            messages.append((ns, pose_topic, "geometry_msgs/msg/PoseStamped",
+                             {"header": _header(ns, pose_frame), "pose": _pose(T)}))
     for item in tf:
         messages.append((item[0], "/tf", "tf2_msgs/msg/TFMessage", _tf_message([item])))
     if tf_static:

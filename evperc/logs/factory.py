@@ -2,7 +2,7 @@
 dataloaders — one module per source kind, each listed once in :data:`SOURCES` with the test
 that recognises it (by content, not by name) and the function that opens it.
 
-Every reader offers what :class:`evperc.logs.mcap_log.LogReader` offers (docs/architecture.md:
+Every reader offers what :class:`evperc.logs.message_log.LogReader` offers (docs/architecture.md:
 ``scans()``, ``start_ns`` / ``end_ns``, ``stats``, ``gnss_fixes()``, ``positions_at()``,
 ``info()``, …). Adding a source is a new module and one row here; nothing else changes.
 """
@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from evperc.logs import kitti, mcap_log
+from evperc.logs import kitti, message_log
 
 
 class Source(NamedTuple):
@@ -29,14 +29,14 @@ class Source(NamedTuple):
 #: gives the one-line error of a file that is no log evperc knows
 SOURCES: list[Source] = [
     Source("kitti", kitti.claims, lambda path, **_: kitti.KittiLog(path)),
-    Source("mcap", lambda path: True, mcap_log.open_mcap),
+    Source("mcap", lambda path: True, message_log.open_message_log),
 ]
 
 
 def open_log(path: str | Path, **options: Any) -> Any:
     """Open the log at ``path`` with the reader of its kind (:data:`SOURCES`); ``options``
     are the reader's (topics, world frame, extrinsic, ``max_pose_gap_s``, ``strict``: see
-    :func:`evperc.logs.mcap_log.open_mcap`). Raises :class:`~evperc.errors.LogError` for a
+    :func:`evperc.logs.message_log.open_message_log`). Raises :class:`~evperc.errors.LogError` for a
     missing or unreadable file."""
     path = Path(path)
     for source in SOURCES:

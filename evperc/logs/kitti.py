@@ -114,7 +114,7 @@ def _read_table(path: Path, columns: int, what: str) -> np.ndarray:
 
 class KittiLog:
     """Posed scans of a KITTI sequence folder, with the interface of
-    :class:`evperc.logs.mcap_log.LogReader` that ``evperc run`` and ``evperc info`` use."""
+    :class:`evperc.logs.message_log.LogReader` that ``evperc run`` and ``evperc info`` use."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)

@@ -1,8 +1,12 @@
 """Decoded log messages -> plain records, by schema name.
 
-One small adapter per message type turns a decoded message (a ROS 2 or protobuf object, or the
-dict of a JSON message) into a record evperc uses: a scan (points in the sensor frame), a pose,
-a list of frame transforms, or a GNSS fix. Field access works on objects and dicts alike.
+One small adapter per message type turns a decoded message (a ROS 2, ROS 1 (genpy or rosbags)
+or protobuf object, or the dict of a JSON message) into a record evperc uses: a scan (points in
+the sensor frame), a pose, a list of frame transforms, or a GNSS fix. Field access works on
+objects and dicts alike. ROS 1 messages have the same fields as their ROS 2 counterparts, apart
+from the Header's ``seq`` (ignored) and the stamp's ``secs``/``nsecs``; their schema names lack
+the ``/msg/`` (``sensor_msgs/PointCloud2``; rosbags spells them the ROS 2 way), and ROS 1's
+``tf/tfMessage`` is read like ``tf2_msgs/TFMessage``.
 
 Stamps: the message's own stamp (``header.stamp`` / ``timestamp``) in integer nanoseconds; a
 zero stamp (drivers that do not fill it) falls back to the message's log time.
@@ -80,12 +84,12 @@ def get(msg: Any, name: str, default: Any = None) -> Any:
 
 
 def stamp_of(stamp: Any, log_time_ns: int) -> int:
-    """Integer ns of a ROS 2 Time (sec, nanosec), protobuf Timestamp (seconds, nanos) or JSON
-    time (sec, nsec); ``log_time_ns`` when absent or zero."""
+    """Integer ns of a ROS 2 Time (sec, nanosec), ROS 1 time (secs, nsecs), protobuf Timestamp
+    (seconds, nanos) or JSON time (sec, nsec); ``log_time_ns`` when absent or zero."""
     if stamp is None:
         return log_time_ns
-    sec = get(stamp, "sec", get(stamp, "seconds", 0))
-    nsec = get(stamp, "nanosec", get(stamp, "nsec", get(stamp, "nanos", 0)))
+    sec = get(stamp, "sec", get(stamp, "secs", get(stamp, "seconds", 0)))
+    nsec = get(stamp, "nanosec", get(stamp, "nsecs", get(stamp, "nsec", get(stamp, "nanos", 0))))
     value = int(sec) * 1_000_000_000 + int(nsec)
     return value if value != 0 else log_time_ns
 
@@ -258,6 +262,26 @@ GNSS_ADAPTERS: dict[str, Callable[[Any, int], GnssFix | None]] = {
     "sensor_msgs/msg/NavSatFix": ros_navsatfix,
     "foxglove.LocationFix": foxglove_location_fix,
 }
+
+
+def _add_ros1_names(table: dict[str, Any]) -> None:
+    """ROS 1 schema names (``pkg/Type``) next to each ROS 2 one (``pkg/msg/Type``)."""
+    for name, adapter in list(table.items()):
+        if "/msg/" in name:
+            table.setdefault(name.replace("/msg/", "/"), adapter)
+
+
+for _table in (LIDAR_ADAPTERS, POSE_ADAPTERS, TF_ADAPTERS, GNSS_ADAPTERS):
+    _add_ros1_names(_table)
+#: ROS 1's tf (before tf2) on /tf: the same fields as tf2_msgs/TFMessage
+TF_ADAPTERS["tf/tfMessage"] = TF_ADAPTERS["tf/msg/tfMessage"] = ros_tf
+
+
+def schema_list(table: dict[str, Any]) -> str:
+    """The schema names of an adapter table for a message: the ROS 2 and foxglove ones, the
+    ROS 1 spellings summarised."""
+    names = [n for n in table if "/msg/" in n or "/" not in n]
+    return ", ".join(names) + " (and their ROS 1 names, without /msg/)"
 
 
 def is_static_tf_topic(topic: str) -> bool:

@@ -6,7 +6,10 @@ time). A file without an index, or one whose footer is missing (truncated), is r
 open with a sequential reader to learn its channels, counts and time span; messages then come
 in file order. Wherever the data stops being valid (short read, bad CRC, broken record) the
 stream ends there, and ONE warning per file says where and why. Messages are decoded per
-channel: ROS 2 CDR (mcap-ros2-support), protobuf (mcap-protobuf-support) and JSON.
+channel, by its message encoding: ROS 2 CDR (mcap-ros2-support), ROS 1 (``ros1`` with
+``ros1msg`` schemas, as ``mcap convert drive.bag drive.mcap`` writes them; mcap-ros1-support),
+protobuf (mcap-protobuf-support) and JSON. One file may mix encodings, so the encoding is a
+property of the channel, not of the source (docs/architecture.md, "Log sources").
 """
 
 from __future__ import annotations
@@ -71,6 +74,11 @@ class RawMessage:
     channel: Channel
     message: Message
 
+    @property
+    def log_time(self) -> int:
+        """Log time of the message (ns)."""
+        return self.message.log_time
+
 
 @dataclass
 class McapSource:
@@ -82,6 +90,7 @@ class McapSource:
     """
 
     path: Path
+    kind: str = "mcap"
     indexed: bool = False
     topics: dict[str, TopicInfo] = field(default_factory=dict)
     start_ns: int | None = None
@@ -89,6 +98,11 @@ class McapSource:
     stop_reason: str | None = None
     _warned: bool = False
     _decoders: dict[int, Callable[[bytes], Any]] = field(default_factory=dict)
+
+    @classmethod
+    def claims(cls, path: Path, head: bytes) -> bool:
+        """An MCAP file starts with the MCAP magic bytes."""
+        return head.startswith(MAGIC)
 
     @classmethod
     def open(cls, path: str | Path) -> McapSource:
@@ -105,7 +119,7 @@ class McapSource:
             raise LogError(f"{path}: cannot read log ({err.strerror})") from err
         if magic != MAGIC:
             raise LogError(f"{path}: not an MCAP file (it does not start with the MCAP magic "
-                           "bytes); convert ROS 1 bags / ROS 2 sqlite bags to MCAP first")
+                           "bytes)")
         source = cls(path=path)
         if not source._read_summary():
             source._scan_sequentially()
@@ -229,7 +243,8 @@ class McapSource:
             log.debug("%s: %s after %d messages", self.path, reason, count)
 
     def decode(self, raw: RawMessage) -> Any:
-        """The decoded message: a ROS 2 / protobuf object or, for JSON, a dict."""
+        """The decoded message: a ROS 2 / ROS 1 (genpy) / protobuf object or, for JSON, a
+        dict."""
         decoder = self._decoders.get(raw.channel.id)
         if decoder is None:
             decoder = self._decoders[raw.channel.id] = _decoder_for(self.path, raw)
@@ -246,6 +261,10 @@ def _decoder_for(path: Path, raw: RawMessage) -> Callable[[bytes], Any]:
             from mcap_ros2.decoder import DecoderFactory as Ros2Factory
 
             decoder = Ros2Factory().decoder_for(encoding, schema)
+        elif encoding == "ros1":
+            from mcap_ros1.decoder import DecoderFactory as Ros1Factory
+
+            decoder = Ros1Factory().decoder_for(encoding, schema)
         elif encoding == "protobuf":
             from mcap_protobuf.decoder import DecoderFactory as ProtobufFactory
 
@@ -259,7 +278,7 @@ def _decoder_for(path: Path, raw: RawMessage) -> Callable[[bytes], Any]:
         schema_text = f"{schema.name} ({schema.encoding})" if schema else "no schema"
         raise LogError(f"{path}: topic {raw.topic}: cannot decode message encoding "
                        f"'{encoding}' with {schema_text}; supported: ROS 2 cdr with ros2msg "
-                       "schemas, protobuf, json")
+                       "schemas, ROS 1 ros1 with ros1msg schemas, protobuf, json")
     return decoder
 
 

@@ -28,7 +28,7 @@ def test_info_prints_topics_and_counts(tmp_path):
     result = CliRunner().invoke(cli, ["info", str(path)])
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
-    assert lines[0] == f"{path}  (indexed)"
+    assert lines[0] == f"{path}  (mcap, indexed)"
     assert "time span: 0.250 s" in lines
     rows = {line.split()[0]: line.split()[1:3] for line in lines[1:] if line.startswith("/")}
     assert rows == {"/fix": ["1", "sensor_msgs/msg/NavSatFix"],

@@ -41,11 +41,13 @@ def test_missing_file(tmp_path):
 
 
 def test_not_an_mcap(tmp_path):
-    path = tmp_path / "bag.db3"
-    path.write_bytes(b"SQLite format 3\x00" + bytes(100))
+    path = tmp_path / "drive.mcap"
+    path.write_bytes(b"PK\x03\x04" + bytes(100))  # a zip archive named .mcap
     with pytest.raises(LogError) as err:
         open_log(path)
-    assert "not an MCAP file" in _one_line(err) and str(path) in str(err.value)
+    text = _one_line(err)
+    assert text.startswith(f"{path}: not an MCAP file or bag: it starts with 50 4b 03 04 00")
+    assert "ROS 1 bags (.bag)" in text
 
 
 def test_directory(tmp_path):

@@ -1,7 +1,10 @@
-"""Reading logged drives: MCAP lidar scans joined with the poses at their stamps.
+"""Reading logged drives: lidar scans joined with the poses at their stamps.
 
-``open_mcap(path)`` (what :func:`evperc.logs.factory.open_log` calls for an MCAP file)
-finds the topics (by schema name, see :mod:`evperc.logs.mcap_messages`):
+``open_message_log(path)`` (what :func:`evperc.logs.factory.open_log` calls for every log
+that is a container of messages) opens the log with the source its content names
+(:func:`open_source`: an MCAP file, a ROS 1 ``.bag``, a ROS 2 bag directory with ``.db3`` or
+``.mcap`` files; see :mod:`evperc.logs.source`) and finds the topics (by schema name, see
+:mod:`evperc.logs.mcap_messages`; the ROS 1 names, ``sensor_msgs/PointCloud2``, too):
 
 - lidar: ``sensor_msgs/msg/PointCloud2``, ``sensor_msgs/msg/LaserScan``,
   ``foxglove.PointCloud``, ``foxglove.LaserScan``;
@@ -51,11 +54,15 @@ from evperc.logs.mcap_messages import (
     TF_ADAPTERS,
     ScanRecord,
     is_static_tf_topic,
+    schema_list,
 )
 from evperc.logs.mcap_poses import OK, WAIT, PoseSource, PoseTopicSource, TfSource
-from evperc.logs.mcap_source import McapSource, RawMessage
+from evperc.logs.mcap_source import McapSource
 from evperc.logs.pointcloud import MissingFieldsError
+from evperc.logs.rosbag1 import Rosbag1Source
+from evperc.logs.rosbag2 import Rosbag2Source
 from evperc.logs.scan import PosedScan
+from evperc.logs.source import HEAD_BYTES, LogSource, RawLike
 
 log = logging.getLogger(__name__)
 
@@ -65,19 +72,19 @@ WAIT_SLACK_NS = 1_000_000_000
 INFO_SAMPLE_SCANS = 20
 
 
-def open_mcap(path: str | Path, *, lidar_topic: str | None = None,
+def open_message_log(path: str | Path, *, lidar_topic: str | None = None,
              pose_topic: str | None = None, gnss_topic: str | None = None,
              world_frame: str | None = None, extrinsic: np.ndarray | None = None,
              max_pose_gap_s: float = 1.0, strict: bool = True) -> LogReader:
-    """Open an MCAP log and choose its lidar and pose topics.
+    """Open a log (any kind :func:`open_source` recognises) and choose its lidar and pose topics.
 
     ``extrinsic`` (4×4, T_vehicle_lidar) is used when poses describe the vehicle and the log
     has no static transform to the lidar frame. Empty strings count as "not given".
     ``strict=False`` defers topic errors to the first read (``info()`` reports them instead).
-    Raises :class:`LogError` for a missing or non-MCAP file, :class:`TopicError` when no topic
-    or several topics fit a role.
+    Raises :class:`LogError` for a missing file or one of no kind evperc reads,
+    :class:`TopicError` when no topic or several topics fit a role.
     """
-    source = McapSource.open(path)
+    source = open_source(path)
     reader = LogReader(source, lidar_topic=lidar_topic or None, pose_topic=pose_topic or None,
                        gnss_topic=gnss_topic or None, world_frame=world_frame or None,
                        extrinsic=extrinsic, max_pose_gap_s=max_pose_gap_s)
@@ -87,10 +94,47 @@ def open_mcap(path: str | Path, *, lidar_topic: str | None = None,
     return reader
 
 
-class LogReader:
-    """Scans with poses, GNSS fixes and a summary of one MCAP log; see the module docstring."""
+#: the message sources, asked in this order whether they claim a path (evperc.logs.source)
+MESSAGE_SOURCES: tuple[type, ...] = (McapSource, Rosbag1Source, Rosbag2Source)
 
-    def __init__(self, source: McapSource, *, lidar_topic: str | None, pose_topic: str | None,
+
+def open_source(path: str | Path) -> LogSource:
+    """The source of the first kind in :data:`MESSAGE_SOURCES` that claims ``path`` by its content;
+    LogError naming what was found when none does."""
+    path = Path(path)
+    head = b""
+    try:
+        if not path.is_dir():
+            with path.open("rb") as f:
+                head = f.read(HEAD_BYTES)
+    except FileNotFoundError as err:
+        raise LogError(f"{path}: log file not found") from err
+    except OSError as err:
+        raise LogError(f"{path}: cannot read log ({err.strerror})") from err
+    for kind in MESSAGE_SOURCES:
+        if kind.claims(path, head):
+            return kind.open(path)
+    raise LogError(f"{path}: {_found(path, head)}; evperc reads MCAP files, ROS 1 bags (.bag) "
+                   "ROS 2 bag directories (metadata.yaml with .db3 or .mcap files) and KITTI "
+                   "sequence folders (velodyne/, poses.txt, calib.txt, times.txt)")
+
+
+def _found(path: Path, head: bytes) -> str:
+    """What ``path`` is, for the error when no source claims it."""
+    if path.is_dir():
+        return ("is a directory without a metadata.yaml (not a ROS 2 bag) nor velodyne/ and "
+                "poses.txt (not a KITTI sequence); give the log file inside it")
+    if not head:
+        return "not an MCAP file or bag: the file is empty"
+    text = head.decode("ascii", "replace")
+    shown = repr(text) if text.isprintable() else head.hex(" ")
+    return f"not an MCAP file or bag: it starts with {shown}"
+
+
+class LogReader:
+    """Scans with poses, GNSS fixes and a summary of one log; see the module docstring."""
+
+    def __init__(self, source: LogSource, *, lidar_topic: str | None, pose_topic: str | None,
                  gnss_topic: str | None, world_frame: str | None, extrinsic: np.ndarray | None,
                  max_pose_gap_s: float):
         self.source = source
@@ -130,7 +174,7 @@ class LogReader:
             if topic is None:
                 raise TopicError(
                     f"{self.path}: no lidar topic; it has {self._schemas_text()}; evperc reads "
-                    f"{', '.join(LIDAR_ADAPTERS)}")
+                    f"{schema_list(LIDAR_ADAPTERS)}")
             self._chosen["lidar"] = topic
         return self._chosen["lidar"]
 
@@ -196,7 +240,7 @@ class LogReader:
             return "tf", tf
         raise TopicError(
             f"{self.path}: no pose topic; it has {self._schemas_text()}; evperc reads "
-            f"{', '.join(POSE_ADAPTERS)} or a TF tree ({', '.join(TF_ADAPTERS)} on /tf)")
+            f"{schema_list(POSE_ADAPTERS)} or a TF tree ({schema_list(TF_ADAPTERS)} on /tf)")
 
     def _schemas_text(self) -> str:
         schemas = sorted({f"{t.schema or '(no schema)'}" for t in self.source.topics.values()})
@@ -204,16 +248,16 @@ class LogReader:
 
     # --- decoding ------------------------------------------------------------------------
 
-    def _scan(self, raw: RawMessage) -> ScanRecord:
+    def _scan(self, raw: RawLike) -> ScanRecord:
         adapter = LIDAR_ADAPTERS[self.source.topics[raw.topic].schema]
         try:
-            return adapter(self.source.decode(raw), raw.message.log_time)
+            return adapter(self.source.decode(raw), raw.log_time)
         except MissingFieldsError as err:
             raise LogError(f"{self.path}: topic {raw.topic}: point cloud has no x/y/z fields "
                            f"(fields: {', '.join(err.present) or 'none'}); evperc needs x, y, z"
                            ) from err
 
-    def _pose_records(self, raw: RawMessage) -> list:
+    def _pose_records(self, raw: RawLike) -> list:
         """The pose samples of one pose or TF message; none if it cannot be decoded (counted
         as ``pose_undecodable``, like undecodable scans: one bad message must not end the
         run; a log without any usable pose still fails with a clear error)."""
@@ -221,15 +265,15 @@ class LogReader:
         try:
             decoded = self.source.decode(raw)
             if schema in POSE_ADAPTERS:
-                return [POSE_ADAPTERS[schema](decoded, raw.message.log_time)]
-            return TF_ADAPTERS[schema](decoded, raw.message.log_time)
+                return [POSE_ADAPTERS[schema](decoded, raw.log_time)]
+            return TF_ADAPTERS[schema](decoded, raw.log_time)
         except LogError:
             raise
         except Exception as err:
             if "pose_undecodable" not in self.stats:
                 log.warning("%s: topic %s: cannot decode a pose message at log time %d ns "
                             "(%s); skipping such messages", self.path, raw.topic,
-                            raw.message.log_time, err)
+                            raw.log_time, err)
             self._count("pose_undecodable")
             return []
 
@@ -266,7 +310,7 @@ class LogReader:
         read_from = None if start_ns is None else start_ns - margin
         read_to = None if end_ns is None else end_ns + margin
         for raw in self.source.iter_raw([lidar, *pose_topics], read_from, read_to):
-            now = raw.message.log_time
+            now = raw.log_time
             if raw.topic == lidar:
                 scan = self._decode_scan(raw)
                 if scan is None or not _in_range(scan.stamp_ns, start_ns, end_ns):
@@ -305,7 +349,7 @@ class LogReader:
             yield PosedScan(scan.stamp_ns, scan.points, scan.planar, T, scan.frame_id,
                             source_count=scan.source_count, source_index=scan.source_index)
 
-    def _decode_scan(self, raw: RawMessage) -> ScanRecord | None:
+    def _decode_scan(self, raw: RawLike) -> ScanRecord | None:
         try:
             return self._scan(raw)
         except LogError:
@@ -314,7 +358,7 @@ class LogReader:
             if "undecodable" not in self.stats:
                 log.warning("%s: topic %s: cannot decode a message at log time %d ns (%s); "
                             "skipping such messages", self.path, raw.topic,
-                            raw.message.log_time, err)
+                            raw.log_time, err)
             self._count("undecodable")
             return None
 
@@ -352,7 +396,7 @@ class LogReader:
         for raw in self.source.iter_raw(self.pose_topics[1], int(stamps.min()) - margin,
                                         int(stamps.max()) + margin):
             poses.add(self._pose_records(raw))
-            release(raw.message.log_time - margin)
+            release(raw.log_time - margin)
             if queue:
                 poses.prune(int(stamps[queue[0]]))
         release(None)
@@ -402,7 +446,7 @@ class LogReader:
         adapter = GNSS_ADAPTERS[self.source.topics[topic].schema]
         rows = []
         for raw in self.source.iter_raw([topic]):
-            fix = adapter(self.source.decode(raw), raw.message.log_time)
+            fix = adapter(self.source.decode(raw), raw.log_time)
             if fix is not None:
                 if self._gnss_frame is None:
                     self._gnss_frame = fix.frame_id
@@ -422,6 +466,7 @@ class LogReader:
         start, end = self.source.start_ns, self.source.end_ns
         out: dict[str, Any] = {
             "path": str(self.path),
+            "kind": self.source.kind,
             "indexed": self.source.indexed,
             "complete": self.source.stop_reason is None,
             "stopped": self.source.stop_reason,
