@@ -124,8 +124,11 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
     try:
         summary = run(request, resume=resume_dir is not None, on_frame=on_frame)
     except KeyboardInterrupt:
-        click.echo(f"evperc: interrupted; the frames written so far are kept, continue with "
-                   f"`evperc run --resume {out_dir}`", err=True)
+        if (out_dir / "manifest.json").is_file():
+            click.echo(f"evperc: interrupted; the frames written so far are kept, continue "
+                       f"with `evperc run --resume {out_dir}`", err=True)
+        else:
+            click.echo("evperc: interrupted before the first frame; nothing written", err=True)
         sys.exit(130)
     shares = ", ".join(f"{name} {100 * share:.1f}%"
                        for name, share in summary["decision_share"].items() if share > 0)

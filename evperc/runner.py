@@ -9,6 +9,7 @@ import functools
 import logging
 import math
 import os
+import shutil
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -32,7 +33,7 @@ from evperc.io.prefetch import prefetched
 from evperc.io.quantise import dequantise, dequantise_planar
 from evperc.io.run_reader import read_manifest
 from evperc.io.transforms import extrinsic_matrix
-from evperc.io.writer import RunWriter
+from evperc.io.writer import RunWriter, check_output_dir
 from evperc.pipeline import CLASSES, DECISION_CODES, OMEGA, FusionParams
 from evperc.sensor import SensorParams, sensor_grid
 
@@ -301,22 +302,29 @@ class Pipeline:
         request = asdict(self.request)
         request.pop("config")
         request.pop("overwrite")
+        # absolute input paths: `evperc run --resume` and `render` work from any directory
+        # (the output directory itself is where the manifest is found, so it may move)
+        request.pop("out_dir")
+        for key in ("log_path", "map_path", "roads_path"):
+            if request[key] is not None:
+                request[key] = Path(request[key]).absolute()
         return {"decision_codes": DECISION_CODES, "classes": list(CLASSES),
                 "crs": self.crs_name, "resolution_m": self.resolution, "rows": probe.rows,
                 # the log's world frame in the working CRS (None: the run is in the log's frame)
                 "T_crs_world": (self.georef.T_crs_world.tolist() if self.georef is not None
                                 else None),
-                "cols": probe.cols, "log": str(self.request.log_path),
-                "map": str(self.request.map_path) if self.request.map_path else None,
-                "roads": str(self.request.roads_path) if self.request.roads_path else None,
+                "cols": probe.cols, "log": str(request["log_path"]),
+                "map": str(request["map_path"]) if request["map_path"] else None,
+                "roads": str(request["roads_path"]) if request["roads_path"] else None,
                 "request": {k: (str(v) if isinstance(v, Path) else v)
                             for k, v in request.items()}}
 
-    def warm_up_inputs(self) -> None:
+    def warm_up_inputs(self) -> bool:
         """Read and prepare the first scan of the requested span, and drop it: the one-off
         costs of the first frame (opening the log's index, building the message decoders,
         rasterising the map tiles around the first pose: ~26 ms on workload (a)) are paid
-        here, with the rest of the start-up, not by the first frame."""
+        here, with the rest of the start-up, not by the first frame. False if the span has
+        no scan to fuse (``reader.stats`` then says why)."""
         scans = self.scans(-1)
         try:
             first = next(scans, None)
@@ -324,6 +332,7 @@ class Pipeline:
             scans.close()
         if first is not None:
             self.prepare(first[1])
+        return first is not None
 
     def scans(self, after_index: int) -> Any:
         """``(index, scan)`` of the scans to fuse: the requested time span, every N-th,
@@ -469,9 +478,15 @@ def run(request: RunRequest, resume: bool = False,
     (:func:`evperc.io.maps.load_map_cached`; ``evperc batch`` workers)."""
     started = time.perf_counter()
     keep_freed_memory()
+    out_dir = request.out_dir
+    if not resume:  # an existing output is refused before any slow work
+        check_output_dir(out_dir, request.overwrite)
     pipeline = Pipeline(request, reuse_map=reuse_map)
     state = FusionState()
-    out_dir = request.out_dir
+    # the inputs are checked (the first scan read, posed, placed on the map) before the
+    # output is created: a run that stops on an input error leaves nothing
+    if not pipeline.warm_up_inputs() and not resume:
+        raise nothing_fused(request, pipeline.reader.stats)
     if resume:
         writer = RunWriter.resume(out_dir)
         done = writer.manifest["frame_count"]
@@ -479,6 +494,12 @@ def run(request: RunRequest, resume: bool = False,
             state = FusionState.load(checkpoint_path(out_dir, done))
     else:
         writer = RunWriter(out_dir, request.config, pipeline.meta(), overwrite=request.overwrite)
+
+    def discard_if_empty() -> None:
+        """A new run that fails before its manifest lists a frame leaves no output (there
+        is nothing to resume; it would block the corrected run)."""
+        if not resume and writer.manifest["frame_count"] == 0:
+            shutil.rmtree(out_dir, ignore_errors=True)
     # chunk written -> checkpoint of the state -> manifest: a crash anywhere leaves a
     # checkpoint that matches the manifest; older checkpoints go once a newer one is committed
     # checkpoints are 20 MB on a 200 m window: one every output.checkpoint_frames frames
@@ -501,7 +522,6 @@ def run(request: RunRequest, resume: bool = False,
         return commit
 
     writer.on_chunk = on_chunk
-    pipeline.warm_up_inputs()
     if state.window is None:
         state.allocate((int(writer.manifest["rows"]), int(writer.manifest["cols"])))
     t0 = time.perf_counter()
@@ -533,18 +553,22 @@ def run(request: RunRequest, resume: bool = False,
             clock.lap("write")
     except BaseException:
         writer.abort()
+        discard_if_empty()
         raise
     finally:
         bar.close()
         scans.close()  # stops and joins the decode thread
     if state.frames == 0:
         writer.abort()
-        reasons = ", ".join(f"{k} {v}" for k, v in sorted(pipeline.reader.stats.items()))
-        raise PoseError(f"{request.log_path}: no scan could be fused"
-                        + (f" (skipped scans: {reasons})" if reasons else
-                           " (no scan in the requested span)"))
+        discard_if_empty()
+        raise nothing_fused(request, pipeline.reader.stats)
     finishing[0] = True
-    writer.finish()
+    try:
+        writer.finish()
+    except BaseException:
+        writer.abort()
+        discard_if_empty()
+        raise
     clock.lap("write")
     wall = time.perf_counter() - t0
     cpu_s = {"main": time.thread_time() - main_cpu0, "decode": decode_cpu[0],
@@ -575,6 +599,14 @@ def run(request: RunRequest, resume: bool = False,
     writer.close(summary)
     _remove_checkpoints(out_dir, keep=set())
     return summary
+
+
+def nothing_fused(request: RunRequest, stats: dict[str, int]) -> PoseError:
+    """The error of a run that finds no scan to fuse, with the reasons scans were skipped."""
+    reasons = ", ".join(f"{k} {v}" for k, v in sorted(stats.items()))
+    return PoseError(f"{request.log_path}: no scan could be fused"
+                     + (f" (skipped scans: {reasons})" if reasons else
+                        " (no scan in the requested span)"))
 
 
 def _remove_checkpoints(out_dir: Path, keep: set[Path]) -> None:

@@ -78,19 +78,29 @@ def chunk_frames_for(config: dict[str, Any], shape: tuple[int, int]) -> int:
     return max(1, min(int(config["output"]["chunk_frames"]), cap))
 
 
+def check_output_dir(out_dir: Path, overwrite: bool) -> bool:
+    """Refuse an existing non-empty ``out_dir`` unless ``overwrite`` (and then refuse one that
+    is not an evperc output); True if there is an old output to replace. Cheap: `evperc run`
+    calls it before any slow work, :func:`prepare_output_dir` again when it creates it."""
+    if not out_dir.exists():
+        return False
+    if not out_dir.is_dir():
+        raise OutputError(f"{out_dir}: exists and is not a directory")
+    if not any(out_dir.iterdir()):
+        return False
+    if not overwrite:
+        raise OutputError(f"{out_dir}: output directory exists; pass --overwrite to "
+                          "replace it or --out to choose another")
+    if not (out_dir / MANIFEST).exists():
+        raise OutputError(f"{out_dir}: exists and is not an evperc output; refusing "
+                          "to overwrite it, choose another --out")
+    return True
+
+
 def prepare_output_dir(out_dir: Path, overwrite: bool) -> None:
     """Create ``out_dir``; refuse an existing non-empty one unless ``overwrite``."""
-    if out_dir.exists():
-        if not out_dir.is_dir():
-            raise OutputError(f"{out_dir}: exists and is not a directory")
-        if any(out_dir.iterdir()):
-            if not overwrite:
-                raise OutputError(f"{out_dir}: output directory exists; pass --overwrite to "
-                                  "replace it or --out to choose another")
-            if not (out_dir / MANIFEST).exists():
-                raise OutputError(f"{out_dir}: exists and is not an evperc output; refusing "
-                                  "to overwrite it, choose another --out")
-            shutil.rmtree(out_dir)
+    if check_output_dir(out_dir, overwrite):
+        shutil.rmtree(out_dir)
     try:
         (out_dir / FRAMES_DIR).mkdir(parents=True, exist_ok=True)
     except OSError as err:

@@ -185,8 +185,8 @@ def test_disk_full_while_writing(drive: Path, tmp_path: Path, monkeypatch) -> No
     out = tmp_path / "o"
     code, text = run_cli(str(drive), "--no-map", "--out", str(out))
     assert_one_line_error(code, text, "No space left on device")
-    assert_not_complete(out)
-    assert not list((out / "frames").iterdir())  # no chunk, no temporary file left
+    # no frame was written: nothing is left (no chunk, no temporary file, no manifest)
+    assert not out.exists()
 
 
 def test_unsupported_message_encoding(tmp_path: Path) -> None:
