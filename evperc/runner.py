@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from evperc.errors import GeoreferenceError, OutputError, PoseError
 from evperc.fused import StoredOutputs, count_codes, focal_sets, fused_step, vacuous_flags
@@ -35,6 +34,7 @@ from evperc.io.run_reader import read_manifest
 from evperc.io.transforms import extrinsic_matrix
 from evperc.io.writer import RunWriter, check_output_dir
 from evperc.pipeline import CLASSES, DECISION_CODES, OMEGA, FusionParams
+from evperc.progress import bar as progress_bar
 from evperc.sensor import SensorParams, sensor_grid
 
 log = logging.getLogger(__name__)
@@ -288,6 +288,9 @@ class Pipeline:
     def _warm_up(self) -> None:
         """Load (or compile, on a fresh install) the numba kernels of the sensor grid and the
         fused step now, so that start-up is not charged to the first frame."""
+        if not kernels_cached():
+            log.info("compiling evperc's kernels, once (numba: about a minute on a new "
+                     "install; cached for the next runs)")
         tiny = Window(self.resolution, 2, 2, 0, 0)
         points = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, -1.5]], np.float32)
         free, occupied = sensor_grid(points, False, np.eye(4), tiny, self.sensor_params)
@@ -344,6 +347,17 @@ class Pipeline:
         for index, scan in enumerate(self.reader.scans(start_ns=start_ns, end_ns=end_ns)):
             if index > after_index and index % r.every == 0:
                 yield index, scan
+
+    def expected_frames(self) -> int:
+        """Frames the run will have, from the log's summary (its lidar message count, the
+        share of the log's time span requested, every N-th): the progress bar's total, an
+        estimate where scans are skipped or the span cuts the log."""
+        r = self.request
+        scans = self.reader.source.topics[self.reader.lidar_topic].messages
+        length = max(self.reader.end_ns - self.reader.start_ns, 1)
+        start = 0 if r.start_s is None else min(max(int(r.start_s * 1e9), 0), length)
+        end = length if r.end_s is None else min(max(int(r.end_s * 1e9), start), length)
+        return math.ceil(round(scans * (end - start) / length) / r.every)
 
     def prepare(self, scan: PosedScan, sensor: bool = True) -> FrameInputs:
         """What the fusion step needs from one scan, which does not depend on the fusion
@@ -421,6 +435,21 @@ class Pipeline:
         clock.lap("fusion")
         return {"stamp_ns": inputs.stamp_ns, "pose": inputs.pose,
                 "origin": (window.row0, window.col0), "decision_counts": counts}
+
+
+def kernels_cached() -> bool:
+    """Whether numba has cached the fused step's kernels (its index files, ``*.nbi``, in
+    ``NUMBA_CACHE_DIR`` or beside the module): a cheap guess that the next call will not
+    compile for a minute. A cache of an older evperc counts as cached (numba then compiles
+    again, without this warning)."""
+    from evperc import fused_kernel
+
+    here = Path(fused_kernel.__file__)
+    folders = [here.parent / "__pycache__"]
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        folders.append(Path(os.environ["NUMBA_CACHE_DIR"]))
+    return any(next(folder.rglob(f"{here.stem}.*.nbi"), None) is not None
+               for folder in folders if folder.is_dir())
 
 
 def fusion_threads(configured: int) -> int:
@@ -535,9 +564,8 @@ def run(request: RunRequest, resume: bool = False,
     hungry = threading.Event()
     scans = prefetched(pipeline.inputs(state.scan_index, defer=hungry), depth=2,
                        name="evperc-decode", cpu_s=decode_cpu, hungry=hungry)
-    bar = tqdm(scans, unit="frame", desc=request.log_path.name,
-               disable=None if progress is None else not progress, leave=False,
-               initial=state.frames)
+    bar = progress_bar(scans, total=pipeline.expected_frames(), desc=request.log_path.name,
+                       initial=state.frames, enabled=progress)
     clock = pipeline.clock
     clock.restart()
     try:

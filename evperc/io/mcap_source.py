@@ -30,8 +30,8 @@ from typing import Any
 
 import mcap.stream_reader
 from isal import isal_zlib
-from mcap.exceptions import EndOfFile, UnsupportedCompressionError
 from mcap.data_stream import ReadDataStream
+from mcap.exceptions import EndOfFile, UnsupportedCompressionError
 from mcap.reader import SeekingReader
 from mcap.records import Channel, Chunk, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from evperc import config as config_mod
-from evperc.errors import OutputError
+from evperc.errors import OutputError, WriteError
 from evperc.fused import MASS_TILE, StoredOutputs
 from evperc.io import mass_tiles
 from evperc.io.npz import Concatenated, DeflateStream, member_writer_supported, write_npz
@@ -416,7 +416,7 @@ class RunWriter:
                 self.manifest["frame_count"] = first + c.count
                 write_json(self.out_dir / MANIFEST, self.manifest)
         except OSError as err:
-            raise OutputError(f"{path}: cannot write chunk ({err.strerror or err})") from err
+            raise WriteError(f"{path}: cannot write chunk ({err.strerror or err})") from err
         finally:
             self.thread_seconds += time.perf_counter() - t0
             self.thread_cpu_s = time.thread_time()
@@ -437,7 +437,7 @@ class RunWriter:
             self.manifest["complete"] = True
             write_json(self.out_dir / MANIFEST, self.manifest)
         except OSError as err:
-            raise OutputError(f"{self.out_dir}: cannot write manifest ({err.strerror})") from err
+            raise WriteError(f"{self.out_dir}: cannot write manifest ({err.strerror})") from err
         finally:
             self._pool.shutdown(wait=True)
 

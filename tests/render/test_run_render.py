@@ -118,7 +118,7 @@ def test_compare_matches_frames_by_stamp(tmp_path: Path) -> None:
 def test_usage_errors_are_one_line_exit_2(tmp_path: Path) -> None:
     out = write_run(tmp_path / "run", drive(2))
     result = invoke("render", str(out))
-    assert result.exit_code == 2 and "--dest" in result.output
+    assert result.exit_code == 2 and "--out" in result.output
     result = invoke("render", str(out), "--dest", str(tmp_path / "d"), "--layers", "betp,foo")
     assert result.exit_code == 2 and "foo" in result.output
     dest = tmp_path / "again"
