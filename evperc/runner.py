@@ -361,7 +361,7 @@ class Pipeline:
 
     def prepare(self, scan: PosedScan, sensor: bool = True) -> FrameInputs:
         """What the fusion step needs from one scan, which does not depend on the fusion
-        state: pose, window, sensor grid (SPEC §3; left to :meth:`sensor_grid` unless
+        state: pose, window, sensor grid (method.md §3; left to :meth:`sensor_grid` unless
         ``sensor``) and map labels. The runner calls this in the decode thread, one or two
         scans ahead of the fusion."""
         t0 = time.perf_counter()
@@ -380,7 +380,7 @@ class Pipeline:
         return self.sensor_grid(inputs) if sensor else inputs
 
     def sensor_grid(self, inputs: FrameInputs) -> FrameInputs:
-        """``inputs`` with the sensor grid of its scan (SPEC §3)."""
+        """``inputs`` with the sensor grid of its scan (method.md §3)."""
         if inputs.scan is None:
             return inputs
         t0 = time.perf_counter()
@@ -424,7 +424,7 @@ class Pipeline:
         shift = state.move_to(window)
         dt_s = 0.0 if state.prev_ns is None else (inputs.stamp_ns - state.prev_ns) * 1e-9
         state.prev_ns = inputs.stamp_ns
-        # SPEC §5 and §6 in one compiled pass, quantised straight into the chunk buffer;
+        # method.md §5 and §6 in one compiled pass, quantised straight into the chunk buffer;
         # evperc.pipeline is the numpy twin it is tested on
         fused_step(state.pg, state.zeta, inputs.free, inputs.occupied, inputs.labels,
                    self.betas, dt_s, self.params, out=out, flags=state.flags, focal=state.focal,

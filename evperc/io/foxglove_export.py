@@ -9,7 +9,7 @@ the row order of the run (docs/conventions.md). Each cell holds, little-endian::
     offset  0..19  betp_F, betp_I, betp_U, betp_S, betp_M   float32
     offset 20      zeta                                     float32
     offset 24      decision                                 uint8 (run.decision_codes)
-    offset 28..31  red, green, blue, alpha                  uint8: pignistic colour (SPEC §6)
+    offset 28..31  red, green, blue, alpha                  uint8: pignistic colour (method.md §6)
 
 ``cell_stride`` = 32 bytes, ``row_stride`` = 32 · cols. On ``/evperc/ego`` a
 ``foxglove.FrameTransform`` ``evperc`` → ``ego`` carries the vehicle pose (x, y, yaw). On

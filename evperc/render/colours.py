@@ -1,4 +1,4 @@
-"""Colour maths for grid layers (SPEC §6): whole-array numpy, one call per layer.
+"""Colour maths for grid layers (method.md §6): whole-array numpy, one call per layer.
 
 Every function maps ``(rows, cols, ...)`` arrays to ``(rows, cols, 3)`` uint8 RGB in the
 grid's own row order (row 0 = south); flipping for display is the compositor's job.
@@ -17,7 +17,7 @@ DEFAULT_DECISION_CODES: dict[str, int] = {
     "unknown": 0, "free": 1, "moving": 2, "static": 3, "stopped": 4, "infrastructure": 5,
     "unmapped": 6}
 
-#: Pignistic colour of each class, in the class order F, I, U, S, M (SPEC §6).
+#: Pignistic colour of each class, in the class order F, I, U, S, M (method.md §6).
 CLASS_COLOURS: dict[str, RGB] = {
     "F": (0, 255, 0),      # free: green
     "I": (0, 0, 128),      # mapped infrastructure: dark blue
@@ -56,7 +56,7 @@ CONFLICT_COLOURS: dict[str, RGB] = {"free-occ": (255, 0, 0), "occ-free": (0, 255
 
 
 def pignistic_colour(betp: np.ndarray) -> np.ndarray:
-    """Σ_θ betP(θ)·colour_θ over θ ∈ {F, I, U, S, M} (SPEC §6); ``betp`` is (..., 5)."""
+    """Σ_θ betP(θ)·colour_θ over θ ∈ {F, I, U, S, M} (method.md §6); ``betp`` is (..., 5)."""
     rgb = np.asarray(betp, dtype=np.float32) @ _CLASS_MATRIX
     return np.clip(rgb + 0.5, 0, 255).astype(np.uint8)
 

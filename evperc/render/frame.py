@@ -1,4 +1,4 @@
-"""Rendering one frame of a run into layer panels and a picture (SPEC §6).
+"""Rendering one frame of a run into layer panels and a picture (method.md §6).
 
 ``FrameRenderer`` keeps the state that spans frames (the moving trace, the time origin, the
 cached picture template), so ``evperc run --render`` and ``evperc render`` share it:

@@ -81,14 +81,49 @@ def test_verbose_shows_evperc_debug_lines_not_other_libraries(tmp_path: Path) ->
     terminal otherwise)."""
     import evperc.cli as cli_mod
 
-    for flags, others_shown in ((["-v"], False), (["-vv"], True)):
-        cli_mod._setup_logging(len(flags[0]) - 1, 0)
+    def record(name: str, level: int) -> logging.LogRecord:
+        return logging.LogRecord(name, level, __file__, 1, "x", (), None)
+
+    for verbose, others_shown in ((1, False), (2, True)):
+        cli_mod._setup_logging(verbose, 0)
         handler = logging.getLogger().handlers[0]
-        ours = logging.LogRecord("evperc.runner", logging.DEBUG, __file__, 1, "x", (), None)
-        theirs = logging.LogRecord("numba.core", logging.DEBUG, __file__, 1, "x", (), None)
-        assert handler.filter(ours)
-        assert bool(handler.filter(theirs)) is others_shown
+        assert handler.filter(record("evperc.runner", logging.DEBUG))
+        assert bool(handler.filter(record("numba.core", logging.DEBUG))) is others_shown
+    # by default: evperc's INFO lines, other libraries' warnings but not their INFO lines
+    # (pyogrio's "GDAL signalled an error" came before evperc's own one-line error)
     cli_mod._setup_logging(0, 0)
+    handler = logging.getLogger().handlers[0]
+    assert handler.filter(record("evperc.io.maps", logging.INFO))
+    assert not handler.filter(record("pyogrio._io", logging.INFO))
+    assert handler.filter(record("pyogrio._io", logging.WARNING))
+
+
+def test_the_lidar_extrinsic_is_said_once_for_the_lidar(tmp_path: Path) -> None:
+    """Not also for the GNSS antenna's frame (the sample drive's base_link) before it."""
+    sample = Path(__file__).resolve().parents[2] / "sample_data"
+    result = invoke("run", str(sample / "drive.mcap"), "--no-map", "--end", "0.5", "--out",
+                    str(tmp_path / "o"))
+    assert result.exit_code == 0, result.output
+    lines = [line for line in result.output.splitlines() if "lidar extrinsic" in line]
+    assert lines == [f"INFO: {sample / 'drive.mcap'}: lidar extrinsic for frame 'lidar': "
+                     "static TF base_link -> lidar"], result.output
+
+
+def test_render_draws_the_map_the_run_used(tmp_path: Path) -> None:
+    sample = Path(__file__).resolve().parents[2] / "sample_data"
+    out = tmp_path / "run"
+    result = invoke("run", str(sample / "drive.mcap"), "--map", str(sample / "map.geojson"),
+                    "--end", "0.5", "--out", str(out))
+    assert result.exit_code == 0, result.output
+    drawn = {}
+    for extra in ([], ["--no-map"]):
+        dest = tmp_path / f"png{len(extra)}"
+        result = invoke("render", str(out), "--out", str(dest), "--frames", "4:5",
+                        "--layers", "decision", *extra)
+        assert result.exit_code == 0, result.output
+        drawn[bool(extra)] = (dest / "frame_00004.png").read_bytes()
+        assert ("map outlines from the run's map" in result.output) is (not extra)
+    assert drawn[False] != drawn[True]  # the outlines are in the picture
 
 
 # --- progress and compile notice (item 8) ---------------------------------------------------

@@ -1,4 +1,4 @@
-"""Colour maths against hand-worked values (SPEC §6)."""
+"""Colour maths against hand-worked values (method.md §6)."""
 
 from __future__ import annotations
 
