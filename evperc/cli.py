@@ -244,8 +244,9 @@ def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None
 @click.option("--dest", "dest_alias", type=click.Path(path_type=Path), hidden=True)
 @click.option("--frames", "frames_text", metavar="A:B:STEP",
               help="Frames to draw, Python slice rules (e.g. 0:300:5)  [default: all]")
-@click.option("--layers", "layers_text", default="betp,decision,trace", show_default=True,
-              help="Panels: betp, decision, decision6, trace, zeta, conflict.")
+@click.option("--layers", "layers_text", default="betp,decision6,trace", show_default=True,
+              help="Panels: betp, decision (free/static/moving), decision6 (each decision), "
+                   "trace, zeta, conflict.")
 @click.option("--gif", "gif_path", type=click.Path(path_type=Path),
               help="Also write an animated GIF.")
 @click.option("--fps", type=float, default=10.0, show_default=True, help="GIF frame rate.")
