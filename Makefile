@@ -19,7 +19,7 @@ install: $(STAMP)
 
 run: $(STAMP)
 	$(BIN)/evperc run sample_data/drive.mcap --map sample_data/map.geojson --out $(OUT)/sample --overwrite
-	$(BIN)/evperc render $(OUT)/sample --gif $(OUT)/sample.gif --dest $(OUT)/sample-png --overwrite
+	$(BIN)/evperc render $(OUT)/sample --gif $(OUT)/sample.gif --out $(OUT)/sample-png --overwrite
 
 # The bundled drive: 20 s, ibeo4 profile, seed 7, on the Helsinki OSM extract (tests/data/osm).
 sample-data: $(STAMP)

@@ -16,7 +16,7 @@ from evperc.dst import reference as ref
 
 SHAPE = (400, 400)
 NAIVE_FRACTION = 10
-RATES = np.array([0.1, 0.0, 0.01, 0.02, 0.1])  # SPEC §5.3 defaults, bit order F I U S M
+RATES = np.array([0.1, 0.0, 0.01, 0.02, 0.1])  # method.md §5.3 defaults, bit order F I U S M
 
 
 

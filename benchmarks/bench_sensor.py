@@ -1,4 +1,4 @@
-"""Sensor-grid benchmark (SPEC §3): milliseconds per frame of :func:`evperc.sensor.sensor_grid`
+"""Sensor-grid benchmark (method.md §3): milliseconds per frame of :func:`evperc.sensor.sensor_grid`
 and the speed-up over a naive per-point / per-cell Python implementation.
 
 Cases:

@@ -1,13 +1,13 @@
 """The naive dense reference of `benchmarks/bench_run.py`: what evperc would cost written
 straight from the textbook definitions (issue 7).
 
-- Fusion (SPEC §5 steps 2–8) and decision (SPEC §6) over the dense 32-entry mass vectors,
+- Fusion (method.md §5 steps 2–8) and decision (method.md §6) over the dense 32-entry mass vectors,
   every combination by the 32 × 32 pair loop of :mod:`evperc.dst.reference` (vectorised over
   cells only): SG ⊕ GG (one pair loop), contextual discounting (one disjunctive pair loop per
   class, five), PG ∩ SG' (one pair loop), the conflict parts, ⊛, ζ, the specialisation and
   betP by direct sums; float64 throughout. The decision rule on betP is
   :func:`evperc.fusion.twin.decide` (whole-array numpy, negligible next to the pair loops).
-- Sensor grid (SPEC §3): the per-point / per-cell plain-Python oracle
+- Sensor grid (method.md §3): the per-point / per-cell plain-Python oracle
   ``tests/sensor/reference.py`` (one Python iteration per point, per cell, per polar cell).
 
 Benchmarks only; nothing in evperc calls this.
@@ -98,7 +98,7 @@ def dense_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
             if target == 0 and params.stopped_target == "stopped":
                 target = S
             out[:, target] += given
-    # SPEC §6: betP by direct sums, then the decision rule
+    # method.md §6: betP by direct sums, then the decision rule
     betp = pairs.pignistic(out) if (out[:, 0] < 1).all() else np.zeros((n, 5))
     _, decision = decide(out.astype(np.float32)[None], params)
     return out, zeta, betp, decision[0]

@@ -56,6 +56,8 @@ class BatchRequest:
     roads_path: Path | None = None
     workers: int = 2
     scheduler: str | None = None
+    #: run every log afresh, replacing its output (else: skip complete, resume interrupted)
+    overwrite: bool = False
 
 
 def read_log_list(list_path: Path) -> list[Path]:
@@ -122,7 +124,7 @@ def plan(request: BatchRequest) -> list[RunRequest]:
         config = {**config, "fusion": {**config["fusion"], "threads": 1}}
     return [RunRequest(log_path=path, out_dir=root / name, config=config,
                     map_path=_absolute(request.map_path),
-                    roads_path=_absolute(request.roads_path))
+                    roads_path=_absolute(request.roads_path), overwrite=request.overwrite)
             for path, name in zip(logs, output_names(logs), strict=True)]
 
 
@@ -152,6 +154,10 @@ def _skip_resume_or_run(task: RunRequest) -> dict[str, Any]:
     from evperc.output.manifest import MANIFEST, read_manifest
     from evperc.runner import request_from_manifest, run
 
+    if task.overwrite and (task.out_dir / MANIFEST).is_file():
+        summary = run(task, progress=False, reuse_map=True)  # replaces the old output
+        return {"frames": summary["frames"], "frames_per_s": summary["frames_per_s"],
+                "status": "ok"}
     if (task.out_dir / MANIFEST).is_file():
         manifest = read_manifest(task.out_dir)
         _check_same_inputs(task, manifest)

@@ -1,6 +1,7 @@
 """Command line: click commands only. Parse, call the library, report; no maths here.
 
-Every :class:`~evperc.errors.EvpercError` becomes one line on stderr and exit code 2.
+Every :class:`~evperc.errors.EvpercError` becomes one line on stderr and its exit code: 2 for
+bad usage or input, 1 for a run of valid input that failed (evperc/errors.py; README).
 """
 
 from __future__ import annotations
@@ -21,13 +22,48 @@ log = logging.getLogger("evperc")
 
 
 def _setup_logging(verbose: int, quiet: int) -> None:
-    level = logging.INFO - 10 * verbose + 10 * quiet
-    logging.basicConfig(level=max(logging.DEBUG, min(logging.CRITICAL, level)),
-                        format="%(levelname)s: %(message)s", stream=sys.stderr, force=True)
+    """evperc's own messages from INFO (each -v one level more, each -q one less); other
+    libraries' from WARNING, and their debug lines only from -vv on."""
+    level = max(logging.DEBUG, min(logging.CRITICAL, logging.INFO - 10 * verbose + 10 * quiet))
+    others = level if verbose >= 2 else max(level, logging.WARNING)
+    logging.basicConfig(level=level, format="%(levelname)s: %(message)s", stream=sys.stderr,
+                        force=True)
+    logging.getLogger().handlers[0].addFilter(_LevelsFilter(level, others))
+
+
+class _LevelsFilter(logging.Filter):
+    """Pass evperc's records from ``own`` up, other libraries' from ``others`` up."""
+
+    def __init__(self, own: int, others: int) -> None:
+        super().__init__()
+        self.own, self.others = own, others
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        ours = record.name == "evperc" or record.name.startswith("evperc.")
+        return record.levelno >= (self.own if ours else self.others)
+
+
+def _count_verbosity(ctx: click.Context, param: click.Parameter, value: int) -> int:
+    """-v / -q given after the subcommand: added to those given before it."""
+    counts = ctx.find_root().meta.setdefault("evperc.verbosity", [0, 0])
+    if value:
+        counts[0 if param.name == "verbose" else 1] += value
+        _setup_logging(*counts)
+    return value
+
+
+def verbosity_options(func: Callable[..., Any]) -> Callable[..., Any]:
+    """-v / -q on a subcommand too (`evperc run LOG -q` as well as `evperc -q run LOG`)."""
+    func = click.option("-q", "--quiet", count=True, expose_value=False,
+                        callback=_count_verbosity, help="Less log output (repeatable).")(func)
+    return click.option("-v", "--verbose", count=True, expose_value=False,
+                        callback=_count_verbosity,
+                        help="More log output (repeatable; -vv: other libraries' too).")(func)
 
 
 def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Turn user errors into ``evperc: error: <message>`` and exit code 2; Ctrl-C into exit 130."""
+    """Turn user errors into ``evperc: error: <message>`` and the error's exit code (2 bad
+    usage or input, 1 a failed run of valid input); Ctrl-C into exit 130."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -41,6 +77,29 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
             sys.exit(130)
 
     return wrapper
+
+
+def _alias(value: Path | None, alias: Path | None, name: str, old: str) -> Path | None:
+    """An option given under its old name (kept working, hidden from --help)."""
+    if alias is not None and value is not None:
+        raise UsageError(f"{old} is the old name of {name}; give one of them")
+    return value if value is not None else alias
+
+
+def _run_map(run: Any) -> tuple[Path | None, Path | None]:
+    """The map (and roads) the run was made with, as its manifest records them, if the files
+    are still there (`render` draws their outlines without being told)."""
+    paths = [run.manifest.get(key) for key in ("map", "roads")]
+    if paths[0] is None:
+        return None, None
+    found = [Path(p) if p is not None else None for p in paths]
+    missing = [str(p) for p in found if p is not None and not p.is_file()]
+    if missing:
+        log.info("the run's map %s is not there any more: no outlines (give --map)",
+                 ", ".join(missing))
+        return None, None
+    log.info("map outlines from the run's map %s", found[0])
+    return found[0], found[1]
 
 
 def check_map_options(map_path: Path | None, roads_path: Path | None, no_map: bool) -> None:
@@ -57,8 +116,10 @@ def check_map_options(map_path: Path | None, roads_path: Path | None, no_map: bo
 @click.version_option(__version__, prog_name="evperc")
 @click.option("-v", "--verbose", count=True, help="More log output (repeatable).")
 @click.option("-q", "--quiet", count=True, help="Less log output (repeatable).")
-def cli(verbose: int, quiet: int) -> None:
+@click.pass_context
+def cli(ctx: click.Context, verbose: int, quiet: int) -> None:
     """Map-aided evidential occupancy grids from logged drives (Kurdej et al. 2013)."""
+    ctx.meta["evperc.verbosity"] = [verbose, quiet]
     _setup_logging(verbose, quiet)
 
 
@@ -87,6 +148,7 @@ def cli(verbose: int, quiet: int) -> None:
 @click.option("--point-labels", is_flag=True,
               help="Also write OUT/labels/NNNNNN.label: per input point 251 moving, 9 static, "
                    "0 unknown (SemanticKITTI-MOS).")
+@verbosity_options
 @user_errors
 def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path | None,
                 no_map: bool, config_path: Path | None, out_dir: Path | None, overwrite: bool,
@@ -132,8 +194,11 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
     try:
         summary = run(request, resume=resume_dir is not None, on_frame=on_frame)
     except KeyboardInterrupt:
-        click.echo(f"evperc: interrupted; the frames written so far are kept, continue with "
-                   f"`evperc run --resume {out_dir}`", err=True)
+        if (out_dir / "manifest.json").is_file():
+            click.echo(f"evperc: interrupted; the frames written so far are kept, continue "
+                       f"with `evperc run --resume {out_dir}`", err=True)
+        else:
+            click.echo("evperc: interrupted before the first frame; nothing written", err=True)
         sys.exit(130)
     shares = ", ".join(f"{name} {100 * share:.1f}%"
                        for name, share in summary["decision_share"].items() if share > 0)
@@ -149,6 +214,7 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
 @click.option("--lidar-topic", help="Lidar topic, if the log has several.")
 @click.option("--pose-topic", help="Pose topic, if the log has several.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@verbosity_options
 @user_errors
 def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None,
                  as_json: bool) -> None:
@@ -183,41 +249,52 @@ def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None
 
 
 @cli.command("render")
-@click.argument("out_dir", metavar="OUT", type=click.Path(path_type=Path))
-@click.option("--dest", type=click.Path(path_type=Path),
-              help="Folder for DIR/frame_NNNNN.png (required unless only --gif).")
+@click.argument("out_dir", metavar="RUN_DIR", type=click.Path(path_type=Path))
+@click.option("--out", "dest", type=click.Path(path_type=Path),
+              help="Folder for OUT/frame_NNNNN.png (required unless only --gif).")
+@click.option("--dest", "dest_alias", type=click.Path(path_type=Path), hidden=True)
 @click.option("--frames", "frames_text", metavar="A:B:STEP",
               help="Frames to draw, Python slice rules (e.g. 0:300:5)  [default: all]")
-@click.option("--layers", "layers_text", default="betp,decision,trace", show_default=True,
-              help="Panels: betp, decision, decision6, trace, zeta, conflict.")
+@click.option("--layers", "layers_text", default="betp,decision6,trace", show_default=True,
+              help="Panels: betp, decision (free/static/moving), decision6 (each decision), "
+                   "trace, zeta, conflict.")
 @click.option("--gif", "gif_path", type=click.Path(path_type=Path),
               help="Also write an animated GIF.")
 @click.option("--fps", type=float, default=10.0, show_default=True, help="GIF frame rate.")
 @click.option("--compare", "compare_dir", type=click.Path(path_type=Path),
-              help="Second output folder drawn beside OUT (frames matched by stamp).")
+              help="Second run folder drawn beside RUN_DIR (frames matched by stamp).")
 @click.option("--map", "map_path", type=click.Path(path_type=Path),
-              help="Draw these map polygons as outlines.")
+              help="Draw these map polygons as outlines  [default: the run's --map]")
 @click.option("--roads", "roads_path", type=click.Path(path_type=Path),
               help="Road file for --map, if separate.")
+@click.option("--no-map", "no_map", is_flag=True, help="Draw no map outlines.")
 @click.option("--cell-px", type=click.IntRange(min=1), help="Pixels per cell  [default: auto]")
 @click.option("--overwrite", is_flag=True, help="Replace existing frame PNGs / GIF.")
+@verbosity_options
 @user_errors
-def render_command(out_dir: Path, dest: Path | None, frames_text: str | None, layers_text: str,
-                   gif_path: Path | None, fps: float, compare_dir: Path | None,
-                   map_path: Path | None, roads_path: Path | None, cell_px: int | None,
+def render_command(out_dir: Path, dest: Path | None, dest_alias: Path | None,
+                   frames_text: str | None, layers_text: str, gif_path: Path | None,
+                   fps: float, compare_dir: Path | None, map_path: Path | None,
+                   roads_path: Path | None, no_map: bool, cell_px: int | None,
                    overwrite: bool) -> None:
-    """Draw the grids of OUT (an `evperc run` folder) as PNG frames and/or a GIF."""
+    """Draw the grids of RUN_DIR (an `evperc run` folder) as PNG frames and/or a GIF, with
+    the outlines of the map the run used."""
     from evperc.output.reader import load
     from evperc.render.frame import parse_layers
     from evperc.render.run_render import RenderRequest, outlines_for, parse_frames, render_run
 
+    dest = _alias(dest, dest_alias, "--out", "--dest")
     if dest is None and gif_path is None:
-        raise UsageError("give --dest DIR for PNG frames and/or --gif FILE")
+        raise UsageError("give --out DIR for PNG frames and/or --gif FILE")
     if roads_path is not None and map_path is None:
         raise UsageError("--roads needs --map")
+    if no_map and map_path is not None:
+        raise UsageError("--map and --no-map exclude each other")
     layers, frames = parse_layers(layers_text), parse_frames(frames_text)
     run = load(out_dir)
     compare = load(compare_dir) if compare_dir is not None else None
+    if map_path is None and not no_map:
+        map_path, roads_path = _run_map(run)
     outlines = outlines_for(run, map_path, roads_path) if map_path is not None else None
     result = render_run(RenderRequest(run=run, dest=dest, gif=gif_path, frames=frames,
                                       layers=layers, fps=fps, compare=compare,
@@ -227,23 +304,28 @@ def render_command(out_dir: Path, dest: Path | None, frames_text: str | None, la
 
 
 @cli.command("export")
-@click.argument("out_dir", metavar="OUT", type=click.Path(path_type=Path))
-@click.option("--mcap", "mcap_path", required=True, type=click.Path(path_type=Path),
+@click.argument("out_dir", metavar="RUN_DIR", type=click.Path(path_type=Path))
+@click.option("--out", "mcap_path", type=click.Path(path_type=Path),
               help="MCAP file to write (foxglove.Grid + foxglove.FrameTransform).")
+@click.option("--mcap", "mcap_alias", type=click.Path(path_type=Path), hidden=True)
 @click.option("--frames", "frames_text", metavar="A:B:STEP",
               help="Frames to export, Python slice rules  [default: all]")
 @click.option("--frame-id", default="evperc", show_default=True,
               help="Frame of the grids (the run's CRS), parent of the ego transform and of "
                    "the log's world frame.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing MCAP file.")
+@verbosity_options
 @user_errors
-def export_command(out_dir: Path, mcap_path: Path, frames_text: str | None, frame_id: str,
-                   overwrite: bool) -> None:
-    """Export the grids of OUT to MCAP for Foxglove."""
+def export_command(out_dir: Path, mcap_path: Path | None, mcap_alias: Path | None,
+                   frames_text: str | None, frame_id: str, overwrite: bool) -> None:
+    """Export the grids of RUN_DIR to an MCAP file for Foxglove."""
     from evperc.output.export import export_mcap
     from evperc.output.reader import load
     from evperc.render.run_render import parse_frames
 
+    mcap_path = _alias(mcap_path, mcap_alias, "--out", "--mcap")
+    if mcap_path is None:
+        raise UsageError("give --out FILE.mcap")
     frames = parse_frames(frames_text)
     result = export_mcap(load(out_dir), mcap_path, frames=frames, frame_id=frame_id,
                          overwrite=overwrite)
@@ -265,6 +347,7 @@ def export_command(out_dir: Path, mcap_path: Path, frames_text: str | None, fram
 @click.option("--config", "config_path", type=click.Path(path_type=Path),
               help="TOML file overriding configs/default.toml ([grid], [map], [sim]).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output folder.")
+@verbosity_options
 @user_errors
 def simulate_command(map_path: Path, roads_path: Path | None, out_dir: Path, profile: str,
                      seconds: float, seed: int, config_path: Path | None,
@@ -283,32 +366,38 @@ def simulate_command(map_path: Path, roads_path: Path | None, out_dir: Path, pro
 
 
 @cli.command("evaluate")
-@click.argument("out_dir", metavar="OUT", type=click.Path(path_type=Path))
+@click.argument("out_dir", metavar="RUN_DIR", type=click.Path(path_type=Path))
 @click.option("--truth", "truth_dir", type=click.Path(path_type=Path),
               help="truth/ folder written by `evperc simulate`.")
 @click.option("--semantickitti", "seq_dir", type=click.Path(path_type=Path),
-              help="SemanticKITTI sequence folder: score OUT/labels (--point-labels) "
+              help="SemanticKITTI sequence folder: score RUN_DIR/labels (--point-labels) "
                    "against its labels/, as the LiDAR-MOS benchmark does.")
 @click.option("--warmup", type=click.IntRange(min=0), default=2, show_default=True,
               help="With --semantickitti: the first K scans, pooled apart.")
 @click.option("--compare", "compare_dir", type=click.Path(path_type=Path),
-              help="Second run scored beside OUT (e.g. the --no-map baseline).")
+              help="Second run scored beside RUN_DIR (e.g. the --no-map baseline).")
 @click.option("--json", "json_path", type=click.Path(path_type=Path),
               help="Also write the metrics as JSON.")
 @click.option("--cells", type=click.Choice(["observed", "visible"]), default="observed",
               show_default=True,
               help="Score cells ever observed so far, or only those the sensor sees now.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing --json file.")
+@verbosity_options
 @user_errors
 def evaluate_command(out_dir: Path, truth_dir: Path | None, seq_dir: Path | None,
                      warmup: int, compare_dir: Path | None, json_path: Path | None,
-                     cells: str) -> None:
-    """Score OUT (an `evperc run` folder) against simulated ground truth (--truth) or
-    SemanticKITTI point labels (--semantickitti)."""
+                     cells: str, overwrite: bool) -> None:
+    """Score RUN_DIR (an `evperc run` folder) against simulated ground truth of its drive
+    (--truth) or SemanticKITTI point labels (--semantickitti).
+
+    With --compare, both runs must cover the same frames (same --start/--end/--every)."""
     import json
 
     if (truth_dir is None) == (seq_dir is None):
         raise UsageError("give one of --truth DIR (a simulated drive) or --semantickitti "
                          "SEQ_DIR")
+    if json_path is not None and json_path.exists() and not overwrite:
+        raise OutputError(f"{json_path}: exists; pass --overwrite to replace it")
     if seq_dir is not None:
         from evperc.eval.semantickitti import evaluate_semantickitti, format_semantickitti
 
@@ -333,6 +422,8 @@ def evaluate_command(out_dir: Path, truth_dir: Path | None, seq_dir: Path | None
     metrics = evaluate(load(out_dir), truth, cells=cells)
     other = (evaluate(load(compare_dir), truth, cells=cells) if compare_dir is not None
              else None)
+    if other is not None:
+        _check_same_frames(out_dir, metrics, compare_dir, other)
     names = (out_dir.name or str(out_dir), compare_dir.name if compare_dir else "")
     click.echo(format_report(metrics, other, names), nl=False)
     if json_path is not None:
@@ -345,6 +436,23 @@ def evaluate_command(out_dir: Path, truth_dir: Path | None, seq_dir: Path | None
             raise OutputError(f"{json_path}: cannot write JSON ({err.strerror})") from err
 
 
+def _check_same_frames(out_dir: Path, metrics: dict[str, Any], compare_dir: Path | None,
+                       other: dict[str, Any]) -> None:
+    """Refuse to set side by side scores over different frames (a 20 s run beside a 10 s
+    baseline compares different scenes, not the map's effect)."""
+    def text(m: dict[str, Any]) -> str:
+        span = m["frames_span_ns"]
+        if span is None:
+            return "no frame"
+        return f"{m['frames_matched']} frames, stamps {span[0]}..{span[1]} ns"
+
+    if (metrics["frames_matched"], metrics["frames_span_ns"]) != (
+            other["frames_matched"], other["frames_span_ns"]):
+        raise UsageError(f"{out_dir} and {compare_dir} are scored over different frames "
+                         f"({text(metrics)} vs {text(other)}); run both over the same span "
+                         "(the same --start, --end, --every) to compare them")
+
+
 @cli.command("batch")
 @click.argument("logs", metavar="LOGS...", nargs=-1, type=click.Path(path_type=Path))
 @click.option("--list", "list_path", type=click.Path(path_type=Path),
@@ -355,7 +463,11 @@ def evaluate_command(out_dir: Path, truth_dir: Path | None, seq_dir: Path | None
               help="Road surfaces or highway lines, if not in --map.")
 @click.option("--no-map", is_flag=True, help="Run without a map (vacuous prior).")
 @click.option("--out", "out_root", required=True, type=click.Path(path_type=Path),
-              help="Root folder: each log's output goes to ROOT/<log stem>/.")
+              help="Root folder: each log's output goes to ROOT/<log stem>/ "
+                   "(ROOT/<stem>--<parent folder>/ for logs that share a stem).")
+@click.option("--overwrite", is_flag=True,
+              help="Run every log afresh, replacing its output (default: skip complete "
+                   "outputs, resume interrupted ones).")
 @click.option("--config", "config_path", type=click.Path(path_type=Path),
               help="TOML file overriding configs/default.toml (same for every log).")
 @click.option("--workers", type=click.IntRange(min=1),
@@ -364,13 +476,16 @@ def evaluate_command(out_dir: Path, truth_dir: Path | None, seq_dir: Path | None
               help="Use the running Dask cluster at ADDR (tcp://host:8786) instead.")
 @click.option("--json", "json_path", type=click.Path(path_type=Path),
               help="Also write the result rows as JSON.")
+@verbosity_options
 @user_errors
 def batch_command(logs: tuple[Path, ...], list_path: Path | None, map_path: Path | None,
                   roads_path: Path | None, no_map: bool, out_root: Path,
-                  config_path: Path | None, workers: int | None, scheduler: str | None,
-                  json_path: Path | None) -> None:
-    """Run `evperc run` on many logs (of any kind it reads) as tasks on a Dask cluster; skip
-    finished outputs, resume interrupted ones. Exit code 1 if any log failed.
+                  overwrite: bool, config_path: Path | None, workers: int | None,
+                  scheduler: str | None, json_path: Path | None) -> None:
+    """Run `evperc run` on many logs (any kind it reads) as tasks on a Dask cluster; skip
+    finished outputs,
+    resume interrupted ones (or, with --overwrite, redo them). Exit code 1 if any log
+    failed, 2 for bad usage.
 
     \b
     evperc batch logs/*.mcap --map city.geojson --out runs/
@@ -391,7 +506,9 @@ def batch_command(logs: tuple[Path, ...], list_path: Path | None, map_path: Path
     request = BatchRequest(logs=tuple(all_logs), out_root=out_root,
                            config=load_config(config_path), map_path=map_path,
                            roads_path=roads_path, workers=workers or os.cpu_count() or 1,
-                           scheduler=scheduler)
+                           scheduler=scheduler, overwrite=overwrite)
+    if json_path is not None and json_path.exists() and not overwrite:
+        raise OutputError(f"{json_path}: exists; pass --overwrite to replace it")
     t0 = time.perf_counter()
     rows = run_batch(request)
     click.echo(format_table(rows))

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import shutil
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -14,7 +16,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from evperc.errors import GeoreferenceError, OutputError, PoseError
 from evperc.fusion.fused import StoredOutputs, count_codes, focal_sets, fused_step, vacuous_flags
@@ -31,8 +32,9 @@ from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
 from evperc.output.manifest import read_manifest
 from evperc.output.npz import write_npz
 from evperc.output.quantise import dequantise, dequantise_planar
-from evperc.output.writer import RunWriter
+from evperc.output.writer import RunWriter, check_output_dir
 from evperc.plumbing import fusion_threads, keep_freed_memory, prefetched
+from evperc.progress import bar as progress_bar
 from evperc.sensor import SensorParams, sensor_grid
 
 log = logging.getLogger(__name__)
@@ -289,6 +291,9 @@ class Pipeline:
     def _warm_up(self) -> None:
         """Load (or compile, on a fresh install) the numba kernels of the sensor grid and the
         fused step now, so that start-up is not charged to the first frame."""
+        if not kernels_cached():
+            log.info("compiling evperc's kernels, once (numba: about a minute on a new "
+                     "install; cached for the next runs)")
         tiny = Window(self.resolution, 2, 2, 0, 0)
         points = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, -1.5]], np.float32)
         free, occupied = sensor_grid(points, False, np.eye(4), tiny, self.sensor_params)
@@ -303,14 +308,20 @@ class Pipeline:
         request = asdict(self.request)
         request.pop("config")
         request.pop("overwrite")
+        # absolute input paths: `evperc run --resume` and `render` work from any directory
+        # (the output directory itself is where the manifest is found, so it may move)
+        request.pop("out_dir")
+        for key in ("log_path", "map_path", "roads_path"):
+            if request[key] is not None:
+                request[key] = Path(request[key]).absolute()
         return {"decision_codes": DECISION_CODES, "classes": list(CLASSES),
                 "crs": self.crs_name, "resolution_m": self.resolution, "rows": probe.rows,
                 # the log's world frame in the working CRS (None: the run is in the log's frame)
                 "T_crs_world": (self.georef.T_crs_world.tolist() if self.georef is not None
                                 else None),
-                "cols": probe.cols, "log": str(self.request.log_path),
-                "map": str(self.request.map_path) if self.request.map_path else None,
-                "roads": str(self.request.roads_path) if self.request.roads_path else None,
+                "cols": probe.cols, "log": str(request["log_path"]),
+                "map": str(request["map_path"]) if request["map_path"] else None,
+                "roads": str(request["roads_path"]) if request["roads_path"] else None,
                 "request": {k: (str(v) if isinstance(v, Path) else v)
                             for k, v in request.items()},
                 # docs/output-format.md, "Per-point labels"
@@ -320,11 +331,12 @@ class Pipeline:
                                   and hasattr(self.reader, "numbers") else "frame index"}
                                  if self.request.point_labels else None)}
 
-    def warm_up_inputs(self) -> None:
+    def warm_up_inputs(self) -> bool:
         """Read and prepare the first scan of the requested span, and drop it: the one-off
         costs of the first frame (opening the log's index, building the message decoders,
         rasterising the map tiles around the first pose: ~26 ms on workload (a)) are paid
-        here, with the rest of the start-up, not by the first frame."""
+        here, with the rest of the start-up, not by the first frame. False if the span has
+        no scan to fuse (``reader.stats`` then says why)."""
         scans = self.scans(-1)
         try:
             first = next(scans, None)
@@ -332,6 +344,7 @@ class Pipeline:
             scans.close()
         if first is not None:
             self.prepare(first[1])
+        return first is not None
 
     def scans(self, after_index: int) -> Any:
         """``(index, scan)`` of the scans to fuse: the requested time span, every N-th,
@@ -344,9 +357,20 @@ class Pipeline:
             if index > after_index and index % r.every == 0:
                 yield index, scan
 
+    def expected_frames(self) -> int:
+        """Frames the run will have, from the log's summary (its lidar message count, the
+        share of the log's time span requested, every N-th): the progress bar's total, an
+        estimate where scans are skipped or the span cuts the log."""
+        r = self.request
+        scans = self.reader.source.topics[self.reader.lidar_topic].messages
+        length = max(self.reader.end_ns - self.reader.start_ns, 1)
+        start = 0 if r.start_s is None else min(max(int(r.start_s * 1e9), 0), length)
+        end = length if r.end_s is None else min(max(int(r.end_s * 1e9), start), length)
+        return math.ceil(round(scans * (end - start) / length) / r.every)
+
     def prepare(self, scan: PosedScan, sensor: bool = True) -> FrameInputs:
         """What the fusion step needs from one scan, which does not depend on the fusion
-        state: pose, window, sensor grid (SPEC §3; left to :meth:`sensor_grid` unless
+        state: pose, window, sensor grid (method.md §3; left to :meth:`sensor_grid` unless
         ``sensor``) and map labels. The runner calls this in the decode thread, one or two
         scans ahead of the fusion."""
         t0 = time.perf_counter()
@@ -365,7 +389,7 @@ class Pipeline:
         return self.sensor_grid(inputs) if sensor else inputs
 
     def sensor_grid(self, inputs: FrameInputs) -> FrameInputs:
-        """``inputs`` with the sensor grid of its scan (SPEC §3)."""
+        """``inputs`` with the sensor grid of its scan (method.md §3)."""
         if inputs.scan is None:
             return inputs
         t0 = time.perf_counter()
@@ -412,7 +436,7 @@ class Pipeline:
         shift = state.move_to(window)
         dt_s = 0.0 if state.prev_ns is None else (inputs.stamp_ns - state.prev_ns) * 1e-9
         state.prev_ns = inputs.stamp_ns
-        # SPEC §5 and §6 in one compiled pass, quantised straight into the chunk buffer;
+        # method.md §5 and §6 in one compiled pass, quantised straight into the chunk buffer;
         # evperc.fusion.twin is the numpy twin it is tested on
         fused_step(state.pg, state.zeta, inputs.free, inputs.occupied, inputs.labels,
                    self.betas, dt_s, self.params, out=out, flags=state.flags, focal=state.focal,
@@ -433,6 +457,21 @@ class Pipeline:
         return frame
 
 
+def kernels_cached() -> bool:
+    """Whether numba has cached the fused step's kernels (its index files, ``*.nbi``, in
+    ``NUMBA_CACHE_DIR`` or beside the module): a cheap guess that the next call will not
+    compile for a minute. A cache of an older evperc counts as cached (numba then compiles
+    again, without this warning)."""
+    from evperc.fusion import kernel as fused_kernel
+
+    here = Path(fused_kernel.__file__)
+    folders = [here.parent / "__pycache__"]
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        folders.append(Path(os.environ["NUMBA_CACHE_DIR"]))
+    return any(next(folder.rglob(f"{here.stem}.*.nbi"), None) is not None
+               for folder in folders if folder.is_dir())
+
+
 def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:
     """The stored layers of a frame as float arrays, interleaved ``(rows, cols, k)`` as
     :func:`evperc.load` gives them (for ``on_frame`` consumers such as live rendering)."""
@@ -451,9 +490,15 @@ def run(request: RunRequest, resume: bool = False,
     (:func:`evperc.geo.maps.load_map_cached`; ``evperc batch`` workers)."""
     started = time.perf_counter()
     keep_freed_memory()
+    out_dir = request.out_dir
+    if not resume:  # an existing output is refused before any slow work
+        check_output_dir(out_dir, request.overwrite)
     pipeline = Pipeline(request, reuse_map=reuse_map)
     state = FusionState()
-    out_dir = request.out_dir
+    # the inputs are checked (the first scan read, posed, placed on the map) before the
+    # output is created: a run that stops on an input error leaves nothing
+    if not pipeline.warm_up_inputs() and not resume:
+        raise nothing_fused(request, pipeline.reader.stats)
     if resume:
         writer = RunWriter.resume(out_dir)
         done = writer.manifest["frame_count"]
@@ -461,6 +506,12 @@ def run(request: RunRequest, resume: bool = False,
             state = FusionState.load(checkpoint_path(out_dir, done))
     else:
         writer = RunWriter(out_dir, request.config, pipeline.meta(), overwrite=request.overwrite)
+
+    def discard_if_empty() -> None:
+        """A new run that fails before its manifest lists a frame leaves no output (there
+        is nothing to resume; it would block the corrected run)."""
+        if not resume and writer.manifest["frame_count"] == 0:
+            shutil.rmtree(out_dir, ignore_errors=True)
     # chunk written -> checkpoint of the state -> manifest: a crash anywhere leaves a
     # checkpoint that matches the manifest; older checkpoints go once a newer one is committed
     # checkpoints are 20 MB on a 200 m window: one every output.checkpoint_frames frames
@@ -483,7 +534,6 @@ def run(request: RunRequest, resume: bool = False,
         return commit
 
     writer.on_chunk = on_chunk
-    pipeline.warm_up_inputs()
     if state.window is None:
         state.allocate((int(writer.manifest["rows"]), int(writer.manifest["cols"])))
     t0 = time.perf_counter()
@@ -497,9 +547,8 @@ def run(request: RunRequest, resume: bool = False,
     hungry = threading.Event()
     scans = prefetched(pipeline.inputs(state.scan_index, defer=hungry), depth=2,
                        name="evperc-decode", cpu_s=decode_cpu, hungry=hungry)
-    bar = tqdm(scans, unit="frame", desc=request.log_path.name,
-               disable=None if progress is None else not progress, leave=False,
-               initial=state.frames)
+    bar = progress_bar(scans, total=pipeline.expected_frames(), desc=request.log_path.name,
+                       initial=state.frames, enabled=progress)
     clock = pipeline.clock
     clock.restart()
     try:
@@ -519,18 +568,22 @@ def run(request: RunRequest, resume: bool = False,
             clock.lap("write")
     except BaseException:
         writer.abort()
+        discard_if_empty()
         raise
     finally:
         bar.close()
         scans.close()  # stops and joins the decode thread
     if state.frames == 0:
         writer.abort()
-        reasons = ", ".join(f"{k} {v}" for k, v in sorted(pipeline.reader.stats.items()))
-        raise PoseError(f"{request.log_path}: no scan could be fused"
-                        + (f" (skipped scans: {reasons})" if reasons else
-                           " (no scan in the requested span)"))
+        discard_if_empty()
+        raise nothing_fused(request, pipeline.reader.stats)
     finishing[0] = True
-    writer.finish()
+    try:
+        writer.finish()
+    except BaseException:
+        writer.abort()
+        discard_if_empty()
+        raise
     clock.lap("write")
     wall = time.perf_counter() - t0
     cpu_s = {"main": time.thread_time() - main_cpu0, "decode": decode_cpu[0],
@@ -561,6 +614,14 @@ def run(request: RunRequest, resume: bool = False,
     writer.close(summary)
     _remove_checkpoints(out_dir, keep=set())
     return summary
+
+
+def nothing_fused(request: RunRequest, stats: dict[str, int]) -> PoseError:
+    """The error of a run that finds no scan to fuse, with the reasons scans were skipped."""
+    reasons = ", ".join(f"{k} {v}" for k, v in sorted(stats.items()))
+    return PoseError(f"{request.log_path}: no scan could be fused"
+                     + (f" (skipped scans: {reasons})" if reasons else
+                        " (no scan in the requested span)"))
 
 
 def _remove_checkpoints(out_dir: Path, keep: set[Path]) -> None:

@@ -71,7 +71,7 @@ CELL_SETS = ("observed", "visible")
 TEST_SEEDS = "11,12,13,14,15,16"
 TUNING_SEEDS = "1,2"
 
-#: SPEC §5-§6 values of the tuned keys (the shipped defaults before the tuning of
+#: untuned values of the tuned keys (the shipped defaults before the tuning of
 #: docs/evaluation.md was adopted); the start and the parsimony target of ``--tune``
 SPEC_VALUES: dict[str, dict[str, float]] = {
     "fusion": {"zeta_increment": 0.1, "zeta_decrement": 0.5, "gamma_occupied": 0.6,
@@ -185,7 +185,7 @@ def config_tag(config: Path | None) -> str:
 
 
 def resolve_config(name: str, work: Path) -> Path | None:
-    """``default`` → no file; ``spec`` → the SPEC §5-§6 values written to WORK; else a path."""
+    """``default`` → no file; ``spec`` → the untuned values written to WORK; else a path."""
     if name == "default":
         return None
     if name == "spec":
@@ -592,7 +592,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--work", type=Path, default=Path("evaluation-work"),
                         help="work directory (drives, runs, evaluations are cached there)")
     parser.add_argument("--config", action="append",
-                        help="report mode: 'default', 'spec' (the SPEC §5-§6 values) or a TOML "
+                        help="report mode: 'default', 'spec' (the untuned values) or a TOML "
                              "file; repeat to compare configs (full tables for the first)")
     parser.add_argument("--tune", action="store_true", help="grid search on the tuning seeds")
     parser.add_argument("--all", action="store_true",

@@ -156,10 +156,13 @@ def write_ros2_mcap(path: str | Path, *, clouds: Sequence[Cloud] = (),
                     tf: Sequence[StampedTransform] = (),
                     tf_static: Sequence[StaticTransform] = (), fixes: Sequence[Fix] = (),
                     fix_topic: str = "/fix", extra_cloud_topics: Sequence[str] = (),
-                    chunk_size: int = 1024 * 1024, compression: str = "zstd") -> Path:
+                    chunk_size: int = 1024 * 1024, compression: str = "zstd",
+                    poses_first: bool = False) -> Path:
     """A ROS 2 MCAP written with mcap-ros2-support. Messages are logged at their stamps
     (a cloud may carry a 4th item, its log time, to log it late); chunks ``compression``
-    "zstd", "lz4" or "none".
+    "zstd", "lz4" or "none". Messages go into the file in log-time order, or with
+    ``poses_first`` all other messages (poses, TF, fixes) before the lidar's (as the bundled
+    sample drive has them: the poses' chunks first, then the scans').
 
     ``laserscans`` items are (stamp_ns, ranges, angle_min, angle_increment, frame_id).
     ``extra_cloud_topics`` repeat every cloud on more topics (for ambiguity tests).
@@ -206,7 +209,8 @@ def write_ros2_mcap(path: str | Path, *, clouds: Sequence[Cloud] = (),
             "header": _header(ns, "gps"), "status": {"status": 0, "service": 1},
             "latitude": lat, "longitude": lon, "altitude": alt,
             "position_covariance": [0.0] * 9, "position_covariance_type": 0}))
-    messages.sort(key=lambda m: m[0])
+    lidar_types = ("sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan")
+    messages.sort(key=lambda m: (poses_first and m[2] in lidar_types, m[0]))
     with path.open("wb") as f:
         from mcap.writer import CompressionType
 

@@ -1,4 +1,4 @@
-"""Combination rules (SPEC §2), cell-wise over ``(..., 2**n)`` mass arrays.
+"""Combination rules (method.md §2), cell-wise over ``(..., 2**n)`` mass arrays.
 
     conjunctive  (m1 ∩ m2)(A) = Σ_{B∩C=A} m1(B) m2(C)   computed as q12 = q1 · q2
     disjunctive  (m1 ∪ m2)(A) = Σ_{B∪C=A} m1(B) m2(C)   computed as b12 = b1 · b2

@@ -1,4 +1,4 @@
-"""The parts of the conflict of one fusion step (SPEC §5.4)."""
+"""The parts of the conflict of one fusion step (method.md §5.4)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Discounting (SPEC §2, §5.3): classical and contextual (Mercier, Quost, Denœux 2008).
+"""Discounting (method.md §2, §5.3): classical and contextual (Mercier, Quost, Denœux 2008).
 
 Rates broadcast over the leading axes of the mass array: a scalar, or one rate per cell.
 Rates are not range-checked here (they come validated from the configuration); they must

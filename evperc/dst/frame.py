@@ -85,7 +85,7 @@ class Frame:
         return m
 
 
-#: The perception/map frame Ω = {F, I, U, S, M} (SPEC §1): bit0 F … bit4 M.
+#: The perception/map frame Ω = {F, I, U, S, M} (method.md §1): bit0 F … bit4 M.
 FRAME = Frame(("F", "I", "U", "S", "M"))
-#: The sensor frame Ω_SG = {F, O} (SPEC §1, §3).
+#: The sensor frame Ω_SG = {F, O} (method.md §1, §3).
 SENSOR_FRAME = Frame(("F", "O"))

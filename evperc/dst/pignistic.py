@@ -1,4 +1,4 @@
-"""Pignistic probability (SPEC §2, §6)."""
+"""Pignistic probability (method.md §2, §6)."""
 
 from __future__ import annotations
 

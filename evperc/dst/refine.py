@@ -1,4 +1,4 @@
-"""Vacuous extension of a mass function to a refined frame (SPEC §2, §5.1).
+"""Vacuous extension of a mass function to a refined frame (method.md §2, §5.1).
 
 A refining maps each coarse class to a non-empty set of fine classes, the images being
 disjoint and covering the fine frame, e.g. Ω_SG → Ω: {F} → {F}, {O} → {I, U, S, M}.

@@ -1,4 +1,4 @@
-"""Specialisation by the accumulator ζ (SPEC §5.7)."""
+"""Specialisation by the accumulator ζ (method.md §5.7)."""
 
 from __future__ import annotations
 

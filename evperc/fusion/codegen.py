@@ -1,6 +1,6 @@
 """Generates :mod:`evperc.fusion.kernel`, the straight-line per-cell code of the fused step.
 
-The fused step (SPEC §5 steps 2–8 and §6) is ~600 float operations per cell. Written as one
+The fused step (method.md §5 steps 2–8 and §6) is ~600 float operations per cell. Written as one
 loop over the cells of a row whose body is straight-line code on 32 scalar masses (no inner
 loops, no per-cell branches: conditions become selects), LLVM vectorises it *across cells*:
 each scalar becomes one AVX register of 8–16 cells. Writing 32 masses out by hand is error
@@ -23,7 +23,7 @@ S = 8, M = 16, O = 30, Ω = 31):
   subtracted (no float32 cancellation when 1 − e is small). Total conflict (1 − e ≤ tol)
   keeps SG (β' = 0), as the numpy twin.
 - SG'({F}) = f (1 − β'_building) / (1 − e), Bel_SG'(O) = (o + u β'_building) / (1 − e),
-  so ∅_FO = m(F) Bel_SG'(O), ∅_OF = Bel_m(O) SG'({F}) (SPEC §5.4).
+  so ∅_FO = m(F) Bel_SG'(O), ∅_OF = Bel_m(O) SG'({F}) (method.md §5.4).
 
 Around the body, per block of 256 cells of a window row: trim to the active lanes, read the
 planes in the union of the cells' focal-set masks (compact layout, :mod:`evperc.fusion.fused`),
@@ -238,7 +238,7 @@ def _body(lean: bool = False, road: bool = False) -> list[str]:
             terms.append(f"b{name} * {_sum(sources)}")
         extra = " + " + " + ".join(terms) if terms else ""
         add(f"c{a} = (keep_d * d{a}{extra}) * inv_kept")
-    # conflict parts (SPEC §5.4)
+    # conflict parts (method.md §5.4)
     add("sg_free = f * (_1 - bb) * inv_kept")
     add("sg_bel_o = (o + u * bb) * inv_kept")
     add("pg_bel_o = " + _sum([f"m{a}" for a in range(2, 32, 2)]))
@@ -281,7 +281,7 @@ def _body(lean: bool = False, road: bool = False) -> list[str]:
         if a not in zero:  # the zero sets hold 0 in the buffer already
             add(f"buf[{_at(OUT_MASS + a)}] = c{a}")
     add(f"buf[{_at(OUT_ZETA)}] = z")
-    # SPEC §6: betP on the stored masses, then the decision
+    # method.md §6: betP on the stored masses, then the decision
     add("norm = " + _sum([f"c{a}" for a in range(1, 32)]))
     add("inv_norm = (_1 / norm) if norm > tol else _0")
     inv = {1: None, 2: "_INV2", 3: "_INV3", 4: "_INV4", 5: "_INV5"}

@@ -1,9 +1,9 @@
-"""The whole per-frame fusion (SPEC §5 steps 2–8) and decision (SPEC §6) in one pass per cell.
+"""The whole per-frame fusion (method.md §5 steps 2–8) and decision (§6) in one pass per cell.
 
 :func:`fused_step` computes what :func:`evperc.fusion.twin.fusion_step` followed by
 :func:`evperc.fusion.twin.decide` computes, for every option of
 :class:`~evperc.fusion.twin.FusionParams`, in one compiled pass over the cells, including the
-scrolling of the window (SPEC §7), so a frame reads and writes each active cell's state once.
+scrolling of the window (method.md §7), so a frame reads and writes each active cell's state once.
 
 Layout: the state is **planar**, ``pg[A, row, col]`` (one contiguous float32 plane per
 subset A), held in a **circular buffer** (grid_map's moving grid): window cell ``(r, c)`` is
@@ -37,7 +37,7 @@ Reachable focal sets (:func:`reachable_focal_sets`): all 31 non-empty subsets wi
 contextual discounting, 15 with classical discounting, so the state keeps all 32 planes;
 but a cell uses few of them (9 on average on a 200 m window of a drive: a road cell never
 has mass on a set with I other than O and Ω), and a map region few more. **Compact
-layout** (SPEC §1): each buffer cell carries its focal sets as a uint32 bitmask
+layout** (method.md §1): each buffer cell carries its focal sets as a uint32 bitmask
 (``focal``, bit A set where m(A) ≠ 0); a block of 256 cells reads only the planes in the
 union of its cells' masks (the others are zero: filled, not read) and writes only those it
 or its previous cells use (15 of 32 planes on that window). Exactly the dense step, bit
@@ -107,7 +107,7 @@ def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
                offset: tuple[int, int] = (0, 0),
                shift: tuple[int, int] = (0, 0), threads: int = 1
                ) -> FusedOutputs | StoredOutputs:
-    """One frame, in place: ``pg``, ``zeta`` ← PG_t, ζ_t (SPEC §5 steps 2–8); the SPEC §6
+    """One frame, in place: ``pg``, ``zeta`` ← PG_t, ζ_t (method.md §5 steps 2–8); the method.md §6
     outputs into ``out``.
 
     ``pg``: planar float32 ``(32, rows, cols)`` state and ``zeta`` its accumulator, held in
@@ -123,7 +123,7 @@ def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
     bit A clear ⇒ m(A) = 0 exactly), kept up to date by the step (``None``: derived from
     ``pg``); a block reads and writes only the planes some of its cells use.
 
-    ``free``, ``occupied``: the sensor grid m({F}), m({O}) (SPEC §3), window order;
+    ``free``, ``occupied``: the sensor grid m({F}), m({O}) (method.md §3), window order;
     ``labels``: uint8 context labels (0 other, 1 road, 2 building, :data:`NO_MAP`) or
     ``None`` for no map; ``betas``: ``(beta_building, beta_road, beta_other)`` as in
     :func:`evperc.geo.prior.prior_masses`; ``observed``: cells the scan touched, by default
@@ -285,7 +285,7 @@ def window_order(buffer: np.ndarray, offset: tuple[int, int]) -> np.ndarray:
 
 @functools.cache
 def _vacuous_code(params: FusionParams) -> np.uint8:
-    """The decision of a vacuous cell (SPEC §6), as the kernel's skip path writes it (once
+    """The decision of a vacuous cell (method.md §6), as the kernel's skip path writes it (once
     per parameter set, not per frame: numpy's decide on one cell costs ~30 µs)."""
     return np.uint8(decide(vacuous((1, 1)), params)[1][0, 0])
 
@@ -356,7 +356,7 @@ def _grid(a: np.ndarray, dtype: type, shape: tuple[int, int], name: str) -> np.n
 
 
 def _betas(betas: tuple[float, float, float]) -> tuple[np.float32, np.float32, np.float32]:
-    """β of the building, road and other priors (SPEC §4)."""
+    """β of the building, road and other priors (method.md §4)."""
     values = tuple(float(b) for b in betas)
     if len(values) != 3 or not all(0.0 <= b <= 1.0 for b in values):
         raise ValueError(f"prior masses must be in [0, 1], got {list(betas)}")

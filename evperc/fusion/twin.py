@@ -1,4 +1,4 @@
-"""One fusion step per scan (SPEC §5) and the decision (SPEC §6), as pure functions over grids.
+"""One fusion step per scan (method.md §5) and the decision (§6), as pure functions over grids.
 
 State of the perception grid PG: dense masses ``(rows, cols, 32)`` over Ω = {F, I, U, S, M}
 (bit0 F … bit4 M) and the accumulator ζ ``(rows, cols)``. No I/O here; the driver that reads a
@@ -16,7 +16,7 @@ from evperc import dst
 
 F, I, U, S, M = 1, 2, 4, 8, 16
 OMEGA = 31
-OCCUPIED = I | U | S | M  # O = {I, U, S, M}: the refinement of the sensor's O (SPEC §5.1)
+OCCUPIED = I | U | S | M  # O = {I, U, S, M}: the refinement of the sensor's O (method.md §5.1)
 N_CLASSES = 5
 CLASSES = ("F", "I", "U", "S", "M")
 
@@ -31,10 +31,11 @@ _TIE = 1e-4
 
 @dataclass(frozen=True)
 class FusionParams:
-    """The ``[fusion]`` and ``[decision]`` keys of the config (SPEC §5, §6).
+    """The ``[fusion]`` and ``[decision]`` keys of the config (method.md §5, §6).
 
-    The field defaults are SPEC's values; ``configs/default.toml`` (via :meth:`from_config`)
-    holds the defaults of a run, some of them tuned (docs/evaluation.md)."""
+    The field defaults are the untuned values (docs/method.md); ``configs/default.toml``
+    (via :meth:`from_config`) holds the defaults of a run, some of them tuned
+    (docs/evaluation.md)."""
 
     prior_where: str = "observed"
     discount: str = "contextual"
@@ -78,7 +79,7 @@ def vacuous(shape: tuple[int, ...], dtype: np.dtype | type = np.float32) -> np.n
 
 
 def sensor_masses(free: np.ndarray, occupied: np.ndarray) -> np.ndarray:
-    """SG refined to Ω (SPEC §5.1): {F}→{F}, {O}→{I,U,S,M}, Ω_SG→Ω."""
+    """SG refined to Ω (method.md §5.1): {F}→{F}, {O}→{I,U,S,M}, Ω_SG→Ω."""
     m = np.zeros((*free.shape, 32), dtype=np.float32)
     m[..., F] = free
     m[..., OCCUPIED] = occupied
@@ -87,16 +88,16 @@ def sensor_masses(free: np.ndarray, occupied: np.ndarray) -> np.ndarray:
 
 
 def belief_occupied(m: np.ndarray) -> np.ndarray:
-    """Bel(O) = Σ_{∅≠A⊆{I,U,S,M}} m(A) (SPEC §5.4)."""
+    """Bel(O) = Σ_{∅≠A⊆{I,U,S,M}} m(A) (method.md §5.4)."""
     return dst.belief_of(m, OCCUPIED)
 
 
 def fusion_step(pg: np.ndarray, zeta: np.ndarray, sg: np.ndarray, prior: np.ndarray,
                 observed: np.ndarray, dt_s: float, params: FusionParams
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One step PG_{t−1}, ζ_{t−1} → PG_t, ζ_t (SPEC §5, steps 2–8).
+    """One step PG_{t−1}, ζ_{t−1} → PG_t, ζ_t (method.md §5, steps 2–8).
 
-    ``sg``: the refined sensor grid (SPEC §5.1); ``prior``: the GIS grid GG; ``observed``:
+    ``sg``: the refined sensor grid (method.md §5.1); ``prior``: the GIS grid GG; ``observed``:
     cells the scan touched. Returns ``(pg, zeta, conflict)`` with ``conflict[..., k]`` =
     ∅_FO, ∅_OF, ∅_other of this step.
     """
@@ -142,7 +143,7 @@ def fusion_step(pg: np.ndarray, zeta: np.ndarray, sg: np.ndarray, prior: np.ndar
 
 
 def decide(pg: np.ndarray, params: FusionParams) -> tuple[np.ndarray, np.ndarray]:
-    """betP per class and the fine decision code per cell (SPEC §6).
+    """betP per class and the fine decision code per cell (method.md §6).
 
     Coarse: free = betP(F), moving = betP(M), static = betP(I)+betP(U)+betP(S); the largest
     wins unless it is below ``decision_min_betp`` or m(Ω) > ``decision_max_ignorance``

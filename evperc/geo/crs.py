@@ -1,4 +1,4 @@
-"""The working CRS (SPEC §7): metric, east-north; by default the UTM zone of the data.
+"""The working CRS (method.md §7): metric, east-north; by default the UTM zone of the data.
 
 UTM zones are the standard 6° zones, ``zone = floor((lon + 180) / 6) + 1``, EPSG 326zz north
 of the equator (lat ≥ 0) and 327zz south of it. The Norway / Svalbard exceptions of the UTM

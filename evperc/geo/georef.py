@@ -1,4 +1,4 @@
-"""Geo-reference: the log's world frame → the working CRS (SPEC §7).
+"""Geo-reference: the log's world frame → the working CRS (method.md §7).
 
 ``T_crs_world`` is a rigid 4×4 transform (rotation about z, translation in x, y; z kept).
 

@@ -1,4 +1,4 @@
-"""Map files → building and road-surface polygons in a metric working CRS (SPEC §4, §7).
+"""Map files → building and road-surface polygons in a metric working CRS (method.md §4, §7).
 
 Sources (read with fiona: GeoJSON, Shapefile, GeoPackage, anything GDAL reads as vectors):
 

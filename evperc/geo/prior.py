@@ -1,4 +1,4 @@
-"""The GIS prior grid GG (SPEC §4): context labels per cell and their mass functions.
+"""The GIS prior grid GG (method.md §4): context labels per cell and their mass functions.
 
 Each cell is classified by its centre point ``((ix + 0.5)·r, (iy + 0.5)·r)``: inside a
 building → ``CONTEXT_BUILDING``, else inside a road surface → ``CONTEXT_ROAD``, else
@@ -136,7 +136,7 @@ class PriorRasteriser:
 
 def prior_masses(labels: np.ndarray, beta_building: float, beta_road: float,
                  beta_other: float, dtype: np.dtype = np.float32) -> np.ndarray:
-    """GG masses ``(rows, cols, 32)`` from context labels (SPEC §4):
+    """GG masses ``(rows, cols, 32)`` from context labels (method.md §4):
     building m({I}) = β_B, road m({F,S,M}) = β_R, other m({F,U,S,M}) = β_T, the rest on Ω."""
     betas = np.array([beta_other, beta_road, beta_building], dtype=np.float64)
     if not np.all((betas >= 0.0) & (betas <= 1.0)):

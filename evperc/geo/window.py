@@ -1,4 +1,4 @@
-"""The ego-centred window on the global lattice (SPEC §7), after grid_map's moving grid.
+"""The ego-centred window on the global lattice (method.md §7), after grid_map's moving grid.
 
 Diagram (working CRS, x east, y north, resolution ``r``)::
 

@@ -2,19 +2,25 @@
 
 An indexed file (summary with chunk indexes) is read through mcap's seeking reader, which
 yields messages in log-time order chunk by chunk (memory bounded by the chunks overlapping in
-time). A file without an index, or one whose footer is missing (truncated), is read once at
-open with a sequential reader to learn its channels, counts and time span; messages then come
-in file order. Wherever the data stops being valid (short read, bad CRC, broken record) the
-stream ends there, and ONE warning per file says where and why. Messages are decoded per
-channel, by its message encoding: ROS 2 CDR (mcap-ros2-support), ROS 1 (``ros1`` with
-``ros1msg`` schemas, as ``mcap convert drive.bag drive.mcap`` writes them; mcap-ros1-support),
-protobuf (mcap-protobuf-support) and JSON. One file may mix encodings, so the encoding is a
-property of the channel, not of the source (docs/architecture.md, "Log sources").
+time). A file without an index, or one whose footer is missing (truncated: a recorder killed
+mid-drive), is read once at open with a sequential reader to learn its channels, counts and
+time span, and the offset, time span and channels of every complete chunk: an index of its
+own, so that its messages too come in log-time order, chunk by chunk, as from an indexed file
+(a writer may put all poses in one early chunk and the scans in later ones; read in file
+order, the scans would find the poses around them already passed). Only a file with
+messages outside chunks is read in file order. Wherever the data stops being valid (short
+read, bad CRC, broken record) the stream ends there, and ONE warning per file says where and
+why. Messages are decoded per channel, by its message encoding: ROS 2 CDR
+(mcap-ros2-support), ROS 1 (``ros1`` with ``ros1msg`` schemas, as ``mcap convert drive.bag
+drive.mcap`` writes them; mcap-ros1-support), protobuf (mcap-protobuf-support) and JSON. One
+file may mix encodings, so the encoding is a property of the channel, not of the source
+(docs/architecture.md, "Log sources").
 """
 
 from __future__ import annotations
 
 import base64
+import heapq
 import json
 import logging
 import struct
@@ -27,10 +33,11 @@ from typing import Any
 
 import mcap.stream_reader
 from isal import isal_zlib
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import EndOfFile, UnsupportedCompressionError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Chunk, Message, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
 
 from evperc.errors import LogError
 
@@ -65,6 +72,16 @@ class TopicInfo:
     messages: int = 0
 
 
+@dataclass(frozen=True)
+class ChunkSpan:
+    """A complete, valid chunk of an unindexed file, found by the sequential read at open."""
+
+    offset: int           # file offset of the chunk record (its opcode byte)
+    start_ns: int         # log time of its first and last message (inclusive)
+    end_ns: int
+    channels: frozenset[int]  # ids of the channels it has messages of
+
+
 @dataclass
 class RawMessage:
     """A message as read from the file, not yet decoded."""
@@ -96,6 +113,10 @@ class McapSource:
     start_ns: int | None = None
     end_ns: int | None = None
     stop_reason: str | None = None
+    #: an unindexed file's complete chunks (None: an indexed file, or messages outside chunks)
+    chunks: list[ChunkSpan] | None = None
+    _schemas: dict[int, Schema] = field(default_factory=dict)
+    _channels: dict[int, Channel] = field(default_factory=dict)
     _warned: bool = False
     _decoders: dict[int, Callable[[bytes], Any]] = field(default_factory=dict)
 
@@ -155,16 +176,51 @@ class McapSource:
         return True
 
     def _scan_sequentially(self) -> None:
-        """One pass over an unindexed or truncated file: channels, counts, time span."""
+        """One pass over an unindexed or truncated file: channels, counts, time span, and
+        the complete chunks (:class:`ChunkSpan`) that :meth:`iter_raw` then reads in
+        log-time order."""
         start, end = None, None
-        for raw in self.iter_raw():
-            self.topics[raw.topic].messages += 1
-            t = raw.message.log_time
-            start = t if start is None else min(start, t)
-            end = t if end is None else max(end, t)
+        chunks: list[ChunkSpan] | None = []
+        count = 0
+        with self.path.open("rb") as f:
+            records = StreamReader(f, validate_crcs=True, emit_chunks=True).records
+            while True:
+                offset = f.tell()  # end of the last record read completely
+                try:
+                    record = next(records)
+                    inner = (breakup_chunk(record, validate_crc=True)
+                             if isinstance(record, Chunk) else [record])
+                except StopIteration:
+                    break
+                except Exception as err:  # a broken file ends the data there
+                    self._stopped(offset, count, err)
+                    break
+                channels = set()
+                for item in inner:
+                    if isinstance(item, Schema):
+                        self._schemas[item.id] = item
+                    elif isinstance(item, Channel):
+                        self._channels[item.id] = item
+                        self._add_channel(item, self._schemas.get(item.schema_id))
+                    elif isinstance(item, Message):
+                        channel = self._channels.get(item.channel_id)
+                        if channel is None:
+                            continue
+                        count += 1
+                        channels.add(item.channel_id)
+                        self.topics[channel.topic].messages += 1
+                        t = item.log_time
+                        start = t if start is None else min(start, t)
+                        end = t if end is None else max(end, t)
+                        if not isinstance(record, Chunk):
+                            chunks = None  # a message outside chunks: file order
+                if isinstance(record, Chunk) and channels and chunks is not None:
+                    chunks.append(ChunkSpan(offset, record.message_start_time,
+                                            record.message_end_time, frozenset(channels)))
         self.start_ns, self.end_ns = start, end
+        self.chunks = chunks
         if self.stop_reason is None:
-            log.info("%s: no index; reading it sequentially", self.path)
+            log.info("%s: no index; reading it sequentially (once, to index its chunks)", self.path)
 
     def _add_channel(self, channel: Channel, schema: Schema | None) -> None:
         if channel.topic not in self.topics:
@@ -188,6 +244,8 @@ class McapSource:
                 reader = SeekingReader(f, validate_crcs=True)
                 iterator = reader.iter_messages(topics=wanted, starting_at=start_ns,
                                                 ending_before=end_ns, log_time_order=True)
+            elif self.chunks is not None:
+                iterator = self._iter_chunks(f, wanted, start_ns, end_ns)
             else:
                 iterator = self._iter_stream(f, wanted, start_ns, end_ns)
             count = 0
@@ -206,6 +264,37 @@ class McapSource:
                     return
                 count += 1
                 yield RawMessage(channel.topic, schema, channel, message)
+
+    def _iter_chunks(self, f: Any, wanted: set[str] | None, start_ns: int | None,
+                     end_ns: int | None) -> Iterator[tuple[Schema | None, Channel, Message]]:
+        """The messages of the chunks found at open, in log-time order (ties: file order):
+        a heap of chunks by first log time and of their decoded messages, as mcap's seeking
+        reader does with a summary's chunk indexes."""
+        ids = None if wanted is None else {i for i, c in self._channels.items()
+                                           if c.topic in wanted}
+        heap: list[tuple[int, int, int, Any]] = [
+            (c.start_ns, c.offset, -1, c) for c in self.chunks or []
+            if (ids is None or c.channels & ids)
+            and (start_ns is None or c.end_ns >= start_ns)
+            and (end_ns is None or c.start_ns < end_ns)]
+        heapq.heapify(heap)
+        while heap:
+            _, offset, index, item = heapq.heappop(heap)
+            if index >= 0:
+                yield item
+                continue
+            f.seek(offset + 1 + 8)  # opcode and record length
+            chunk = Chunk.read(ReadDataStream(f))
+            for i, record in enumerate(breakup_chunk(chunk, validate_crc=True)):
+                if not isinstance(record, Message) or (
+                        ids is not None and record.channel_id not in ids):
+                    continue
+                if (start_ns is not None and record.log_time < start_ns) or (
+                        end_ns is not None and record.log_time >= end_ns):
+                    continue
+                channel = self._channels[record.channel_id]
+                heapq.heappush(heap, (record.log_time, offset, i, (
+                    self._schemas.get(channel.schema_id), channel, record)))
 
     def _iter_stream(self, f: Any, wanted: set[str] | None, start_ns: int | None,
                      end_ns: int | None) -> Iterator[tuple[Schema | None, Channel, Message]]:

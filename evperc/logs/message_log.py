@@ -380,6 +380,20 @@ class LogReader:
             return out
         frame = self.lidar_frame if frame is None else frame
         poses = self._pose_source()
+        # the "lidar extrinsic for frame ..." line is about the lidar: not said for another
+        # frame (the GNSS antenna's, placed by the geo-reference before the run)
+        quiet = frame != self.lidar_frame and ("extrinsic", frame) not in self._said
+        if quiet:
+            self._said.add(("extrinsic", frame))
+        try:
+            self._positions(poses, frame, stamps, out)
+        finally:
+            if quiet:
+                self._said.discard(("extrinsic", frame))
+        return out
+
+    def _positions(self, poses: PoseSource, frame: str, stamps: np.ndarray,
+                   out: np.ndarray) -> None:
         order = np.argsort(stamps, kind="stable")
         queue = deque(int(i) for i in order)
         margin = self.max_gap_ns + WAIT_SLACK_NS
@@ -400,7 +414,6 @@ class LogReader:
             if queue:
                 poses.prune(int(stamps[queue[0]]))
         release(None)
-        return out
 
     @property
     def lidar_frame(self) -> str:

@@ -1,4 +1,4 @@
-"""Export a run as an MCAP file for Foxglove (``evperc export OUT --mcap FILE``).
+"""Export a run as an MCAP file for Foxglove (``evperc export RUN_DIR --out FILE``).
 
 Per frame, on ``/evperc/grid``, one ``foxglove.Grid`` (protobuf) in frame ``evperc`` (the
 run's working CRS, x east, y north, metres; ``--frame-id``): its ``pose`` is the window's
@@ -9,7 +9,7 @@ the row order of the run (docs/conventions.md). Each cell holds, little-endian::
     offset  0..19  betp_F, betp_I, betp_U, betp_S, betp_M   float32
     offset 20      zeta                                     float32
     offset 24      decision                                 uint8 (run.decision_codes)
-    offset 28..31  red, green, blue, alpha                  uint8: pignistic colour (SPEC §6)
+    offset 28..31  red, green, blue, alpha                  uint8: pignistic colour (method.md §6)
 
 ``cell_stride`` = 32 bytes, ``row_stride`` = 32 · cols. On ``/evperc/ego`` a
 ``foxglove.FrameTransform`` ``evperc`` → ``ego`` carries the vehicle pose (x, y, yaw). On
@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from evperc.errors import OutputError
+from evperc.progress import bar
 from evperc.render.colours import pignistic_colour
 
 log = logging.getLogger(__name__)
@@ -147,7 +148,7 @@ def export_mcap(run: Any, mcap_path: str | Path, *, frames: slice = slice(None),
 
     path = Path(mcap_path)
     if path.exists() and not overwrite:
-        raise OutputError(f"{path}: exists; pass --overwrite or choose another --mcap")
+        raise OutputError(f"{path}: exists; pass --overwrite or choose another --out")
     if not path.parent.is_dir():
         raise OutputError(f"{path}: folder {path.parent} does not exist")
     world_frame = run.manifest.get("world_frame")
@@ -179,7 +180,8 @@ def export_mcap(run: Any, mcap_path: str | Path, *, frames: slice = slice(None),
                 "world_frame": world_frame or "",
                 "decision_codes": json.dumps(dict(run.decision_codes), sort_keys=True),
                 "source": str(getattr(run, "out_dir", ""))})
-            for frame in select_frames(run, frames):
+            total = len(range(*frames.indices(len(run))))
+            for frame in bar(select_frames(run, frames), total=total, desc="export"):
                 stamp = int(frame.stamp_ns)
                 writer.add_message(channels[GRID_TOPIC], stamp, grid_message(frame, frame_id),
                                    stamp, sequence=count)

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from evperc import config as config_mod
-from evperc.errors import OutputError
+from evperc.errors import OutputError, WriteError
 from evperc.output import mass_tiles
 from evperc.output.layers import MASS_TILE, StoredOutputs
 from evperc.output.manifest import FORMAT_VERSION, MANIFEST, read_manifest
@@ -77,19 +77,29 @@ def chunk_frames_for(config: dict[str, Any], shape: tuple[int, int]) -> int:
     return max(1, min(int(config["output"]["chunk_frames"]), cap))
 
 
+def check_output_dir(out_dir: Path, overwrite: bool) -> bool:
+    """Refuse an existing non-empty ``out_dir`` unless ``overwrite`` (and then refuse one that
+    is not an evperc output); True if there is an old output to replace. Cheap: `evperc run`
+    calls it before any slow work, :func:`prepare_output_dir` again when it creates it."""
+    if not out_dir.exists():
+        return False
+    if not out_dir.is_dir():
+        raise OutputError(f"{out_dir}: exists and is not a directory")
+    if not any(out_dir.iterdir()):
+        return False
+    if not overwrite:
+        raise OutputError(f"{out_dir}: output directory exists; pass --overwrite to "
+                          "replace it or --out to choose another")
+    if not (out_dir / MANIFEST).exists():
+        raise OutputError(f"{out_dir}: exists and is not an evperc output; refusing "
+                          "to overwrite it, choose another --out")
+    return True
+
+
 def prepare_output_dir(out_dir: Path, overwrite: bool) -> None:
     """Create ``out_dir``; refuse an existing non-empty one unless ``overwrite``."""
-    if out_dir.exists():
-        if not out_dir.is_dir():
-            raise OutputError(f"{out_dir}: exists and is not a directory")
-        if any(out_dir.iterdir()):
-            if not overwrite:
-                raise OutputError(f"{out_dir}: output directory exists; pass --overwrite to "
-                                  "replace it or --out to choose another")
-            if not (out_dir / MANIFEST).exists():
-                raise OutputError(f"{out_dir}: exists and is not an evperc output; refusing "
-                                  "to overwrite it, choose another --out")
-            shutil.rmtree(out_dir)
+    if check_output_dir(out_dir, overwrite):
+        shutil.rmtree(out_dir)
     try:
         (out_dir / FRAMES_DIR).mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -404,7 +414,7 @@ class RunWriter:
                 self.manifest["frame_count"] = first + c.count
                 write_json(self.out_dir / MANIFEST, self.manifest)
         except OSError as err:
-            raise OutputError(f"{path}: cannot write chunk ({err.strerror or err})") from err
+            raise WriteError(f"{path}: cannot write chunk ({err.strerror or err})") from err
         finally:
             self.thread_seconds += time.perf_counter() - t0
             self.thread_cpu_s = time.thread_time()
@@ -425,7 +435,7 @@ class RunWriter:
             self.manifest["complete"] = True
             write_json(self.out_dir / MANIFEST, self.manifest)
         except OSError as err:
-            raise OutputError(f"{self.out_dir}: cannot write manifest ({err.strerror})") from err
+            raise WriteError(f"{self.out_dir}: cannot write manifest ({err.strerror})") from err
         finally:
             self._pool.shutdown(wait=True)
 

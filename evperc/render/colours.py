@@ -1,4 +1,4 @@
-"""Colour maths for grid layers (SPEC §6): whole-array numpy, one call per layer.
+"""Colour maths for grid layers (method.md §6): whole-array numpy, one call per layer.
 
 Every function maps ``(rows, cols, ...)`` arrays to ``(rows, cols, 3)`` uint8 RGB in the
 grid's own row order (row 0 = south); flipping for display is the compositor's job.
@@ -17,30 +17,42 @@ DEFAULT_DECISION_CODES: dict[str, int] = {
     "unknown": 0, "free": 1, "moving": 2, "static": 3, "stopped": 4, "infrastructure": 5,
     "unmapped": 6}
 
-#: Pignistic colour of each class, in the class order F, I, U, S, M (SPEC §6).
+#: Pignistic colour of each class, in the class order F, I, U, S, M (method.md §6). One hue
+#: per class, the same in every panel, and none of them a mixture of two others: a fading free
+#: cell ({F, M}: betP F = M = 0.5) is olive, which is no class's colour (issue 22).
 CLASS_COLOURS: dict[str, RGB] = {
     "F": (0, 255, 0),      # free: green
-    "I": (0, 0, 128),      # mapped infrastructure: dark blue
-    "U": (255, 255, 0),    # unmapped infrastructure: yellow
-    "S": (0, 0, 255),      # stopped: blue
+    "I": (0, 0, 255),      # mapped infrastructure: blue
+    "U": (255, 0, 255),    # unmapped infrastructure: magenta
+    "S": (255, 160, 0),    # stopped: orange
     "M": (255, 0, 0),      # moving: red
 }
 CLASS_NAMES = {"F": "free", "I": "infrastructure", "U": "unmapped", "S": "stopped",
                "M": "moving"}
 _CLASS_MATRIX = np.array(list(CLASS_COLOURS.values()), dtype=np.float32)  # (5, 3)
+#: undecided among I, U, S (the decision ``static``): a colour of its own, lighter than I's
+STATIC_COLOUR: RGB = (150, 150, 255)
+#: a free cell no longer seen fades through {F, M} (betP F = M = 0.5: olive), then {F, S, M}
+#: and {F, U, S, M} (each 0.25: brown), before it is unknown (method.md §5.3)
+FADING_COLOURS: dict[str, RGB] = {"free, fading": (128, 128, 0),
+                                  "free, faded": (191, 104, 64)}
 
 #: The paper's 4-colour decision view: static covers I, U, S and undecided `static`.
 DECISION4_COLOURS: dict[str, RGB] = {
-    "free": (0, 255, 0), "moving": (255, 0, 0), "static": (0, 0, 255), "unknown": (0, 0, 0)}
+    "free": CLASS_COLOURS["F"], "moving": CLASS_COLOURS["M"], "static": STATIC_COLOUR,
+    "unknown": (0, 0, 0)}
 DECISION4_OF_CODE = {"unknown": "unknown", "free": "free", "moving": "moving",
                      "static": "static", "stopped": "static", "infrastructure": "static",
                      "unmapped": "static"}
 
-#: Fine decision view: one colour per decision code (same hues as the pignistic colours).
+#: Fine decision view: one colour per decision code, the pignistic colours of the classes.
 DECISION6_COLOURS: dict[str, RGB] = {
-    "free": (0, 255, 0), "moving": (255, 0, 0), "stopped": (0, 0, 255),
-    "infrastructure": (0, 0, 128), "unmapped": (255, 255, 0), "static": (100, 150, 255),
-    "unknown": (0, 0, 0)}
+    "free": CLASS_COLOURS["F"], "moving": CLASS_COLOURS["M"], "stopped": CLASS_COLOURS["S"],
+    "infrastructure": CLASS_COLOURS["I"], "unmapped": CLASS_COLOURS["U"],
+    "static": STATIC_COLOUR, "unknown": (0, 0, 0)}
+
+#: a decision code the run names but the palette does not (a newer output format)
+UNNAMED_COLOUR: RGB = (255, 255, 128)
 
 #: Trace of moving objects over a dimmed 4-colour decision map.
 TRACE_COLOUR: RGB = (255, 0, 0)
@@ -56,16 +68,26 @@ CONFLICT_COLOURS: dict[str, RGB] = {"free-occ": (255, 0, 0), "occ-free": (0, 255
 
 
 def pignistic_colour(betp: np.ndarray) -> np.ndarray:
-    """Σ_θ betP(θ)·colour_θ over θ ∈ {F, I, U, S, M} (SPEC §6); ``betp`` is (..., 5)."""
+    """Σ_θ betP(θ)·colour_θ over θ ∈ {F, I, U, S, M} (method.md §6); ``betp`` is (..., 5)."""
     rgb = np.asarray(betp, dtype=np.float32) @ _CLASS_MATRIX
     return np.clip(rgb + 0.5, 0, 255).astype(np.uint8)
 
 
+def pignistic_colour_known(betp: np.ndarray, m_omega: np.ndarray) -> np.ndarray:
+    """:func:`pignistic_colour` dimmed by the ignorance: × (1 − m(Ω)), so that unknown cells
+    are black as in the decision panels (a vacuous cell's betP is uniform, which would
+    otherwise paint it a mixture of all five colours)."""
+    rgb = np.asarray(betp, dtype=np.float32) @ _CLASS_MATRIX
+    known = 1.0 - np.clip(np.asarray(m_omega, dtype=np.float32), 0.0, 1.0)
+    return np.clip(rgb * known[..., None] + 0.5, 0, 255).astype(np.uint8)
+
+
 def decision_lut(decision_codes: Mapping[str, int], colours: Mapping[str, RGB],
                  name_of: Mapping[str, str] | None = None) -> np.ndarray:
-    """A (256, 3) uint8 look-up table code → colour; codes not named are magenta."""
+    """A (256, 3) uint8 look-up table code → colour; codes not named are
+    :data:`UNNAMED_COLOUR`."""
     lut = np.zeros((256, 3), dtype=np.uint8)
-    lut[:] = (255, 0, 255)
+    lut[:] = UNNAMED_COLOUR
     for name, code in decision_codes.items():
         key = name_of.get(name, name) if name_of is not None else name
         if key in colours:

@@ -1,4 +1,4 @@
-"""Rendering one frame of a run into layer panels and a picture (SPEC §6).
+"""Rendering one frame of a run into layer panels and a picture (method.md §6).
 
 ``FrameRenderer`` keeps the state that spans frames (the moving trace, the time origin, the
 cached picture template), so ``evperc run --render`` and ``evperc render`` share it:
@@ -25,7 +25,7 @@ from evperc.render.map_outlines import BUILDING_OUTLINE, ROAD_OUTLINE, MapOutlin
 from evperc.render.trace import MovingTrace
 
 LAYER_TITLES: dict[str, str] = {
-    "betp": "pignistic colour (betP)",
+    "betp": "pignistic colour (betP), dark where unknown",
     "decision": "decision",
     "decision6": "decision (fine)",
     "trace": "moving trace",
@@ -33,7 +33,8 @@ LAYER_TITLES: dict[str, str] = {
     "conflict": "conflict",
 }
 LAYERS = tuple(LAYER_TITLES)
-DEFAULT_LAYERS = ("betp", "decision", "trace")
+#: the fine decision by default: with a map, infrastructure (and unmapped) cells show
+DEFAULT_LAYERS = ("betp", "decision6", "trace")
 
 
 def parse_layers(text: str) -> tuple[str, ...]:
@@ -48,12 +49,14 @@ def parse_layers(text: str) -> tuple[str, ...]:
 
 def _legend(layer: str, codes: Mapping[str, int]) -> tuple[tuple[c.RGB, str], ...]:
     if layer == "betp":
-        return tuple((rgb, c.CLASS_NAMES[k]) for k, rgb in c.CLASS_COLOURS.items())
+        return (*((rgb, c.CLASS_NAMES[k]) for k, rgb in c.CLASS_COLOURS.items()),
+                *((rgb, name) for name, rgb in c.FADING_COLOURS.items()),
+                ((0, 0, 0), "unknown"))
     if layer == "decision":
         return tuple((rgb, name) for name, rgb in c.DECISION4_COLOURS.items())
     if layer == "decision6":
         ordered = sorted(codes, key=lambda name: codes[name])
-        return tuple((c.DECISION6_COLOURS.get(name, (255, 0, 255)), name) for name in ordered)
+        return tuple((c.DECISION6_COLOURS.get(name, c.UNNAMED_COLOUR), name) for name in ordered)
     if layer == "trace":
         return ((c.TRACE_COLOUR, "moving so far"),)
     if layer == "zeta":
@@ -92,7 +95,10 @@ class FrameRenderer:
     def layer_rgb(self, layer: str, frame: Any, trace: np.ndarray | None = None) -> np.ndarray:
         """(rows, cols, 3) uint8 colours of one layer, grid row order (row 0 = south)."""
         if layer == "betp":
-            return c.pignistic_colour(frame.betp)
+            masses = getattr(frame, "masses", None)
+            if masses is None:
+                return c.pignistic_colour(frame.betp)
+            return c.pignistic_colour_known(frame.betp, np.asarray(masses)[..., -1])
         if layer == "decision":
             return c.apply_lut(frame.decision, self._lut4)
         if layer == "decision6":

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from evperc.errors import MapError, OutputError, UsageError
+from evperc.progress import bar
 from evperc.render.compose import Compositor
 from evperc.render.frame import DEFAULT_LAYERS, FrameRenderer
 from evperc.render.map_outlines import MapOutlines
@@ -133,11 +134,11 @@ def _first_stamp(run: Any) -> int | None:
 
 def prepare_dest(dest: Path, overwrite: bool) -> None:
     if dest.exists() and not dest.is_dir():
-        raise OutputError(f"{dest}: exists and is not a directory; choose another --dest")
+        raise OutputError(f"{dest}: exists and is not a directory; choose another --out")
     old = sorted(dest.glob("frame_*.png")) if dest.is_dir() else []
     if old and not overwrite:
         raise OutputError(f"{dest}: already holds frame_*.png; pass --overwrite or choose "
-                          "another --dest")
+                          "another --out")
     try:
         dest.mkdir(parents=True, exist_ok=True)
         for path in old:
@@ -146,12 +147,18 @@ def prepare_dest(dest: Path, overwrite: bool) -> None:
         raise OutputError(f"{dest}: cannot write ({err.strerror})") from err
 
 
+def slice_text(frames: slice) -> str:
+    """``--frames`` as the user writes it: ``A:B:STEP`` (empty parts left out)."""
+    parts = ["" if v is None else str(v) for v in (frames.start, frames.stop, frames.step)]
+    return ":".join(parts[:2]) + (f":{parts[2]}" if parts[2] else "")
+
+
 def render_run(req: RenderRequest) -> dict[str, Any]:
     """Render the selected frames; returns ``{"frames", "dest", "gif", "size"}``."""
     import imageio.v3 as iio
 
     if req.dest is None and req.gif is None:
-        raise UsageError("give --dest DIR for PNG frames and/or --gif FILE")
+        raise UsageError("give --out DIR for PNG frames and/or --gif FILE")
     if req.fps <= 0:
         raise UsageError(f"--fps {req.fps}: must be positive")
     if req.gif is not None and req.gif.exists() and not req.overwrite:
@@ -174,6 +181,9 @@ def render_run(req: RenderRequest) -> dict[str, Any]:
         renderer_b = FrameRenderer(req.layers, run_b.decision_codes, t0_ns=t0,
                                    outlines=req.outlines, label=_label(run_b))
     n_selected = len(range(*req.frames.indices(len(run_a))))
+    if n_selected == 0:
+        raise UsageError(f"--frames {slice_text(req.frames)} selects none of the {len(run_a)} "
+                         f"frames of {getattr(run_a, 'out_dir', 'the run')}")
     # every frame up to the last picked one feeds the trace; only picked ones are drawn
     marked = mark_frames(run_a, req.frames)
     stream: Iterator[tuple[Any, Any, bool]]
@@ -185,6 +195,7 @@ def render_run(req: RenderRequest) -> dict[str, Any]:
     gif_writer = None
     count = 0
     size: tuple[int, int] | None = None
+    progress = bar(total=n_selected, desc="render")
     try:
         for frame_a, frame_b, picked in stream:
             if not picked or (renderer_b is not None and frame_b is None):
@@ -214,15 +225,21 @@ def render_run(req: RenderRequest) -> dict[str, Any]:
                     gif_writer = iio.imopen(req.gif, "w", extension=".gif")
                 gif_writer.write(image, duration=1000.0 / req.fps, loop=0)
             count += 1
+            progress.update()
     except BaseException:
         if gif_writer is not None:
             gif_writer.close()
             req.gif.unlink(missing_ok=True)    # no half-written animation
         raise
+    finally:
+        progress.close()
     if gif_writer is not None:
         gif_writer.close()
     if count == 0:
-        log.warning("no frame rendered (selection %s of %d frames)", req.frames, len(run_a))
+        raise UsageError(f"--frames {slice_text(req.frames)}: no frame drawn (none of the "
+                         f"selected frames has a frame of --compare at its stamp)"
+                         if renderer_b is not None else
+                         f"--frames {slice_text(req.frames)}: no frame drawn")
     return {"frames": count, "dest": req.dest, "gif": req.gif if count else None,
             "size": size}
 

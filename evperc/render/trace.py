@@ -1,4 +1,4 @@
-"""Trace of moving objects (SPEC §6), kept on the global lattice while the window scrolls.
+"""Trace of moving objects (method.md §6), kept on the global lattice while the window scrolls.
 
 The trace is the set of world cells decided ``moving`` at any frame so far. It lives in
 square tiles of ``tile_cells`` cells keyed by ``(iy // tile_cells, ix // tile_cells)`` of the

@@ -1,4 +1,4 @@
-"""Lidar sensor models producing {F, O} mass grids (SPEC §3)."""
+"""Lidar sensor models producing {F, O} mass grids (method.md §3)."""
 
 from evperc.sensor.grid import sensor_grid
 from evperc.sensor.params import SensorParams

@@ -1,4 +1,4 @@
-"""Beam geometry: lidar points in the sensor's horizontal frame and on its polar grid (SPEC §3).
+"""Beam geometry: lidar points in the sensor's horizontal frame and on its polar grid (method §3).
 
 The *horizontal sensor frame* has its origin at the sensor, z vertical (the CRS up axis) and
 x along the sensor's heading ψ, the CRS azimuth of the sensor's x axis projected on the

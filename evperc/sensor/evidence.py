@@ -1,4 +1,4 @@
-"""Evidence per beam: the state of every polar cell of one azimuth bin (SPEC §3, Moras 2011).
+"""Evidence per beam: the state of every polar cell of one azimuth bin (method.md §3, Moras 2011).
 
 Per azimuth bin ``a``, with ``k_o`` the range bin of its nearest obstacle point and ``k_g``
 the range bin of its furthest ground point:

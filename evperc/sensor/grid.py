@@ -1,4 +1,4 @@
-"""The sensor grid of one scan: {F, O} masses on the window (SPEC §3, Moras 2011)."""
+"""The sensor grid of one scan: {F, O} masses on the window (method.md §3, Moras 2011)."""
 
 from __future__ import annotations
 

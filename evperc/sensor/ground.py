@@ -1,4 +1,4 @@
-"""Ground / obstacle split of 3-D clouds by height above a local ground estimate (SPEC §3).
+"""Ground / obstacle split of 3-D clouds by height above a local ground estimate (method.md §3).
 
 Local ground estimate, per cell of a coarse polar partition (sectors of ``SECTOR_DEG``
 azimuth × bands of ``BAND_M`` horizontal range):

@@ -1,4 +1,4 @@
-"""Parameters of the lidar sensor model (SPEC §3), read from the config's ``[sensor]`` table."""
+"""Parameters of the lidar sensor model (method §3), read from the config's ``[sensor]`` table."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from typing import Any
 class SensorParams:
     """Moras 2011 sensor-model parameters; units in the field names.
 
-    ``range_bin_m`` is the depth of a polar range bin (SPEC §3: the cell size); ``None`` means
+    ``range_bin_m`` is the depth of a polar range bin (method.md §3: the cell size); ``None`` means
     the resolution of the window the grid is computed on.
     """
 

@@ -1,4 +1,4 @@
-"""Visiting world cells: the polar grid mapped onto the window (SPEC §3, polar → world).
+"""Visiting world cells: the polar grid mapped onto the window (method.md §3, polar → world).
 
 Three passes fill a uint8 state per window cell (UNKNOWN 0 < FREE 1 < OCCUPIED 2) so that
 occupied wins over free over unknown wherever several polar cells meet one world cell: the

@@ -29,6 +29,7 @@ import shapely
 
 from evperc.errors import OutputError
 from evperc.geo.window import Window, overlap
+from evperc.progress import bar
 from evperc.sim import lidar as lidar_mod
 from evperc.sim.rosout import DriveWriter
 from evperc.sim.scene import FREE, Scene, Solids, build_scene, read_map_layers
@@ -101,7 +102,8 @@ def simulate(req: SimRequest) -> dict[str, Any]:
                         scene.crs.to_string(), meta, int(cfg["output"]["chunk_frames"]))
     counts = []
     ex, ey, eyaw, _ = ego.pose(t_scan)
-    for k in range(n_scans):  # one scan per iteration; everything inside is vectorised
+    for k in bar(range(n_scans), total=n_scans, desc="simulate", unit="scan"):
+        # one scan per iteration; everything inside is vectorised
         ns = START_NS + int(round(t_scan[k] * 1e9))
         lx, ly = lidar_xy[k]
         movers = agents.at(k)

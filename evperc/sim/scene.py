@@ -1,6 +1,6 @@
 """The simulated world: mapped buildings, unmapped street furniture, all in the working CRS.
 
-Classes (SPEC §1): buildings are I (they are in the map file); poles, trees, bollards and
+Classes (method.md §1): buildings are I (they are in the map file); poles, trees, bollards and
 fences are U (never written to the map); vehicles and pedestrians are agents
 (:mod:`evperc.sim.traffic`), S or M depending on their speed at each instant.
 

@@ -5,7 +5,7 @@ Rules (cell = its centre, docs/conventions.md):
   its reference point (centre) in the cell — so every object covers at least one cell;
   buildings I, street furniture U, agents S or M at that instant; everything else F.
   Priority where footprints overlap: M > S > U > I > F.
-- visible: what a lidar can tell about the cell in this scan, as the sensor model (SPEC §3)
+- visible: what a lidar can tell about the cell in this scan, as the sensor model (method.md §3)
   sees it: along each azimuth (the one nearest to the cell centre), up to the nearest
   return off the ground if there is one — upper layers passing over a car say nothing about
   the cells behind it — else up to the farthest ground return; plus the cells holding those

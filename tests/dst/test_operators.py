@@ -86,7 +86,7 @@ def test_refine_refuses_non_refinings(mapping) -> None:
         refine(np.array([0, 0, 0, 1.0]), mapping, FRAME)
 
 
-# Specialisation by ζ (SPEC §5.7)
+# Specialisation by ζ (method.md §5.7)
 
 def _m(focal: dict[str, float]) -> np.ndarray:
     return FRAME.vector({tuple(k): v for k, v in focal.items()})
@@ -119,7 +119,7 @@ def test_specialise_per_cell_zeta_and_extremes() -> None:
     assert out[1, 8] == pytest.approx(m[1, 8] + m[1, 16] + m[1, 24], abs=1e-7)
 
 
-# Conflict parts (SPEC §5.4)
+# Conflict parts (method.md §5.4)
 
 def test_conflict_parts_hand_worked() -> None:
     prev = np.stack([

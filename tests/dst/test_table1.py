@@ -1,4 +1,4 @@
-"""Paper Table 1 (Kurdej et al. 2013) with the corrections of SPEC §2.
+"""Paper Table 1 (Kurdej et al. 2013) with the corrections of method.md §2.
 
 m1 = {a: .2, b: .6, Ω: .2}, m2 = {a: .7, b: .1, Ω: .2} on Ω = {a, b}; vectors are
 (∅, a, b, Ω). Each value below is worked by hand in the test's comment.

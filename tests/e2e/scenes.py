@@ -45,7 +45,7 @@ def cast(origin: np.ndarray, angles: np.ndarray, segs: np.ndarray, max_range: fl
 
 def write_street_drive(path: Path, n_scans: int = 40, speed_mps: float = 5.0,
                        with_car: bool = True, beams: int = 720,
-                       chunk_size: int = 1024 * 1024) -> Path:
+                       chunk_size: int = 1024 * 1024, poses_first: bool = False) -> Path:
     """The street drive as ROS 2 MCAP: /scan LaserScan in ``laser`` at 10 Hz, /odom
     map→base_link, /tf_static base_link→laser (0.5 m forward)."""
     angles = -np.pi + np.arange(beams) * (2 * np.pi / beams)
@@ -61,4 +61,4 @@ def write_street_drive(path: Path, n_scans: int = 40, speed_mps: float = 5.0,
                                                                           * n_scans)))
     return write_ros2_mcap(path, laserscans=scans, scan_range=(0.1, 75.0), odometry=odom,
                            tf_static=[("base_link", "laser", transform(x=0.5))],
-                           chunk_size=chunk_size)
+                           chunk_size=chunk_size, poses_first=poses_first)

@@ -1,4 +1,4 @@
-"""SPEC §5–§6 written out per cell in plain Python (dicts of frozensets, no numpy).
+"""method.md §5–§6 written out per cell in plain Python (dicts of frozensets, no numpy).
 
 An oracle for :mod:`evperc.fusion.twin`: it shares no code with evperc.dst or the pipeline.
 """

@@ -1,4 +1,4 @@
-"""Behaviour of the fusion step with the default parameters on single cells (SPEC §6).
+"""Behaviour of the fusion step with the default parameters on single cells (method.md §6).
 
 Scans are given as sequences of per-cell sensor states: 'f' free, 'o' occupied, '-' unseen.
 """

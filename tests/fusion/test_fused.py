@@ -1,6 +1,6 @@
 """The fused numba step (evperc.fusion.fused) against numpy fusion_step + decide (float64) and
-against the per-cell plain-Python reference of SPEC §5 (tests/fusion/reference.py); its circular
-buffer against geo.window.scroll; its stored outputs against evperc.output.quantise."""
+against the per-cell plain-Python reference of method.md §5 (tests/fusion/reference.py); its
+circular buffer against geo.window.scroll; its stored outputs against evperc.output.quantise."""
 
 from __future__ import annotations
 
@@ -121,7 +121,7 @@ def near_zeta_threshold(pg, zeta, free, occ, prior, observed, dt, params) -> np.
 
 
 def decision_margin(betp: np.ndarray, m_omega: np.ndarray, params: FusionParams) -> np.ndarray:
-    """Distance of each cell to the nearest tie or threshold of the decision rule (SPEC §6)."""
+    """Distance of each cell to the nearest tie or threshold of the decision rule (method.md §6)."""
     infra, unmapped, stopped = betp[..., 1], betp[..., 2], betp[..., 3]
     static = infra + unmapped + stopped
     coarse = np.sort(np.stack([betp[..., 0], betp[..., 4], static], -1), -1)
@@ -572,7 +572,7 @@ def scrolled_frames(rng: np.random.Generator, shape: tuple[int, int], frames: in
 
 @pytest.mark.parametrize("seed", range(6))
 def test_compact_layout_equals_dense(seed: int) -> None:
-    """SPEC §1: the compact layout (a block reads and writes only the planes its cells'
+    """method.md §1: the compact layout (a block reads and writes only the planes its cells'
     focal sets use) is exactly the dense one (every plane read and written, focal sets all
     set): bit for bit, state, ζ and outputs, over scrolled frames and every option."""
     rng = np.random.default_rng(700 + seed)

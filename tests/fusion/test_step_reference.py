@@ -1,4 +1,4 @@
-"""The vectorised fusion step against the per-cell plain-Python reference of SPEC §5."""
+"""The vectorised fusion step against the per-cell plain-Python reference of method.md §5."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Working CRS choice (SPEC §7): UTM zones, config override, metric check, transformers."""
+"""Working CRS choice (method.md §7): UTM zones, config override, metric check, transformers."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Geo-referencing a local pose frame (SPEC §7): origin + heading, GNSS fit, identity.
+"""Geo-referencing a local pose frame (method.md §7): origin + heading, GNSS fit, identity.
 
 Expected positions are computed with pyproj's Geod (on the ellipsoid) and Transformer
 independently of the code under test."""

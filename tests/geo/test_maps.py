@@ -1,4 +1,4 @@
-"""Map loading (SPEC §4, §7): real OSM extracts, other CRSs, OSM-style files, repair, errors.
+"""Map loading (method.md §4, §7): real OSM extracts, other CRSs, OSM-style files, repair, errors.
 
 Expected values come from the raw files read with json / fiona and projected with pyproj
 directly, never from evperc's own output."""

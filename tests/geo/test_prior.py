@@ -1,4 +1,4 @@
-"""The GIS prior grid (SPEC §4): cell-centre classification against a brute-force check,
+"""The GIS prior grid (method.md §4): cell-centre classification against a brute-force check,
 edge cases, priority, the tile cache, and the prior masses."""
 
 from __future__ import annotations

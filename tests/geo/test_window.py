@@ -1,4 +1,4 @@
-"""The scrolling window on the global lattice (SPEC §7), edges tested as grid_map does."""
+"""The scrolling window on the global lattice (method.md §7), edges tested as grid_map does."""
 
 from __future__ import annotations
 

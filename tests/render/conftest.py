@@ -43,8 +43,12 @@ def write_run(out: Path, frames: list[SimpleNamespace], crs: str = "EPSG:32631")
             "cols": first.window.cols}
     writer = RunWriter(out, config, meta)
     for f in frames:
+        # masses that agree with the betP given: each class's betP on its singleton (a
+        # Bayesian mass function, whose betP is itself); cells with no betP are vacuous
         masses = np.zeros(f.window.shape + (32,), np.float32)
-        masses[..., 31] = 1.0
+        for k in range(5):
+            masses[..., 1 << k] = f.betp[..., k]
+        masses[..., 31] = 1.0 - f.betp.sum(axis=-1)
         writer.add(f.stamp_ns, f.pose, f.origin, masses, f.betp, f.decision, f.zeta, f.conflict)
     writer.close({"frames": len(frames)})
     return out

@@ -82,10 +82,11 @@ def test_export_round_trip(tmp_path: Path) -> None:
     assert field_value(grid, "decision", 0, 1) == CODES["moving"]
     assert field_value(grid, "decision", 2, 3) == CODES["infrastructure"]   # last row = north
     assert field_value(grid, "decision", 0, 3) == CODES["free"]
-    # pignistic colour as RGBA fields: .25·I + .25·U + .5·M = (191, 64, 32); the stored
+    # pignistic colour as RGBA fields: .25·I(0,0,255) + .25·U(255,0,255) + .5·M(255,0,0)
+    # = (191, 0, 128); the stored
     # betP is within 1/255, which may move a channel by one step
     rgb = [field_value(grid, name, 0, 1) for name in ("red", "green", "blue", "alpha")]
-    assert np.allclose(rgb, [191.0, 64.0, 32.0, 255.0], atol=1.0)
+    assert np.allclose(rgb, [191.0, 0.0, 128.0, 255.0], atol=1.0)
     _, _, _, tf = tfs[2]
     assert (tf.parent_frame_id, tf.child_frame_id) == ("evperc", "ego")
     assert (tf.translation.x, tf.translation.y) == (3.5, -2.0)

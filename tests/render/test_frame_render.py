@@ -7,6 +7,7 @@ import math
 import numpy as np
 import shapely
 
+from evperc.render.colours import CLASS_COLOURS, STATIC_COLOUR
 from evperc.render.frame import FrameRenderer, render_frame
 from evperc.render.map_outlines import MapOutlines
 from tests.render.conftest import CODES, make_frame
@@ -29,7 +30,7 @@ def test_cells_land_north_up_with_their_colours() -> None:
     frame.decision[7, 9] = CODES["infrastructure"]   # north-east corner
     frame.decision[7, 0] = CODES["unknown"]          # north-west corner
     frame.betp[7, 0] = [0, 0, 0, 0, 1]               # moving: red
-    frame.betp[0, 9] = [0, 0, 1, 0, 0]               # unmapped: yellow
+    frame.betp[0, 9] = [0, 0, 1, 0, 0]               # unmapped: magenta
     renderer = FrameRenderer(("betp", "decision"), CODES, cell_px=10)
     image = renderer.render(frame)
     layout = renderer.layout
@@ -40,10 +41,10 @@ def test_cells_land_north_up_with_their_colours() -> None:
         return tuple(int(v) for v in image[y, x])
 
     assert at(0, 7, 0) == (255, 0, 0)
-    assert at(0, 0, 9) == (255, 255, 0)
+    assert at(0, 0, 9) == (255, 0, 255)
     assert at(0, 3, 3) == (0, 255, 0)
     assert at(1, 0, 0) == (255, 0, 0)
-    assert at(1, 7, 9) == (0, 0, 255)       # infrastructure is static: blue in 4 colours
+    assert at(1, 7, 9) == (150, 150, 255)   # infrastructure is static in 4 colours
     assert at(1, 7, 0) == (0, 0, 0)
     assert at(1, 4, 4) == (0, 255, 0)
     # the south-west cell is the bottom-left block of the panel: its 10x10 pixels are red
@@ -66,7 +67,7 @@ def test_fine_decision_and_zeta_and_conflict_layers() -> None:
         y, x = cell_pixel(layout, j, row, col, rows)
         return tuple(int(v) for v in image[y, x])
 
-    assert at(0, 1, 2) == (255, 255, 0)
+    assert at(0, 1, 2) == (255, 0, 255)
     assert at(0, 0, 0) == (0, 255, 0)
     assert at(1, 2, 1) == (252, 255, 164) and at(1, 0, 0) == (0, 0, 0)
     assert at(2, 3, 3) == (255, 0, 0) and at(2, 0, 0) == (0, 0, 0)
@@ -82,15 +83,16 @@ def test_legend_swatches_are_in_the_legend_region() -> None:
     image = renderer.render(frame)
     layout = renderer.layout
     for j, colours in enumerate([
-            [(0, 255, 0), (0, 0, 128), (255, 255, 0), (0, 0, 255), (255, 0, 0)],
-            [(0, 255, 0), (255, 0, 0), (0, 0, 255), (0, 0, 0)]]):
+            [(0, 255, 0), (0, 0, 255), (255, 0, 255), (255, 160, 0), (255, 0, 0),
+             (128, 128, 0), (191, 104, 64), (0, 0, 0)],
+            [(0, 255, 0), (255, 0, 0), (150, 150, 255), (0, 0, 0)]]):
         left, top, right, bottom = layout.legend_box(0, j)
         region = image[top:bottom, left:right]
         for rgb in colours:
             assert count_colour(region, rgb) >= 64, (j, rgb)   # an 8x8 swatch at least
     # the betP panel is all free (green): its legend colours other than green are legend-only
     left, top, right, bottom = layout.panel_box(0, 0)
-    assert count_colour(image[top:bottom, left:right], (255, 255, 0)) == 0
+    assert count_colour(image[top:bottom, left:right], (255, 0, 255)) == 0
 
 
 def longest_dark_run(region: np.ndarray) -> int:
@@ -138,7 +140,10 @@ def ego_pixels(yaw: float) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
     left, top = renderer.layout.panel_origin(0, 0)
     px = renderer.layout.cell_px
     centre = (top + int(round((rows - 10.0 / 0.5) * px)), left + int(round(10.0 / 0.5 * px)))
-    ys, xs = np.nonzero(np.all(image == (255, 0, 255), axis=-1))
+    from evperc.render.compose import EGO_FILL
+
+    assert EGO_FILL not in (*CLASS_COLOURS.values(), STATIC_COLOUR)
+    ys, xs = np.nonzero(np.all(image == EGO_FILL, axis=-1))
     return ys, xs, centre
 
 

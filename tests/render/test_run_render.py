@@ -118,7 +118,7 @@ def test_compare_matches_frames_by_stamp(tmp_path: Path) -> None:
 def test_usage_errors_are_one_line_exit_2(tmp_path: Path) -> None:
     out = write_run(tmp_path / "run", drive(2))
     result = invoke("render", str(out))
-    assert result.exit_code == 2 and "--dest" in result.output
+    assert result.exit_code == 2 and "--out" in result.output
     result = invoke("render", str(out), "--dest", str(tmp_path / "d"), "--layers", "betp,foo")
     assert result.exit_code == 2 and "foo" in result.output
     dest = tmp_path / "again"
@@ -156,7 +156,7 @@ def test_too_big_gif_is_refused_before_writing(tmp_path: Path, monkeypatch) -> N
     assert not gif.exists()
 
 
-def test_unknown_decision_code_name_is_drawn_magenta() -> None:
+def test_unknown_decision_code_name_is_drawn_in_the_unnamed_colour() -> None:
     from evperc.render.frame import FrameRenderer
 
     codes = {**CODES, "mystery": 9}
@@ -166,4 +166,4 @@ def test_unknown_decision_code_name_is_drawn_magenta() -> None:
     image = renderer.render(frame)
     for j in (0, 1):
         left, top = renderer.layout.panel_origin(0, j)
-        assert tuple(image[top + 4 + 2, left + 2]) == (255, 0, 255)
+        assert tuple(image[top + 4 + 2, left + 2]) == (255, 255, 128)

@@ -1,4 +1,4 @@
-"""The moving trace lives on the global lattice while the window scrolls (SPEC §6, §7)."""
+"""The moving trace lives on the global lattice while the window scrolls (method.md §6, §7)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""SPEC §3 sensor grid written out per point and per cell in plain Python (math, lists, dicts).
+"""method.md §3 sensor grid written out per point and per cell in plain Python (math, lists, dicts).
 
 An oracle for :mod:`evperc.sensor`: it shares no code with it. It follows the documented
 model of evperc.sensor (levelling, polar bins centred on multiples of Δ, the histogram

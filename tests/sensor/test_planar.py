@@ -1,4 +1,4 @@
-"""2-D scans: one wall point, hand-worked cell by cell (SPEC §3)."""
+"""2-D scans: one wall point, hand-worked cell by cell (method.md §3)."""
 
 from __future__ import annotations
 
