@@ -94,59 +94,76 @@ def gate_step(state: GateState, free: np.ndarray, occupied: np.ndarray, dt_s: fl
 def _gate_pass(times, ever, off_r, off_c, dr, dc, free, occ, dt, min_free, t_free,
                t_revoke, t_gap, marks, gate):  # pragma: no cover - compiled
     """Pass 1: each cell's times (reset where it entered the window) and its marks (bit 0:
-    R, free long enough; bit 1: V, revoking); pass 2: ``ever`` from the 3 × 3 marks, and
-    the gate layer."""
+    R, free long enough; bit 1: V, revoking); pass 2: the 3 × 3 AND of R and OR of V,
+    separably (a row pass into ``gate``, then a column pass), ``ever`` and the gate layer.
+    Branch-free inner loops over the two parts of a window row that are contiguous in the
+    circular buffer (LLVM vectorises them)."""
     rows, cols = ever.shape
     free_s, occ_s, quiet_s = times[0], times[1], times[2]
+    zero, minus = np.float32(0.0), np.float32(-1.0)
+    lo = min(max(-dc, 0), cols)  # window columns [lo, hi) were in the previous window
+    hi = max(min(cols - dc, cols), lo)
     for r in range(rows):
         br = r + off_r
         br = br - rows if br >= rows else br
-        row_in = 0 <= r + dr < rows
-        for c in range(cols):
-            bc = c + off_c
-            bc = bc - cols if bc >= cols else bc
-            if not (row_in and 0 <= c + dc < cols):  # entered the window
-                free_s[br, bc] = -1.0
-                occ_s[br, bc] = 0.0
-                quiet_s[br, bc] = NEVER
-                ever[br, bc] = 0
-            fs = free_s[br, bc]
-            qs = quiet_s[br, bc] + dt
-            mark = 0
-            if occ[r, c] > 0:
-                run = occ_s[br, bc] + qs if qs <= t_gap + SLACK else np.float32(0.0)
+        row_lo, row_hi = (lo, hi) if 0 <= r + dr < rows else (0, 0)
+        for seg in range(2):
+            a0 = 0 if seg == 0 else cols - off_c
+            a1 = cols - off_c if seg == 0 else cols
+            shift_c = off_c if seg == 0 else off_c - cols
+            for c in range(a0, a1):  # entered the window: reset
+                if c < row_lo or c >= row_hi:
+                    bc = c + shift_c
+                    free_s[br, bc] = minus
+                    occ_s[br, bc] = zero
+                    quiet_s[br, bc] = NEVER
+                    ever[br, bc] = 0
+            for c in range(a0, a1):
+                bc = c + shift_c
+                o = occ[r, c] > zero
+                fr = free[r, c] >= min_free
+                fs = free_s[br, bc]
+                qs = quiet_s[br, bc] + dt
+                run = (occ_s[br, bc] + qs) if qs <= t_gap + SLACK else zero
+                run = run if o else occ_s[br, bc]
+                grown = zero if fs < zero else fs + dt
+                fs = minus if o else (grown if fr else fs)
+                qs = qs if qs < NEVER else NEVER
                 occ_s[br, bc] = run
-                qs = np.float32(0.0)
-                fs = np.float32(-1.0)
-                if run >= t_revoke - SLACK:
-                    mark = 2
-            elif free[r, c] >= min_free:
-                fs = np.float32(0.0) if fs < 0 else fs + dt
-            free_s[br, bc] = fs
-            quiet_s[br, bc] = qs if qs < NEVER else NEVER
-            if fs >= t_free - SLACK:
-                mark = 1
-            marks[r, c] = mark
+                free_s[br, bc] = fs
+                quiet_s[br, bc] = zero if o else qs
+                marks[r, c] = (np.uint8(2) if (o & (run >= t_revoke - SLACK)) else np.uint8(0)) \
+                    | (np.uint8(1) if fs >= t_free - SLACK else np.uint8(0))
+    # row pass: bit 0 the AND of R over (c − 1, c, c + 1), bit 1 the OR of V; outside the
+    # window R is false
+    for r in range(rows):
+        for c in range(1, cols - 1):
+            a, b, d = marks[r, c - 1], marks[r, c], marks[r, c + 1]
+            gate[r, c] = (a & b & d & np.uint8(1)) | ((a | b | d) & np.uint8(2))
+        if cols > 1:
+            gate[r, 0] = (marks[r, 0] | marks[r, 1]) & np.uint8(2)
+            gate[r, cols - 1] = (marks[r, cols - 2] | marks[r, cols - 1]) & np.uint8(2)
+        elif cols == 1:
+            gate[r, 0] = marks[r, 0] & np.uint8(2)
+    # column pass into marks (R and V of the 3 × 3 block), then ever and the gate
+    for r in range(rows):
+        up = max(r - 1, 0)
+        down = min(r + 1, rows - 1)
+        inner = np.uint8(1) if (0 < r < rows - 1) else np.uint8(0)
+        for c in range(cols):
+            a, b, d = gate[up, c], gate[r, c], gate[down, c]
+            marks[r, c] = (a & b & d & inner) | ((a | b | d) & np.uint8(2))
     for r in range(rows):
         br = r + off_r
         br = br - rows if br >= rows else br
-        for c in range(cols):
-            bc = c + off_c
-            bc = bc - cols if bc >= cols else bc
-            all_free = 1
-            revoke = 0
-            for y in range(r - 1, r + 2):
-                for x in range(c - 1, c + 2):
-                    if 0 <= y < rows and 0 <= x < cols:
-                        m = marks[y, x]
-                        all_free &= m & 1
-                        revoke |= m >> 1
-                    else:
-                        all_free = 0
-            e = ever[br, bc]
-            if revoke:
-                e = 0
-            elif all_free:
-                e = 1
-            ever[br, bc] = e
-            gate[r, c] = e
+        for seg in range(2):
+            a0 = 0 if seg == 0 else cols - off_c
+            a1 = cols - off_c if seg == 0 else cols
+            shift_c = off_c if seg == 0 else off_c - cols
+            for c in range(a0, a1):
+                bc = c + shift_c
+                m = marks[r, c]
+                e = ever[br, bc]
+                e = np.uint8(0) if m & np.uint8(2) else (np.uint8(1) if m & np.uint8(1) else e)
+                ever[br, bc] = e
+                gate[r, c] = e
