@@ -19,6 +19,7 @@ import numpy as np
 
 from evperc.errors import GeoreferenceError, OutputError, PoseError
 from evperc.fusion.fused import StoredOutputs, count_codes, focal_sets, fused_step, vacuous_flags
+from evperc.fusion.gate import GateState, gate_step
 from evperc.fusion.twin import CLASSES, DECISION_CODES, OMEGA, FusionParams
 from evperc.geo import georef as georef_mod
 from evperc.geo.crs import working_crs
@@ -155,13 +156,16 @@ class FusionState:
     ``pg`` (planar ``(32, rows, cols)`` masses) and ``zeta`` are circular buffers: window
     cell ``(r, c)`` is buffer cell ``((r + offset[0]) % rows, (c + offset[1]) % cols)``
     (:func:`evperc.fusion.fused.fused_step`); ``flags`` marks the exactly vacuous cells and
-    ``focal`` holds each cell's focal sets (bitmask), both derived from ``pg`` on load."""
+    ``focal`` holds each cell's focal sets (bitmask), both derived from ``pg`` on load;
+    ``gate`` is the motion gate's state (:mod:`evperc.fusion.gate`), in the same circular
+    buffer."""
 
     window: Window | None = None
     pg: np.ndarray | None = None
     zeta: np.ndarray | None = None
     flags: np.ndarray | None = None
     focal: np.ndarray | None = None
+    gate: GateState | None = None
     offset: tuple[int, int] = (0, 0)
     prev_ns: int | None = None
     scan_index: int = -1          # position in the log's scan stream of the last frame
@@ -186,6 +190,7 @@ class FusionState:
         self.zeta = np.zeros(shape, np.float32)
         self.flags = np.ones(shape, np.uint8)
         self.focal = np.full(shape, 1 << OMEGA, np.uint32)
+        self.gate = GateState.fresh(shape)
 
     def move_to(self, window: Window) -> tuple[int, int]:
         """Make ``window`` the state's window; returns the shift ``(dr, dc)`` that
@@ -211,6 +216,11 @@ class FusionState:
             into = FusionState(pg=np.empty_like(self.pg), zeta=np.empty_like(self.zeta))
         np.copyto(into.pg, self.pg)
         np.copyto(into.zeta, self.zeta)
+        if into.gate is None or into.gate.ever.shape != self.gate.ever.shape:
+            into.gate = self.gate.copy()
+        else:
+            np.copyto(into.gate.times, self.gate.times)
+            np.copyto(into.gate.ever, self.gate.ever)
         into.window, into.offset, into.prev_ns = self.window, self.offset, self.prev_ns
         into.scan_index, into.frames = self.scan_index, self.frames
         into.decision_counts = self.decision_counts.copy()
@@ -220,7 +230,8 @@ class FusionState:
         """The circular buffers as they are, with their offset (stored, not deflated: the
         writer thread's time matters more than the checkpoint's size)."""
         w = self.window
-        arrays = {"pg": self.pg, "zeta": self.zeta,
+        arrays = {"pg": self.pg, "zeta": self.zeta, "gate_times": self.gate.times,
+                  "gate_ever": self.gate.ever,
                   "offset": np.array(self.offset, dtype=np.int64),
                   "window": np.array([w.rows, w.cols, w.row0, w.col0], dtype=np.int64),
                   "resolution_m": np.float64(w.resolution_m),
@@ -239,9 +250,13 @@ class FusionState:
                 offset = tuple(int(v) for v in npz["offset"])
                 if not (0 <= offset[0] < rows and 0 <= offset[1] < cols):
                     raise ValueError(f"offset {offset} outside the {rows} x {cols} window")
+                gate = GateState(npz["gate_times"], npz["gate_ever"])
+                if gate.times.shape != (3, rows, cols) or gate.ever.shape != (rows, cols):
+                    raise ValueError(f"gate state of shape {gate.times.shape}")
                 return FusionState(
                     window=Window(float(npz["resolution_m"]), rows, cols, row0, col0),
                     pg=pg, zeta=zeta, flags=vacuous_flags(pg, zeta), focal=focal_sets(pg),
+                    gate=gate,
                     offset=offset,
                     prev_ns=int(npz["prev_ns"]),
                     scan_index=int(npz["scan_index"]), frames=int(npz["frames"]),
@@ -286,6 +301,7 @@ class Pipeline:
         self.clock = StageClock()
         #: frames whose sensor grid the fusion thread computed (:meth:`inputs`, ``defer``)
         self.sensor_grids_in_step = 0
+        self._gate_buffer: np.ndarray | None = None
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -298,9 +314,10 @@ class Pipeline:
         points = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, -1.5]], np.float32)
         free, occupied = sensor_grid(points, False, np.eye(4), tiny, self.sensor_params)
         state = FusionState.fresh(tiny)
+        gate = gate_step(state.gate, free, occupied, 0.1, self.params)
         fused_step(state.pg, state.zeta, free, occupied, None, self.betas, 0.1, self.params,
                    out=StoredOutputs.empty(tiny.shape), flags=state.flags,
-                   focal=state.focal)
+                   focal=state.focal, gate=gate)
 
     def meta(self) -> dict[str, Any]:
         """Manifest entries that describe the run (docs/output-format.md)."""
@@ -436,11 +453,15 @@ class Pipeline:
         shift = state.move_to(window)
         dt_s = 0.0 if state.prev_ns is None else (inputs.stamp_ns - state.prev_ns) * 1e-9
         state.prev_ns = inputs.stamp_ns
-        # method.md §5 and §6 in one compiled pass, quantised straight into the chunk buffer;
-        # evperc.fusion.twin is the numpy twin it is tested on
+        # the motion gate (a neighbourhood pass of its own), then method.md §5 and §6 in one
+        # compiled pass, quantised straight into the chunk buffer; evperc.fusion.twin is the
+        # numpy twin it is tested on
+        gate = (gate_step(state.gate, inputs.free, inputs.occupied, dt_s, self.params,
+                          offset=state.offset, shift=shift, out=self._gate_layer(window.shape))
+                if self.params.gated else None)
         fused_step(state.pg, state.zeta, inputs.free, inputs.occupied, inputs.labels,
                    self.betas, dt_s, self.params, out=out, flags=state.flags, focal=state.focal,
-                   offset=state.offset, shift=shift, threads=self.fusion_threads)
+                   offset=state.offset, shift=shift, threads=self.fusion_threads, gate=gate)
         state.frames += 1
         counts = count_codes(out.decision, len(state.decision_counts))
         state.decision_counts += counts
@@ -455,6 +476,14 @@ class Pipeline:
             frame["point_labels"] = (number, labels)
             clock.lap("point_labels")
         return frame
+
+
+    def _gate_layer(self, shape: tuple[int, int]) -> np.ndarray:
+        """The gate layer's buffer (one per run, reused every frame)."""
+        layer = self._gate_buffer
+        if layer is None or layer.shape != shape:
+            layer = self._gate_buffer = np.empty(shape, np.uint8)
+        return layer
 
 
 def kernels_cached() -> bool:

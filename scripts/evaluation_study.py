@@ -447,6 +447,7 @@ def _init_worker(directories: Sequence[str]) -> None:
 def replay(prepared: Any, overrides: dict[str, dict[str, float]], with_map: bool = True) -> Any:
     """The decisions `evperc run` would write with ``overrides``, as a run-like object."""
     from evperc.fusion.fused import fused_step
+    from evperc.fusion.gate import gate_step
     from evperc.fusion.twin import DECISION_CODES, FusionParams
     from evperc.runner import FusionState
 
@@ -461,9 +462,11 @@ def replay(prepared: Any, overrides: dict[str, dict[str, float]], with_map: bool
         shift = state.move_to(w)  # the runner's circular buffer
         dt = 0.0 if prev is None else (stamp - prev) * 1e-9
         prev = stamp
+        gate = (gate_step(state.gate, free, occupied, dt, params, offset=state.offset,
+                          shift=shift) if params.gated else None)
         res = fused_step(state.pg, state.zeta, free, occupied, labels if with_map else None,
                          prepared.betas, dt, params, flags=state.flags, offset=state.offset,
-                         shift=shift)
+                         shift=shift, gate=gate)
         out.append(types.SimpleNamespace(stamp_ns=stamp, origin=(w.row0, w.col0),
                                          decision=res.decision.copy()))
     return types.SimpleNamespace(frames=out, decision_codes=DECISION_CODES,

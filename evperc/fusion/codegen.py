@@ -67,7 +67,9 @@ def road_closure() -> frozenset[int]:
     lean steps (α_I = 0) from a state on the same subsets: the fixpoint, from the sets
     without I and O, Ω, of contextual discounting (A ∪ {θ}, θ ≠ I), the conjunctive
     combination with SG and the road and other priors (A ∩ B for B in {F}, O, Ω and the
-    priors), the ⊛ rule (∅, {M}, Ω) and the specialisation by ζ (A ∖ {M}, {M} → {S})."""
+    priors), the ⊛ rule (∅, {M}, Ω, and the motion gate's closed targets O and {I, U, S}:
+    :func:`evperc.fusion.twin.conflict_targets`; its {I} is for building cells only) and the
+    specialisation by ζ (A ∖ {M}, {M} → {S})."""
     reached = {a for a in range(32) if not a & _I} | {_O, _OMEGA}
     grown = True
     while grown:
@@ -76,7 +78,7 @@ def road_closure() -> frozenset[int]:
             new |= {a | bit for bit in (_F, _U, _S, _M)}
             new |= {a & b for b in (_F, _O, _OMEGA, PRIORS["r"], PRIORS["o"])}
             new |= {a & ~_M, _S if a == _M else a}
-        new |= {0, _M, _OMEGA}
+        new |= {0, _M, _OMEGA, _O, _O & ~_M}
         grown = not new <= reached
         reached |= new
     return frozenset(reached)
@@ -127,7 +129,7 @@ SUB = 16
 #: frame of workload (a) with tiles of 256, 1.02 with 64, 0.83 with 32, 0.63 per cell);
 #: the output format's MASS_TILE (evperc.output.layers)
 TILE = MASS_TILE
-IN_ZETA, IN_FREE, IN_OCC, IN_LABEL, IN_OBSERVED = 32, 33, 34, 35, 36
+IN_ZETA, IN_FREE, IN_OCC, IN_LABEL, IN_OBSERVED, IN_GATE = 32, 33, 34, 35, 36, 37
 # outputs overwrite the inputs of their own lane (the body loads every input before it
 # stores), which keeps the buffer in L1
 OUT_MASS = 0
@@ -175,6 +177,7 @@ def _body(lean: bool = False, road: bool = False) -> list[str]:
     add("u = _1 - f - o")
     add(f"lab = buf[{_at(IN_LABEL)}]")
     add(f"ob = buf[{_at(IN_OBSERVED)}]")
+    add(f"gt = buf[{_at(IN_GATE)}]")
     add("obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)")
     add("is_b = False" if road else "is_b = lab == _2")
     add("is_r = lab == _1")
@@ -246,9 +249,20 @@ def _body(lean: bool = False, road: bool = False) -> list[str]:
     add("of = pg_bel_o * sg_free")
     add("other = c0 - fo - of")
     add("other = other if other > _0 else _0")
-    # 5. rule ⊛ (residual: 0 omega, 1 empty, 2 normalise)
+    # 5. rule ⊛ (residual: 0 omega, 1 empty, 2 normalise); ∅_FO to {M} where the motion
+    # gate is open (or off), to {I} in building cells (bld_i), else to O or {I,U,S}
+    if road:
+        add("fo_m = fo if (gate_off | (gt != _0)) else _0")
+        add("fo_c = _0 if (gate_off | (gt != _0)) else fo")
+    else:
+        add("in_b = is_b & bld_i")
+        add("fo_m = _0 if in_b else (fo if (gate_off | (gt != _0)) else _0)")
+        add("fo_c = _0 if (in_b | gate_off | (gt != _0)) else fo")
+        add("c2 += fo if in_b else _0")
     add("c0 = other if residual == 1 else _0")
-    add("c16 += fo")
+    add("c16 += fo_m")
+    add("c30 += fo_c if closed_o else _0")
+    add("c14 += _0 if closed_o else fo_c")
     add("c31 += of + (other if residual == 0 else _0)")
     if not lean:
         add("kept_rule = _1 - other")
@@ -258,7 +272,7 @@ def _body(lean: bool = False, road: bool = False) -> list[str]:
             add(f"c{a} *= scale")
     # 6. ζ
     add("bel_o = " + _sum([f"c{a}" for a in range(2, 32, 2)]))
-    add("dynamic = fo + of")
+    add("dynamic = fo_m + of")
     add("z_up = z + inc")
     add("z_up = z_up if z_up < _1 else _1")
     add("z_down = z - dec")
@@ -417,6 +431,7 @@ def _load() -> list[str]:
         *_loop("l1 - l0", _buf(str(IN_OCC)), "oc[wl + {i}]"),
         *_loop("l1 - l0", _buf(str(IN_LABEL)), "np.float32(lbl[wl + {i}])"),
         *_loop("l1 - l0", _buf(str(IN_OBSERVED)), "np.float32(obs_f[wl + {i}])"),
+        *_loop("l1 - l0", _buf(str(IN_GATE)), "np.float32(gate_f[wl + {i}])"),
     ]
 
 
@@ -550,7 +565,7 @@ def _idle_tile() -> list[str]:
 PARAMS = ("derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, "
           "keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, "
           "c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, "
-          "may_skip")
+          "may_skip, gate_off, bld_i, closed_o")
 
 
 def _kernel(kind: str, lean: bool = False) -> list[str]:
@@ -586,7 +601,7 @@ def _kernel(kind: str, lean: bool = False) -> list[str]:
         "@numba.njit(cache=True, nogil=True, fastmath=True, error_model=\"numpy\")",
         f"def step_{kind}{'_lean' if lean else ''}(state, zeta, flags, focal, off_r, off_c, dr, "
         "dc_, free, occ, labels,",
-        f"               observed, {PARAMS}, {outs}, band, bands, band_rows, chunk_ends):"
+        f"               observed, gate, {PARAMS}, {outs}, band, bands, band_rows, chunk_ends):"
         "  # pragma: no cover - compiled",
         "    rows, cols = state.shape[1], state.shape[2]",
         "    n_cells = rows * cols",
@@ -598,6 +613,7 @@ def _kernel(kind: str, lean: bool = False) -> list[str]:
         "    oc = occ.reshape(n_cells)",
         "    lbl = labels.reshape(n_cells)",
         "    obs_f = observed.reshape(n_cells)",
+        "    gate_f = gate.reshape(n_cells)",
         *["    " + line for line in flat],
         "    wrap = cols - off_c  # window columns from here on wrap to the buffer's start",
         "    tiles_per_row = (cols + TILE - 1) // TILE",

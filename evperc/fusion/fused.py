@@ -105,9 +105,9 @@ def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
                out: FusedOutputs | StoredOutputs | None = None,
                flags: np.ndarray | None = None, focal: np.ndarray | None = None,
                offset: tuple[int, int] = (0, 0),
-               shift: tuple[int, int] = (0, 0), threads: int = 1
-               ) -> FusedOutputs | StoredOutputs:
-    """One frame, in place: ``pg``, ``zeta`` ← PG_t, ζ_t (method.md §5 steps 2–8); the method.md §6
+               shift: tuple[int, int] = (0, 0), threads: int = 1,
+               gate: np.ndarray | None = None) -> FusedOutputs | StoredOutputs:
+    """One frame, in place: ``pg``, ``zeta`` ← PG_t, ζ_t (method.md §5 steps 2–8); the §6
     outputs into ``out``.
 
     ``pg``: planar float32 ``(32, rows, cols)`` state and ``zeta`` its accumulator, held in
@@ -130,7 +130,9 @@ def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
     ``(free > 0) | (occupied > 0)``. ``out``: :class:`FusedOutputs` (allocated when
     ``None``) or :class:`StoredOutputs`, window order. ``threads``: the rows are shared
     out in chunks of :data:`CHUNK_ROWS` among this many threads (cells are independent:
-    the outputs are the same bytes for any number of threads).
+    the outputs are the same bytes for any number of threads). ``gate``: uint8 motion gate
+    of this scan, window order (non-zero: ∅_FO may go to {M}; :mod:`evperc.fusion.gate`),
+    required when ``params.motion_gate`` is on, ignored otherwise.
     Equal to ``fusion_step`` then ``decide`` to float32 round-off.
     """
     shape = _check_state(pg, zeta)
@@ -157,6 +159,12 @@ def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
                              f"{NO_MAP})")
     derive_obs = observed is None
     obs = lab if derive_obs else _grid(observed, np.bool_, shape, "observed").view(np.uint8)
+    if params.gated:
+        if gate is None:
+            raise ValueError("motion_gate is on: pass the gate layer (evperc.fusion.gate)")
+        gate8 = _grid(gate, np.uint8, shape, "gate")
+    else:
+        gate8 = _closed_gate(shape)  # not read: gate_off
     if out is None:
         out = FusedOutputs.empty(shape)
     _check_outputs(out, shape)
@@ -180,11 +188,13 @@ def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
         f32(params.gamma_conflict), f32(params.decision_min_betp),
         f32(params.decision_max_ignorance), *_CODES, _vacuous_code(params),
         # an untouched vacuous cell stays vacuous unless a prior or ζ can move it
-        derive_obs and not everywhere and params.gamma_occupied > 0)
+        derive_obs and not everywhere and params.gamma_occupied > 0,
+        not params.gated, params.building_conflict == "infrastructure",
+        params.gate_closed_target == "occupied")
     kernel = _kernel(isinstance(out, FusedOutputs), params.discount == "contextual"
                      and alphas[1] == 0.0 and params.residual_conflict != "normalise")
     args = (pg, zeta, flags, focal, off_r, off_c, int(shift[0]), int(shift[1]), free32, occ32,
-            lab, obs, *scalars, *out.arrays())
+            lab, obs, gate8, *scalars, *out.arrays())
     rows = shape[0]
     bands = max(1, min(int(threads), rows // CHUNK_ROWS))
     if bands == 1:
@@ -207,6 +217,13 @@ def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
 #: drove, not in one half of it)
 CHUNK_ROWS = 16
 _NO_CHUNKS = np.zeros(1, np.int64)
+
+
+@functools.cache
+def _closed_gate(shape: tuple[int, int]) -> np.ndarray:
+    """A gate layer of zeros for steps without the motion gate (the kernel does not use
+    it then); one per shape (writeable: numba compiles read-only arrays separately)."""
+    return np.zeros(shape, np.uint8)
 
 
 @functools.cache
@@ -296,7 +313,9 @@ def reachable_focal_sets(params: FusionParams) -> frozenset[int]:
     The closure of {Ω} under the operations of one step with these options: discounting
     (A → A ∪ {θ} for each class whose rate is non-zero; classical: A → Ω), intersection
     with every possible focal set of SG', the rule ⊛ ({M}, Ω, and ∅ when
-    ``residual_conflict = "empty"``) and specialisation (A → A ∖ {M}; {M} → {S} or ∅).
+    ``residual_conflict = "empty"``; with the motion gate O or {I,U,S}, and {I} with
+    ``building_conflict = "infrastructure"``) and specialisation (A → A ∖ {M}; {M} → {S}
+    or ∅).
     """
     sg_sets = {_F, _O, _OMEGA}
     sg_prime = set(sg_sets)
@@ -310,6 +329,10 @@ def reachable_focal_sets(params: FusionParams) -> frozenset[int]:
     sets = {_OMEGA}
     while True:
         new = set(sets) | {_M, _OMEGA}
+        if params.gated:
+            new.add(_O if params.gate_closed_target == "occupied" else _O & ~_M)
+        if params.building_conflict == "infrastructure":
+            new.add(_I)
         for a in sets:
             new |= {a | bit for bit in grow}
             if params.discount == "classical":

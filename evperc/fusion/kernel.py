@@ -48,7 +48,7 @@ ROAD_ZERO_MASK = np.uint32(0xccc0ccc)
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
-               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, betp, conflict, decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
+               observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, betp, conflict, decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
     n_cells = rows * cols
     st = state.reshape(32, n_cells)
@@ -59,6 +59,7 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
     oc = occ.reshape(n_cells)
     lbl = labels.reshape(n_cells)
     obs_f = observed.reshape(n_cells)
+    gate_f = gate.reshape(n_cells)
     bp = betp.reshape(5, n_cells)
     cf = conflict.reshape(3, n_cells)
     dc = decision.reshape(n_cells)
@@ -261,6 +262,8 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                 buf[np.uint64((35) * STRIDE + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
             for t in range(l1 - l0):
                 buf[np.uint64((36) * STRIDE + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
+            for t in range(l1 - l0):
+                buf[np.uint64((37) * STRIDE + l0) + np.uint64(t)] = np.float32(gate_f[wl + np.uint64(t)])
             for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):
                 sbase = np.uint64(sub * SUB)
                 for l in range(SUB):
@@ -302,6 +305,7 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                     u = _1 - f - o
                     lab = buf[sbase + np.uint64(9520 + l)]
                     ob = buf[sbase + np.uint64(9792 + l)]
+                    gt = buf[sbase + np.uint64(10064 + l)]
                     obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
                     is_b = lab == _2
                     is_r = lab == _1
@@ -667,8 +671,14 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                     of = pg_bel_o * sg_free
                     other = c0 - fo - of
                     other = other if other > _0 else _0
+                    in_b = is_b & bld_i
+                    fo_m = _0 if in_b else (fo if (gate_off | (gt != _0)) else _0)
+                    fo_c = _0 if (in_b | gate_off | (gt != _0)) else fo
+                    c2 += fo if in_b else _0
                     c0 = other if residual == 1 else _0
-                    c16 += fo
+                    c16 += fo_m
+                    c30 += fo_c if closed_o else _0
+                    c14 += _0 if closed_o else fo_c
                     c31 += of + (other if residual == 0 else _0)
                     kept_rule = _1 - other
                     kept_rule = kept_rule if kept_rule > _TINY else _TINY
@@ -706,7 +716,7 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                     c30 *= scale
                     c31 *= scale
                     bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
-                    dynamic = fo + of
+                    dynamic = fo_m + of
                     z_up = z + inc
                     z_up = z_up if z_up < _1 else _1
                     z_down = z - dec
@@ -917,7 +927,7 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
-               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
+               observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
     n_cells = rows * cols
     st = state.reshape(32, n_cells)
@@ -928,6 +938,7 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
     oc = occ.reshape(n_cells)
     lbl = labels.reshape(n_cells)
     obs_f = observed.reshape(n_cells)
+    gate_f = gate.reshape(n_cells)
     qr = q_runs
     qt = q_tiles.reshape(q_tiles.size)
     pos = np.uint64(0)  # bytes of mass runs written
@@ -1145,6 +1156,8 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                 buf[np.uint64((35) * STRIDE + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
             for t in range(l1 - l0):
                 buf[np.uint64((36) * STRIDE + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
+            for t in range(l1 - l0):
+                buf[np.uint64((37) * STRIDE + l0) + np.uint64(t)] = np.float32(gate_f[wl + np.uint64(t)])
             for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):
                 sbase = np.uint64(sub * SUB)
                 for l in range(SUB):
@@ -1186,6 +1199,7 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                     u = _1 - f - o
                     lab = buf[sbase + np.uint64(9520 + l)]
                     ob = buf[sbase + np.uint64(9792 + l)]
+                    gt = buf[sbase + np.uint64(10064 + l)]
                     obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
                     is_b = lab == _2
                     is_r = lab == _1
@@ -1551,8 +1565,14 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                     of = pg_bel_o * sg_free
                     other = c0 - fo - of
                     other = other if other > _0 else _0
+                    in_b = is_b & bld_i
+                    fo_m = _0 if in_b else (fo if (gate_off | (gt != _0)) else _0)
+                    fo_c = _0 if (in_b | gate_off | (gt != _0)) else fo
+                    c2 += fo if in_b else _0
                     c0 = other if residual == 1 else _0
-                    c16 += fo
+                    c16 += fo_m
+                    c30 += fo_c if closed_o else _0
+                    c14 += _0 if closed_o else fo_c
                     c31 += of + (other if residual == 0 else _0)
                     kept_rule = _1 - other
                     kept_rule = kept_rule if kept_rule > _TINY else _TINY
@@ -1590,7 +1610,7 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                     c30 *= scale
                     c31 *= scale
                     bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
-                    dynamic = fo + of
+                    dynamic = fo_m + of
                     z_up = z + inc
                     z_up = z_up if z_up < _1 else _1
                     z_down = z - dec
@@ -1838,7 +1858,7 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
-               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, betp, conflict, decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
+               observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, betp, conflict, decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
     n_cells = rows * cols
     st = state.reshape(32, n_cells)
@@ -1849,6 +1869,7 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
     oc = occ.reshape(n_cells)
     lbl = labels.reshape(n_cells)
     obs_f = observed.reshape(n_cells)
+    gate_f = gate.reshape(n_cells)
     bp = betp.reshape(5, n_cells)
     cf = conflict.reshape(3, n_cells)
     dc = decision.reshape(n_cells)
@@ -2051,6 +2072,8 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
                 buf[np.uint64((35) * STRIDE + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
             for t in range(l1 - l0):
                 buf[np.uint64((36) * STRIDE + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
+            for t in range(l1 - l0):
+                buf[np.uint64((37) * STRIDE + l0) + np.uint64(t)] = np.float32(gate_f[wl + np.uint64(t)])
             zero_planes = old_mask & ROAD_ZERO_MASK
             for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):
                 sbase = np.uint64(sub * SUB)
@@ -2102,6 +2125,7 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
                         u = _1 - f - o
                         lab = buf[sbase + np.uint64(9520 + l)]
                         ob = buf[sbase + np.uint64(9792 + l)]
+                        gt = buf[sbase + np.uint64(10064 + l)]
                         obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
                         is_b = False
                         is_r = lab == _1
@@ -2302,11 +2326,15 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
                         of = pg_bel_o * sg_free
                         other = c0 - fo - of
                         other = other if other > _0 else _0
+                        fo_m = fo if (gate_off | (gt != _0)) else _0
+                        fo_c = _0 if (gate_off | (gt != _0)) else fo
                         c0 = other if residual == 1 else _0
-                        c16 += fo
+                        c16 += fo_m
+                        c30 += fo_c if closed_o else _0
+                        c14 += _0 if closed_o else fo_c
                         c31 += of + (other if residual == 0 else _0)
                         bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
-                        dynamic = fo + of
+                        dynamic = fo_m + of
                         z_up = z + inc
                         z_up = z_up if z_up < _1 else _1
                         z_down = z - dec
@@ -2476,6 +2504,7 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
                     u = _1 - f - o
                     lab = buf[sbase + np.uint64(9520 + l)]
                     ob = buf[sbase + np.uint64(9792 + l)]
+                    gt = buf[sbase + np.uint64(10064 + l)]
                     obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
                     is_b = lab == _2
                     is_r = lab == _1
@@ -2760,11 +2789,17 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
                     of = pg_bel_o * sg_free
                     other = c0 - fo - of
                     other = other if other > _0 else _0
+                    in_b = is_b & bld_i
+                    fo_m = _0 if in_b else (fo if (gate_off | (gt != _0)) else _0)
+                    fo_c = _0 if (in_b | gate_off | (gt != _0)) else fo
+                    c2 += fo if in_b else _0
                     c0 = other if residual == 1 else _0
-                    c16 += fo
+                    c16 += fo_m
+                    c30 += fo_c if closed_o else _0
+                    c14 += _0 if closed_o else fo_c
                     c31 += of + (other if residual == 0 else _0)
                     bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
-                    dynamic = fo + of
+                    dynamic = fo_m + of
                     z_up = z + inc
                     z_up = z_up if z_up < _1 else _1
                     z_down = z - dec
@@ -2975,7 +3010,7 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
-               observed, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
+               observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
     n_cells = rows * cols
     st = state.reshape(32, n_cells)
@@ -2986,6 +3021,7 @@ def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ
     oc = occ.reshape(n_cells)
     lbl = labels.reshape(n_cells)
     obs_f = observed.reshape(n_cells)
+    gate_f = gate.reshape(n_cells)
     qr = q_runs
     qt = q_tiles.reshape(q_tiles.size)
     pos = np.uint64(0)  # bytes of mass runs written
@@ -3203,6 +3239,8 @@ def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ
                 buf[np.uint64((35) * STRIDE + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
             for t in range(l1 - l0):
                 buf[np.uint64((36) * STRIDE + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
+            for t in range(l1 - l0):
+                buf[np.uint64((37) * STRIDE + l0) + np.uint64(t)] = np.float32(gate_f[wl + np.uint64(t)])
             zero_planes = old_mask & ROAD_ZERO_MASK
             for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):
                 sbase = np.uint64(sub * SUB)
@@ -3254,6 +3292,7 @@ def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ
                         u = _1 - f - o
                         lab = buf[sbase + np.uint64(9520 + l)]
                         ob = buf[sbase + np.uint64(9792 + l)]
+                        gt = buf[sbase + np.uint64(10064 + l)]
                         obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
                         is_b = False
                         is_r = lab == _1
@@ -3454,11 +3493,15 @@ def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ
                         of = pg_bel_o * sg_free
                         other = c0 - fo - of
                         other = other if other > _0 else _0
+                        fo_m = fo if (gate_off | (gt != _0)) else _0
+                        fo_c = _0 if (gate_off | (gt != _0)) else fo
                         c0 = other if residual == 1 else _0
-                        c16 += fo
+                        c16 += fo_m
+                        c30 += fo_c if closed_o else _0
+                        c14 += _0 if closed_o else fo_c
                         c31 += of + (other if residual == 0 else _0)
                         bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
-                        dynamic = fo + of
+                        dynamic = fo_m + of
                         z_up = z + inc
                         z_up = z_up if z_up < _1 else _1
                         z_down = z - dec
@@ -3628,6 +3671,7 @@ def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ
                     u = _1 - f - o
                     lab = buf[sbase + np.uint64(9520 + l)]
                     ob = buf[sbase + np.uint64(9792 + l)]
+                    gt = buf[sbase + np.uint64(10064 + l)]
                     obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
                     is_b = lab == _2
                     is_r = lab == _1
@@ -3912,11 +3956,17 @@ def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ
                     of = pg_bel_o * sg_free
                     other = c0 - fo - of
                     other = other if other > _0 else _0
+                    in_b = is_b & bld_i
+                    fo_m = _0 if in_b else (fo if (gate_off | (gt != _0)) else _0)
+                    fo_c = _0 if (in_b | gate_off | (gt != _0)) else fo
+                    c2 += fo if in_b else _0
                     c0 = other if residual == 1 else _0
-                    c16 += fo
+                    c16 += fo_m
+                    c30 += fo_c if closed_o else _0
+                    c14 += _0 if closed_o else fo_c
                     c31 += of + (other if residual == 0 else _0)
                     bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
-                    dynamic = fo + of
+                    dynamic = fo_m + of
                     z_up = z + inc
                     z_up = z_up if z_up < _1 else _1
                     z_down = z - dec

@@ -50,6 +50,15 @@ class FusionParams:
     gamma_conflict: float = 0.2
     decision_min_betp: float = 0.5
     decision_max_ignorance: float = 0.5
+    # the motion gate (docs/method.md, "The motion gate"); the defaults here are the paper's
+    # rule (∅_FO → {M} everywhere), configs/default.toml turns the gate on
+    motion_gate: str = "none"
+    gate_closed_target: str = "occupied"
+    building_conflict: str = "moving"
+    gate_free_s: float = 0.5
+    gate_min_free: float = 0.5
+    gate_revoke_s: float = 15.0
+    gate_gap_s: float = 0.2
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> FusionParams:
@@ -64,7 +73,16 @@ class FusionParams:
             residual_conflict=fu["residual_conflict"], stopped_target=fu["stopped_target"],
             zeta_increment=fu["zeta_increment"], zeta_decrement=fu["zeta_decrement"],
             gamma_occupied=fu["gamma_occupied"], gamma_conflict=fu["gamma_conflict"],
-            decision_min_betp=de["min_betp"], decision_max_ignorance=de["max_ignorance"])
+            decision_min_betp=de["min_betp"], decision_max_ignorance=de["max_ignorance"],
+            motion_gate=fu["motion_gate"], gate_closed_target=fu["gate_closed_target"],
+            building_conflict=fu["building_conflict"], gate_free_s=fu["gate_free_s"],
+            gate_min_free=fu["gate_min_free"], gate_revoke_s=fu["gate_revoke_s"],
+            gate_gap_s=fu["gate_gap_s"])
+
+    @property
+    def gated(self) -> bool:
+        """Whether the motion gate decides where ∅_FO may go to {M} (else: everywhere)."""
+        return self.motion_gate != "none"
 
 
 def scaled_rate(rate: float | np.ndarray, dt_s: float, period_s: float) -> np.ndarray:
@@ -92,14 +110,42 @@ def belief_occupied(m: np.ndarray) -> np.ndarray:
     return dst.belief_of(m, OCCUPIED)
 
 
+def conflict_targets(conflict_fo: np.ndarray, gate: np.ndarray | None,
+                     building: np.ndarray | None, params: FusionParams
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rule ⊛'s split of ∅_FO (docs/method.md, "The motion gate"): the parts sent to
+    {M}, to {I} and to the closed gate's target (O or {I,U,S}), ``(to_m, to_i, to_closed)``.
+
+    With ``building_conflict = "infrastructure"`` a cell with the map's building label sends
+    ∅_FO to {I}; elsewhere it goes to {M} where the gate is open (``motion_gate = "none"``:
+    open everywhere, the paper's rule) and to the closed target where it is not."""
+    zero = np.zeros_like(conflict_fo)
+    shape = conflict_fo.shape
+    in_building = (np.zeros(shape, bool) if building is None or params.building_conflict
+                   != "infrastructure" else np.broadcast_to(np.asarray(building, bool), shape))
+    if params.gated:
+        if gate is None:
+            raise ValueError("motion_gate is on: pass the gate layer (evperc.fusion.gate)")
+        open_ = np.broadcast_to(np.asarray(gate) != 0, shape)
+    else:
+        open_ = np.ones(shape, bool)
+    to_i = np.where(in_building, conflict_fo, zero)
+    to_m = np.where(~in_building & open_, conflict_fo, zero)
+    to_closed = np.where(~in_building & ~open_, conflict_fo, zero)
+    return to_m, to_i, to_closed
+
+
 def fusion_step(pg: np.ndarray, zeta: np.ndarray, sg: np.ndarray, prior: np.ndarray,
-                observed: np.ndarray, dt_s: float, params: FusionParams
+                observed: np.ndarray, dt_s: float, params: FusionParams,
+                gate: np.ndarray | None = None, building: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One step PG_{t−1}, ζ_{t−1} → PG_t, ζ_t (method.md §5, steps 2–8).
 
     ``sg``: the refined sensor grid (method.md §5.1); ``prior``: the GIS grid GG; ``observed``:
-    cells the scan touched. Returns ``(pg, zeta, conflict)`` with ``conflict[..., k]`` =
-    ∅_FO, ∅_OF, ∅_other of this step.
+    cells the scan touched; ``gate``: the motion gate of this scan (non-zero: ∅_FO may go
+    to {M}; :mod:`evperc.fusion.gate`), needed when ``params.motion_gate`` is on;
+    ``building``: cells with the map's building label (``building_conflict``). Returns
+    ``(pg, zeta, conflict)`` with ``conflict[..., k]`` = ∅_FO, ∅_OF, ∅_other of this step.
     """
     # 2. SG' = SG ⊕ GG (Dempster), on observed cells only unless prior_where = everywhere
     sg_prior, conflict_k = dst.dempster(sg, prior)
@@ -119,9 +165,14 @@ def fusion_step(pg: np.ndarray, zeta: np.ndarray, sg: np.ndarray, prior: np.ndar
     fused = dst.conjunctive(pg_disc, sg_prior)
     conflict_fo, conflict_of, conflict_other = dst.conflict_parts(
         pg_disc, sg_prior, dst.FRAME, empty_mass=fused[..., 0])
-    # 5. modified rule ⊛: ∅_FO → {M}, ∅_OF → Ω, ∅_other per option
+    # 5. modified rule ⊛: ∅_FO → {M} where the gate allows ({I} in buildings, else O or
+    # {I,U,S}), ∅_OF → Ω, ∅_other per option
+    to_m, to_i, to_closed = conflict_targets(conflict_fo, gate, building, params)
     fused[..., 0] = 0
-    fused[..., M] += conflict_fo
+    fused[..., M] += to_m
+    fused[..., I] += to_i
+    fused[..., OCCUPIED if params.gate_closed_target == "occupied" else OCCUPIED & ~M] += \
+        to_closed
     fused[..., OMEGA] += conflict_of
     if params.residual_conflict == "omega":
         fused[..., OMEGA] += conflict_other
@@ -129,8 +180,9 @@ def fusion_step(pg: np.ndarray, zeta: np.ndarray, sg: np.ndarray, prior: np.ndar
         fused[..., 0] = conflict_other
     else:  # normalise
         fused /= np.maximum(1.0 - conflict_other, np.finfo(fused.dtype).tiny)[..., None]
-    # 6. accumulator ζ
-    dynamic = conflict_fo + conflict_of
+    # 6. accumulator ζ: the conflict that says "something moved" (∅_FO only where it went
+    # to {M}; all of it with the paper's rule)
+    dynamic = to_m + conflict_of
     grow = (belief_occupied(fused) >= params.gamma_occupied) & (dynamic <= params.gamma_conflict)
     shrink = dynamic > params.gamma_conflict
     zeta = np.where(grow, np.minimum(1.0, zeta + params.zeta_increment),

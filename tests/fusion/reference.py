@@ -61,8 +61,14 @@ def discount(m, rates, kind, classical_rate):
     return m
 
 
-def step(pg, zeta, sg_free, sg_occ, prior, observed, rates, p):
-    """One cell; ``rates`` already scaled to dt. Returns (pg, zeta, (fo, of, other))."""
+def step(pg, zeta, sg_free, sg_occ, prior, observed, rates, p, gate_open=True,
+         building=False):
+    """One cell; ``rates`` already scaled to dt. Returns (pg, zeta, (fo, of, other)).
+
+    The motion gate (docs/method.md): ``p.get("motion_gate", "none")`` other than "none"
+    sends ∅_FO to {M} only if ``gate_open``, else to O (``p["closed_target"]`` "occupied")
+    or {I,U,S} ("static"); with ``p["building_conflict"]`` "infrastructure" a ``building``
+    cell sends it to {I}; ζ counts ∅_FO as conflict only where it went to {M}."""
     sg = {frozenset("F"): sg_free, OCC: sg_occ, OMEGA: 1 - sg_free - sg_occ}
     sg = {a: v for a, v in sg.items() if v}
     sg_prime = dempster(sg, prior) if (observed or p["prior_where"] == "everywhere") else sg
@@ -71,7 +77,16 @@ def step(pg, zeta, sg_free, sg_occ, prior, observed, rates, p):
     of = bel_occupied(pgd) * sg_prime.get(frozenset("F"), 0.0)
     fo = pgd.get(frozenset("F"), 0.0) * bel_occupied(sg_prime)
     other = max(c.pop(EMPTY, 0.0) - fo - of, 0.0)
-    c[frozenset("M")] = c.get(frozenset("M"), 0.0) + fo
+    if building and p.get("building_conflict", "moving") == "infrastructure":
+        target = frozenset("I")
+    elif gate_open or p.get("motion_gate", "none") == "none":
+        target = frozenset("M")
+    elif p["closed_target"] == "occupied":
+        target = OCC
+    else:
+        target = frozenset("IUS")
+    c[target] = c.get(target, 0.0) + fo
+    moved = fo if target == frozenset("M") else 0.0
     c[OMEGA] = c.get(OMEGA, 0.0) + of
     if p["residual"] == "omega":
         c[OMEGA] += other
@@ -79,9 +94,9 @@ def step(pg, zeta, sg_free, sg_occ, prior, observed, rates, p):
         c[EMPTY] = other
     else:
         c = {a: v / (1 - other) for a, v in c.items()}
-    if bel_occupied(c) >= p["gamma_o"] and fo + of <= p["gamma_c"]:
+    if bel_occupied(c) >= p["gamma_o"] and moved + of <= p["gamma_c"]:
         zeta = min(1.0, zeta + p["inc"])
-    elif fo + of > p["gamma_c"]:
+    elif moved + of > p["gamma_c"]:
         zeta = max(0.0, zeta - p["dec"])
     out = defaultdict(float)
     for a, v in c.items():

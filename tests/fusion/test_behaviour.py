@@ -1,6 +1,8 @@
 """Behaviour of the fusion step with the default parameters on single cells (method.md §6).
 
 Scans are given as sequences of per-cell sensor states: 'f' free, 'o' occupied, '-' unseen.
+The motion gate is open (a cell amid free road, ever-free: tests/fusion/test_gate.py
+decides where it is); its rule is tested in tests/fusion/test_fused.py.
 """
 
 from __future__ import annotations
@@ -42,7 +44,8 @@ def play(sequence: str, context: int | None) -> list[str]:
         free = np.full((1, 1), mu_f if state == "f" else 0.0, np.float32)
         occ = np.full((1, 1), mu_o if state == "o" else 0.0, np.float32)
         pg, zeta, _ = fusion_step(pg, zeta, sensor_masses(free, occ), prior, state != "-", DT,
-                                  PARAMS)
+                                  PARAMS, gate=np.ones((1, 1), np.uint8),
+                                  building=np.full((1, 1), context == CONTEXT_BUILDING))
         assert np.isclose(pg.sum(), 1.0, atol=1e-5)
         _, decision = decide(pg, PARAMS)
         out.append(CODE_NAMES[int(decision[0, 0])])

@@ -32,14 +32,14 @@ SHAPE = (18, 23)
 
 
 def fused_step(pg: np.ndarray, zeta: np.ndarray, free, occ, labels, betas, dt, params,
-               observed=None, skip_vacuous: bool = True) -> FusedOutputs:
+               observed=None, skip_vacuous: bool = True, gate=None) -> FusedOutputs:
     """The fused step on an interleaved ``(rows, cols, 32)`` state (updated in place) with
     interleaved outputs, the layout of numpy's fusion_step; ``skip_vacuous=False`` passes
     all-zero flags, so that no block is skipped."""
     planar = np.ascontiguousarray(np.moveaxis(pg, -1, 0))
     flags = vacuous_flags(planar, zeta) if skip_vacuous else np.zeros(zeta.shape, np.uint8)
     got = planar_step(planar, zeta, free, occ, labels, betas, dt, params, observed=observed,
-                      flags=flags)
+                      flags=flags, gate=gate)
     pg[...] = np.moveaxis(planar, 0, -1)
     return FusedOutputs(np.moveaxis(got.conflict, 0, -1), np.moveaxis(got.betp, 0, -1),
                         got.decision)
@@ -98,25 +98,27 @@ def numpy_prior(labels: np.ndarray | None, betas, shape) -> np.ndarray:
     return prior
 
 
-def numpy_step(pg, zeta, free, occ, prior, observed, dt, params):
+def numpy_step(pg, zeta, free, occ, prior, observed, dt, params, gate=None, building=None):
     """fusion_step + decide in float64 on the same (float32) inputs."""
     pg64, z64, conflict = fusion_step(pg.astype(np.float64), zeta.astype(np.float64),
                                       sensor_masses(free, occ).astype(np.float64), prior,
-                                      observed, dt, params)
+                                      observed, dt, params, gate=gate, building=building)
     betp, decision = decide(pg64, params)
     return pg64, z64, conflict, betp, decision
 
 
-def near_zeta_threshold(pg, zeta, free, occ, prior, observed, dt, params) -> np.ndarray:
+def near_zeta_threshold(pg, zeta, free, occ, prior, observed, dt, params, **gated
+                        ) -> np.ndarray:
     """Cells whose ζ update flips when γ_O or γ_∅ moves by ±EPS (float32 vs float64 may
     fall either side there)."""
-    base = numpy_step(pg, zeta, free, occ, prior, observed, dt, params)[1]
+    base = numpy_step(pg, zeta, free, occ, prior, observed, dt, params, **gated)[1]
     near = np.zeros(zeta.shape, bool)
     for key in ("gamma_occupied", "gamma_conflict"):
         for sign in (-1, 1):
             shifted = FusionParams(**{**params.__dict__,
                                       key: getattr(params, key) + sign * EPS})
-            near |= numpy_step(pg, zeta, free, occ, prior, observed, dt, shifted)[1] != base
+            near |= numpy_step(pg, zeta, free, occ, prior, observed, dt, shifted,
+                               **gated)[1] != base
     return near
 
 
@@ -215,6 +217,85 @@ def test_consecutive_steps_match_numpy(seed: int) -> None:
     # counted, not hidden: both stay rare (a handful of the 2070 cell-steps at most)
     assert tie_differences <= 0.01 * cells, tie_differences
     assert flips <= 0.01 * cells, flips
+
+
+def gated_params(rng: np.random.Generator, params: FusionParams) -> FusionParams:
+    """``params`` with the motion gate on and its two options drawn."""
+    return FusionParams(**{**params.__dict__, "motion_gate": "ever_free",
+                           "gate_closed_target": str(rng.choice(["occupied", "static"])),
+                           "building_conflict": str(rng.choice(["infrastructure", "moving"]))})
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_gated_rule_matches_numpy(seed: int) -> None:
+    """The motion gate's rule (∅_FO → {M} where the gate is open, {I} in building cells,
+    O or {I,U,S} elsewhere; ζ on the part sent to {M}) in the kernel equals the numpy twin
+    over consecutive steps with a random gate layer; seeds 0-3 with options that run the
+    lean kernel (and its road body, on a street scene)."""
+    rng = np.random.default_rng(4000 + seed)
+    shape = (20, 70)
+    params = gated_params(rng, lean_params(rng) if seed < 4 else random_params(rng))
+    with_empty = params.residual_conflict == "empty" or params.stopped_target == "empty"
+    if seed < 2:
+        planar, zeta, labels = road_scene(rng, shape)
+        pg = np.ascontiguousarray(np.moveaxis(planar, 0, -1))
+    else:
+        pg, zeta = random_state(rng, shape, with_empty)
+        labels = rng.choice(np.array([0, 1, 2, NO_MAP], np.uint8), size=shape)
+    betas = (0.9, 0.9, 0.8)
+    prior = numpy_prior(labels, betas, shape)
+    building = labels == 2
+    flips = differences = 0
+    for _ in range(5):
+        free, occ = random_scan(rng, shape)
+        gate = (rng.random(shape) < 0.5).astype(np.uint8)
+        observed = (free > 0) | (occ > 0)
+        want = numpy_step(pg, zeta, free, occ, prior, observed, 0.1, params, gate=gate,
+                          building=building)
+        near = near_zeta_threshold(pg, zeta, free, occ, prior, observed, 0.1, params,
+                                   gate=gate, building=building)
+        out = fused_step(pg, zeta, free, occ, labels, betas, 0.1, params, gate=gate)
+        f, d = compare((pg, zeta), out, want, near, params)
+        flips, differences = flips + f, differences + d
+        assert_masses_valid(pg, params, want[0], cell_tolerance(want[2], params))
+    assert flips + differences <= 0.01 * 5 * shape[0] * shape[1], (flips, differences)
+    # the gate matters here: the same inputs with the gate open everywhere differ
+    open_ = numpy_step(pg, zeta, free, occ, prior, observed, 0.1, params,
+                       gate=np.ones(shape, np.uint8), building=building)[0]
+    closed = numpy_step(pg, zeta, free, occ, prior, observed, 0.1, params,
+                        gate=np.zeros(shape, np.uint8), building=building)[0]
+    assert np.abs(open_ - closed).max() > 0.05
+
+
+def test_gated_rule_hand_worked() -> None:
+    """One road cell free before (m({F}) = 0.7), a return now (m({O}) = 0.8, dt = 0):
+    ∅_FO = 0.56 goes to {M} with the gate open (moving), to O with it closed (static),
+    to {I} in a building cell with building_conflict = "infrastructure"."""
+    gated = FusionParams(motion_gate="ever_free", building_conflict="infrastructure")
+    occ = np.full((1, 1), 0.8, np.float32)
+    zero = np.zeros((1, 1), np.float32)
+    results = {}
+    for name, label, gate in (("open", 255, 1), ("closed", 255, 0), ("building", 2, 1)):
+        pg = np.zeros((1, 1, 32), np.float32)
+        pg[..., 1], pg[..., 31] = 0.7, 0.3
+        zeta = np.zeros((1, 1), np.float32)
+        out = fused_step(pg, zeta, zero, occ, np.full((1, 1), label, np.uint8),
+                         (0.9, 0.9, 0.8), 0.0, gated, gate=np.full((1, 1), gate, np.uint8))
+        results[name] = (pg[0, 0].copy(), out.decision[0, 0], out.conflict[0, 0, 0])
+    assert results["open"][2] == results["closed"][2] == pytest.approx(0.56, abs=1e-6)
+    # building prior {I} 0.9: Bel_SG'(O) = 0.8 + 0.2 · 0.9, ∅_FO = 0.7 · 0.98
+    assert results["building"][2] == pytest.approx(0.686, abs=1e-6)
+    assert results["open"][1] == 2 and results["open"][0][16] == pytest.approx(0.56, abs=1e-6)
+    pg_closed = results["closed"][0]
+    # O: 0.24 from the combination, 0.56 from the conflict; nothing counts as motion, so ζ
+    # grows (0.1) at once and specialises a tenth of it to {I,U,S}
+    assert pg_closed[16] == 0
+    assert pg_closed[30] == pytest.approx(0.9 * 0.8, abs=1e-6)
+    assert pg_closed[14] == pytest.approx(0.1 * 0.8, abs=1e-6)
+    assert results["closed"][1] == 3  # static
+    assert results["building"][1] == 5  # infrastructure
+    assert results["building"][0][2] > 0.686
+    assert results["building"][0][16] == 0
 
 
 @pytest.mark.parametrize("discount", ["contextual", "classical"])

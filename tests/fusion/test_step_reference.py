@@ -25,9 +25,16 @@ def random_mass(rng: np.random.Generator, n_focal: int) -> np.ndarray:
 
 
 @pytest.mark.parametrize("seed", range(12))
-def test_step_matches_reference(seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    params = FusionParams(
+@pytest.mark.parametrize("gated", [False, True])
+def test_step_matches_reference(seed: int, gated: bool) -> None:
+    """Every option; ``gated``: with the motion gate, a random gate layer and random
+    building cells (the paper's rule otherwise)."""
+    rng = np.random.default_rng(seed + 1000 * gated)
+    gate_options = {"motion_gate": "ever_free",
+                    "gate_closed_target": str(rng.choice(["occupied", "static"])),
+                    "building_conflict": str(rng.choice(["infrastructure", "moving"]))
+                    } if gated else {}
+    params = FusionParams(**gate_options,
         prior_where=rng.choice(["observed", "everywhere"]),
         discount=rng.choice(["contextual", "classical"]),
         residual_conflict=rng.choice(["omega", "empty", "normalise"]),
@@ -50,8 +57,11 @@ def test_step_matches_reference(seed: int) -> None:
             prior[r, c] = ref.to_vector(PRIORS[prior_kind[r, c]])
     observed = kind > 0
     dt = float(rng.uniform(0.05, 0.2))
+    gate = rng.random((rows, cols)) < 0.5
+    building = prior_kind == "building"
     got_pg, got_zeta, got_conflict = fusion_step(
-        pg, zeta, sensor_masses(free, occ).astype(np.float64), prior, observed, dt, params)
+        pg, zeta, sensor_masses(free, occ).astype(np.float64), prior, observed, dt, params,
+        gate=gate if gated else None, building=building)
 
     if params.discount == "contextual":
         rates = scaled_rate(params.discount_rates, dt, params.discount_period_s).tolist()
@@ -62,12 +72,15 @@ def test_step_matches_reference(seed: int) -> None:
          "classical_rate": classical, "residual": params.residual_conflict,
          "gamma_o": params.gamma_occupied, "gamma_c": params.gamma_conflict,
          "inc": params.zeta_increment, "dec": params.zeta_decrement,
-         "stopped_target": params.stopped_target}
+         "stopped_target": params.stopped_target, "motion_gate": params.motion_gate,
+         "closed_target": params.gate_closed_target,
+         "building_conflict": params.building_conflict}
     for r in range(rows):
         for c in range(cols):
             want_pg, want_zeta, want_conf = ref.step(
                 ref.from_vector(pg[r, c]), zeta[r, c], free[r, c], occ[r, c],
-                PRIORS[prior_kind[r, c]], observed[r, c], rates or [0] * 5, p)
+                PRIORS[prior_kind[r, c]], observed[r, c], rates or [0] * 5, p,
+                gate_open=bool(gate[r, c]), building=bool(building[r, c]))
             np.testing.assert_allclose(got_pg[r, c], ref.to_vector(want_pg), atol=1e-9,
                                        err_msg=f"cell {r},{c} params {params}")
             assert got_zeta[r, c] == pytest.approx(want_zeta, abs=1e-12)

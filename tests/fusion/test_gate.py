@@ -1,0 +1,155 @@
+"""The motion gate pass (evperc.fusion.gate) against a plain-Python reference written from
+its definition (docs/method.md, "The motion gate"), on a window that scrolls; and the
+behaviours it exists for: a wall grazed free is never ever-free, a road is."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evperc.fusion.fused import window_order
+from evperc.fusion.gate import GateState, gate_step
+from evperc.fusion.twin import FusionParams
+
+PARAMS = FusionParams(motion_gate="ever_free", gate_free_s=0.3, gate_revoke_s=0.5,
+                      gate_gap_s=0.2, gate_min_free=0.5)
+
+
+class Reference:
+    """Per window cell dicts in window coordinates; scrolling moves the dicts."""
+
+    def __init__(self, shape: tuple[int, int]) -> None:
+        self.shape = shape
+        self.cells = {(r, c): self.new() for r in range(shape[0]) for c in range(shape[1])}
+
+    @staticmethod
+    def new() -> dict:
+        return {"run": None, "occ_run": 0.0, "last_occ": None, "ever": False}
+
+    def scroll(self, dr: int, dc: int) -> None:
+        old = self.cells
+        self.cells = {(r, c): old.get((r + dr, c + dc), self.new())
+                      for r in range(self.shape[0]) for c in range(self.shape[1])}
+
+    def step(self, free, occ, dt, p: FusionParams) -> np.ndarray:
+        ready, revoke = {}, {}
+        for (r, c), cell in self.cells.items():
+            # ages are kept as "seconds since" (None: never)
+            since = None if cell["last_occ"] is None else cell["last_occ"] + dt
+            cell["last_occ"] = since
+            rev = False
+            if occ[r, c] > 0:
+                if since is not None and since <= p.gate_gap_s + 1e-3:
+                    cell["occ_run"] += since
+                else:
+                    cell["occ_run"] = 0.0
+                cell["last_occ"] = 0.0
+                cell["run"] = None
+                rev = cell["occ_run"] >= p.gate_revoke_s - 1e-3
+            elif free[r, c] >= p.gate_min_free:
+                cell["run"] = 0.0 if cell["run"] is None else cell["run"] + dt
+            ready[r, c] = cell["run"] is not None and cell["run"] >= p.gate_free_s - 1e-3
+            revoke[r, c] = rev
+        gate = np.zeros(self.shape, np.uint8)
+        for (r, c), cell in self.cells.items():
+            block = [(r + y, c + x) for y in (-1, 0, 1) for x in (-1, 0, 1)]
+            if any(revoke.get(b, False) for b in block):
+                cell["ever"] = False
+            elif all(ready.get(b, False) for b in block):
+                cell["ever"] = True
+            gate[r, c] = cell["ever"]
+        return gate
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_gate_pass_matches_reference(seed: int) -> None:
+    """Random free / occupied / unseen scans with long free and occupied stretches (so
+    that cells become ever-free and are revoked), the window scrolling by 0–2 cells."""
+    rng = np.random.default_rng(seed)
+    shape = (13, 17)
+    state = GateState.fresh(shape)
+    ref = Reference(shape)
+    offset = [0, 0]
+    base = rng.choice(3, size=shape, p=[0.15, 0.7, 0.15])  # 0 unseen, 1 free, 2 occupied
+    opened = revoked = 0
+    previous = np.zeros(shape, np.uint8)
+    for frame in range(40):
+        shift = (int(rng.integers(-1, 2)), int(rng.integers(-2, 3))) if frame % 4 == 3 \
+            else (0, 0)
+        offset = [(offset[0] + shift[0]) % shape[0], (offset[1] + shift[1]) % shape[1]]
+        ref.scroll(*shift)
+        flip = rng.random(shape) < 0.08
+        kind = np.where(flip, rng.choice(3, size=shape), base)
+        if frame % 10 == 0:  # the scene changes now and then
+            base = rng.choice(3, size=shape, p=[0.15, 0.7, 0.15])
+        free = np.where(kind == 1, rng.choice([0.7, 0.3], size=shape, p=[0.9, 0.1]), 0.0)
+        occ = np.where(kind == 2, 0.8, 0.0)
+        dt = float(rng.choice([0.1, 0.1, 0.05, 0.3]))
+        got = gate_step(state, free, occ, dt, PARAMS, offset=tuple(offset), shift=shift)
+        want = ref.step(free, occ, dt, PARAMS)
+        np.testing.assert_array_equal(got, want, err_msg=f"frame {frame}")
+        np.testing.assert_array_equal(window_order(state.ever, offset), want)
+        opened += int(((got == 1) & (previous == 0)).sum())
+        revoked += int(((got == 0) & (previous == 1)).sum())
+        previous = got
+    assert opened > 10 and revoked > 5, (opened, revoked)  # both transitions exercised
+
+
+def run_scene(frames: list[tuple[np.ndarray, np.ndarray]], params: FusionParams = PARAMS
+              ) -> list[np.ndarray]:
+    state = GateState.fresh(frames[0][0].shape)
+    return [gate_step(state, f, o, 0.1, params).copy() for f, o in frames]
+
+
+def test_road_cell_opens_after_the_burn_in_and_stays_open_under_a_car() -> None:
+    shape = (7, 7)
+    free = np.full(shape, 0.7, np.float32)
+    occ = np.zeros(shape, np.float32)
+    car = occ.copy()
+    car[3, 3] = 0.8
+    gates = run_scene([(free, occ)] * 4 + [(np.where(car > 0, 0, free), car)] * 3)
+    # free_s after k free scans is (k − 1) · 0.1: ready at the 4th scan (0.3 s)
+    assert gates[2][3, 3] == 0 and gates[3][3, 3] == 1
+    assert gates[3][0, 3] == 0  # window edge: neighbours outside count as not free
+    assert all(g[3, 3] == 1 for g in gates[4:])  # a car arriving keeps the gate open
+
+
+def test_wall_is_never_ever_free() -> None:
+    """A wall row grazed free now and then, with the building behind it never observed:
+    its cells never open (a neighbour is always unseen); the road in front does."""
+    shape = (8, 9)
+    frames = []
+    for k in range(12):
+        free = np.zeros(shape, np.float32)
+        occ = np.zeros(shape, np.float32)
+        free[4:] = 0.7       # road
+        if k % 3:            # the wall row: free by grazing rays, then a return
+            free[3] = 0.7
+        else:
+            occ[3] = 0.8
+        frames.append((free, occ))
+    gates = run_scene(frames)
+    assert not any(g[:4].any() for g in gates)
+    assert gates[-1][5:7, 1:8].all()
+
+
+def test_long_occupancy_revokes_the_cell_and_its_neighbours() -> None:
+    shape = (7, 7)
+    free = np.full(shape, 0.7, np.float32)
+    occ = np.zeros(shape, np.float32)
+    park = occ.copy()
+    park[3, 3] = 0.8
+    parked = np.where(park > 0, 0, free)
+    gap = (parked, occ)  # one scan without the return: tolerated (0.2 s)
+    gates = run_scene([(free, occ)] * 5 + [(parked, park)] * 3 + [gap] + [(parked, park)] * 4)
+    assert gates[4][2:5, 2:5].all()
+    # occupied at scans 5, 6, 7, (gap), 9, 10: runs of 0, 0.1, 0.2, 0.4, 0.5 s
+    assert gates[9][3, 3] == 1
+    assert not gates[10][2:5, 2:5].any() and gates[10][1, 1] == 1
+    assert not gates[12][2:5, 2:5].any()  # not re-opened while occupied
+
+
+def test_rejects_mismatched_grids() -> None:
+    state = GateState.fresh((3, 4))
+    with pytest.raises(ValueError, match="sensor grid"):
+        gate_step(state, np.zeros((3, 3)), np.zeros((3, 3)), 0.1, PARAMS)
