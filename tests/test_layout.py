@@ -18,6 +18,7 @@ ALLOWED = {
     "output": {"geo", "render"},  # export colours its grids as render does
     "fusion": {"geo", "output"},  # the kernel writes the output format's layers
     "render": {"geo", "output", "fusion"},
+    "objects": {"geo", "output", "fusion"},  # reads the decision codes
     "eval": {"geo", "output", "fusion", "sim"},
     "sim": {"geo", "logs", "output", "fusion"},
 }
