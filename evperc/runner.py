@@ -27,6 +27,8 @@ from evperc.geo.window import Window
 from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
+from evperc.objects.stage import ObjectStage, objects_enabled
+from evperc.objects.tracking import TrackerState
 from evperc.output.manifest import read_manifest
 from evperc.output.npz import write_npz
 from evperc.output.quantise import dequantise, dequantise_planar
@@ -162,6 +164,8 @@ class FusionState:
     frames: int = 0
     decision_counts: np.ndarray = field(
         default_factory=lambda: np.zeros(len(DECISION_CODES), dtype=np.int64))
+    #: the object tracker's state (None: objects off, or no frame yet)
+    tracks: TrackerState | None = None
 
     @staticmethod
     def fresh(window: Window) -> FusionState:
@@ -208,6 +212,7 @@ class FusionState:
         into.window, into.offset, into.prev_ns = self.window, self.offset, self.prev_ns
         into.scan_index, into.frames = self.scan_index, self.frames
         into.decision_counts = self.decision_counts.copy()
+        into.tracks = self.tracks.copy() if self.tracks is not None else None
         return into
 
     def save(self, path: Path) -> None:
@@ -220,6 +225,8 @@ class FusionState:
                   "resolution_m": np.float64(w.resolution_m),
                   "prev_ns": np.int64(self.prev_ns), "scan_index": np.int64(self.scan_index),
                   "frames": np.int64(self.frames), "decision_counts": self.decision_counts}
+        if self.tracks is not None:
+            arrays.update(self.tracks.to_arrays())
         write_npz(path, arrays, compress=False)
 
     @staticmethod
@@ -239,7 +246,8 @@ class FusionState:
                     offset=offset,
                     prev_ns=int(npz["prev_ns"]),
                     scan_index=int(npz["scan_index"]), frames=int(npz["frames"]),
-                    decision_counts=npz["decision_counts"])
+                    decision_counts=npz["decision_counts"],
+                    tracks=TrackerState.from_arrays(npz))
         except (OSError, ValueError, KeyError) as err:
             raise OutputError(f"{path}: missing or unreadable checkpoint ({err}); rerun "
                               "without --resume and with --overwrite") from err
@@ -280,6 +288,8 @@ class Pipeline:
         self.clock = StageClock()
         #: frames whose sensor grid the fusion thread computed (:meth:`inputs`, ``defer``)
         self.sensor_grids_in_step = 0
+        probe = Window.centred_on(0.0, 0.0, self.window_size, self.resolution)
+        self.objects = (ObjectStage(config, probe.shape) if objects_enabled(config) else None)
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -289,9 +299,12 @@ class Pipeline:
         points = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, -1.5]], np.float32)
         free, occupied = sensor_grid(points, False, np.eye(4), tiny, self.sensor_params)
         state = FusionState.fresh(tiny)
+        out = StoredOutputs.empty(tiny.shape)
         fused_step(state.pg, state.zeta, free, occupied, None, self.betas, 0.1, self.params,
-                   out=StoredOutputs.empty(tiny.shape), flags=state.flags,
-                   focal=state.focal)
+                   out=out, flags=state.flags, focal=state.focal)
+        if self.objects is not None:
+            ObjectStage(self.request.config, tiny.shape).step(
+                TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0)
 
     def meta(self) -> dict[str, Any]:
         """Manifest entries that describe the run (docs/output-format.md)."""
@@ -408,8 +421,16 @@ class Pipeline:
         counts = count_codes(out.decision, len(state.decision_counts))
         state.decision_counts += counts
         clock.lap("fusion")
-        return {"stamp_ns": inputs.stamp_ns, "pose": inputs.pose,
-                "origin": (window.row0, window.col0), "decision_counts": counts}
+        frame = {"stamp_ns": inputs.stamp_ns, "pose": inputs.pose,
+                 "origin": (window.row0, window.col0), "decision_counts": counts}
+        if self.objects is not None:  # clusters and tracks (evperc.objects), from the layers
+            if state.tracks is None:
+                state.tracks = TrackerState()
+            frame["objects"], frame["object_cells"] = self.objects.step(
+                state.tracks, out.decision, out.betp[4], out.conflict[0], window,
+                inputs.stamp_ns)
+            clock.lap("objects")
+        return frame
 
 
 def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:

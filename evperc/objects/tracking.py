@@ -132,9 +132,10 @@ class TrackerState:
                         for t in self.tracks]
         return other
 
-    def to_arrays(self, history: int, prefix: str = "objects_") -> dict[str, np.ndarray]:
+    def to_arrays(self, prefix: str = "objects_") -> dict[str, np.ndarray]:
         """Flat arrays for the checkpoint (:meth:`from_arrays` reads them back exactly)."""
         n = len(self.tracks)
+        history = max([len(t.t_ns) for t in self.tracks], default=0)
         hist_t = np.zeros((n, history), np.int64)
         hist_xy = np.zeros((n, history, 2), np.float64)
         hist_n = np.zeros(n, np.int64)

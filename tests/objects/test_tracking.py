@@ -146,7 +146,7 @@ def test_checkpoint_round_trip_continues_identically():
     for k in range(7):
         a.step(frames[k])
         b.step(frames[k])
-    b.state = TrackerState.from_arrays(b.state.to_arrays(b.params.history_frames))
+    b.state = TrackerState.from_arrays(b.state.to_arrays())
     for k in range(7, 14):
         ra, ca = a.step(frames[k])
         rb, cb = b.step(frames[k])
