@@ -42,6 +42,9 @@ DECISION6_COLOURS: dict[str, RGB] = {
     "infrastructure": (0, 0, 128), "unmapped": (255, 255, 0), "static": (100, 150, 255),
     "unknown": (0, 0, 0)}
 
+#: Outlines, ids and velocity arrows of the run's object list (docs/output-format.md).
+OBJECT_COLOURS: dict[str, RGB] = {"moving": (0, 255, 255), "stopped": (255, 140, 0)}
+
 #: Trace of moving objects over a dimmed 4-colour decision map.
 TRACE_COLOUR: RGB = (255, 0, 0)
 TRACE_DIM = 0.3
