@@ -83,27 +83,28 @@ _MOVING = DECISION_CODES["moving"]
 
 
 @numba.njit(cache=True, nogil=True)
-def _flood(decision: np.ndarray, conflict_fo: np.ndarray, fo_q: int, moving: int,
+def _flood(decision: np.ndarray, conflict_fo: np.ndarray, cols: int, fo_q: int, moving: int,
            grows: np.ndarray, extra: np.ndarray, mark: np.ndarray, cells: np.ndarray,
            stats: np.ndarray) -> tuple[int, int]:
     """Flood fill from every seed; returns (clusters, cells). ``stats[k]``: count, seeds,
-    Σrow, Σcol, min row, max row, min col, max col, Σ betP(M) ×255 (filled by the caller)."""
-    rows, cols = decision.shape
+    Σrow, Σcol, min row, max row, min col, max col. ``decision``, ``conflict_fo``: the
+    window's cells, flat (row-major, ``cols`` a row)."""
+    total = decision.shape[0]
+    rows = total // cols
     n_clusters = 0
     n_cells = 0
     n_extra = extra.shape[0]
-    total = rows * cols
     for s in range(n_extra + total):
         if s < n_extra:
             start = extra[s]
-            if start < 0 or start >= total or mark[start] or not grows[decision.flat[start]]:
+            if start < 0 or start >= total or mark[start] or not grows[decision[start]]:
                 continue
         else:
             start = s - n_extra
             if mark[start]:
                 continue
-            d = decision.flat[start]
-            if d != moving and not (fo_q > 0 and conflict_fo.flat[start] >= fo_q):
+            d = decision[start]
+            if d != moving and not (fo_q > 0 and conflict_fo[start] >= fo_q):
                 continue
         k = n_clusters
         n_clusters += 1
@@ -126,7 +127,7 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, fo_q: int, moving: int
             r = i // cols
             c = i - r * cols
             count += 1
-            if decision.flat[i] == moving or (fo_q > 0 and conflict_fo.flat[i] >= fo_q):
+            if decision[i] == moving or (fo_q > 0 and conflict_fo[i] >= fo_q):
                 seeds += 1
             sr += r
             sc += c
@@ -145,8 +146,8 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, fo_q: int, moving: int
                     j = rr * cols + cc
                     if mark[j]:
                         continue
-                    dj = decision.flat[j]
-                    if grows[dj] or (fo_q > 0 and conflict_fo.flat[j] >= fo_q):
+                    dj = decision[j]
+                    if grows[dj] or (fo_q > 0 and conflict_fo[j] >= fo_q):
                         mark[j] = 1
                         cells[n_cells] = j
                         n_cells += 1
@@ -187,8 +188,9 @@ class Clusterer:
             raise ValueError(f"window {decision.shape}, the clusterer's is {self.shape}")
         extra = (np.zeros(0, np.int64) if extra_seeds is None
                  else np.ascontiguousarray(extra_seeds, np.int64))
-        n, used = _flood(decision, conflict_fo, self._fo_q, _MOVING, _GROWS, extra,
-                         self._mark, self._cells, self._stats)
+        n, used = _flood(decision.reshape(-1), conflict_fo.reshape(-1), self.shape[1],
+                         self._fo_q, _MOVING, _GROWS, extra, self._mark, self._cells,
+                         self._stats)
         stats = self._stats[:n]
         count = stats[:, 0]
         offsets = np.zeros(n + 1, np.int64)

@@ -28,6 +28,7 @@ while its cells stay occupied."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -88,29 +89,42 @@ class Track:
     footprint: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
 
 
-def velocity_fit(t_s: np.ndarray, xy: np.ndarray, sigma0: float
-                 ) -> tuple[np.ndarray, float]:
-    """Least-squares constant velocity of centroids ``xy`` (n, 2) at times ``t_s`` (n,) and
-    the standard deviation of each component (module docstring); ``inf`` for n < 2."""
+def velocity_fit(t_s: Sequence[float], xy: Sequence[Sequence[float]], sigma0: float
+                 ) -> tuple[tuple[float, float], float]:
+    """Least-squares constant velocity of centroids ``xy`` (n pairs) at times ``t_s`` (n)
+    and the standard deviation of each component (module docstring); ``inf`` for n < 2.
+    Plain floats: n is at most ``history_frames``, and numpy's per-call cost would be
+    most of the tracker's time with tens of tracks."""
     n = len(t_s)
     if n < 2:
-        return np.zeros(2), math.inf
-    dt = t_s - t_s.mean()
-    s = float(dt @ dt)
+        return (0.0, 0.0), math.inf
+    tm = sum(t_s) / n
+    xm = sum(p[0] for p in xy) / n
+    ym = sum(p[1] for p in xy) / n
+    s = stx = sty = 0.0
+    for t, (x, y) in zip(t_s, xy, strict=True):
+        dt = t - tm
+        s += dt * dt
+        stx += dt * (x - xm)
+        sty += dt * (y - ym)
     if s <= 0.0:
-        return np.zeros(2), math.inf
-    dp = xy - xy.mean(axis=0)
-    v = (dt @ dp) / s
+        return (0.0, 0.0), math.inf
+    vx, vy = stx / s, sty / s
     var = sigma0 * sigma0
     if n > 2:
-        resid = dp - np.outer(dt, v)
-        var = max(var, float((resid * resid).sum()) / (2 * (n - 2)))
-    return v, math.sqrt(var / s)
+        rss = 0.0
+        for t, (x, y) in zip(t_s, xy, strict=True):
+            dt = t - tm
+            ex = x - xm - vx * dt
+            ey = y - ym - vy * dt
+            rss += ex * ex + ey * ey
+        var = max(var, rss / (2 * (n - 2)))
+    return (vx, vy), math.sqrt(var / s)
 
 
-def is_moving(v: np.ndarray, sigma: float, params: TrackingParams) -> bool:
+def is_moving(v: Sequence[float], sigma: float, params: TrackingParams) -> bool:
     """Speed threshold and Mahalanobis test ``|v|² / s² ≥ motion_test``."""
-    speed2 = float(v @ v)
+    speed2 = v[0] * v[0] + v[1] * v[1]
     if not math.isfinite(sigma) or speed2 < params.moving_speed_m_per_s ** 2:
         return False
     return sigma == 0.0 or speed2 / (sigma * sigma) >= params.motion_test
@@ -239,6 +253,9 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
             tracks.append(Track(state.next_id))
             state.next_id += 1
             of_track[len(tracks) - 1] = c
+    # global lattice (iy, ix) of every cluster cell, once for the frame
+    r, col = np.divmod(clusters.cells, window.cols)
+    lattice = np.stack([r + window.row0, col + window.col0], axis=1)
     reported: list[tuple[int, int]] = []  # (track index, cluster index)
     survivors: list[Track] = []
     for i, t in enumerate(tracks):
@@ -253,15 +270,14 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
         t.t_ns.append(int(stamp_ns))
         t.xy.append((float(clusters.centroid_m[c, 0]), float(clusters.centroid_m[c, 1])))
         del t.t_ns[:-params.history_frames], t.xy[:-params.history_frames]
-        t_s = (np.array(t.t_ns, np.int64) - t.t_ns[-1]) * 1e-9
-        v, sigma = velocity_fit(t_s, np.array(t.xy, np.float64), params.centroid_sigma_m)
-        t.velocity, t.sigma = (float(v[0]), float(v[1])), sigma
+        last = t.t_ns[-1]
+        v, sigma = velocity_fit([(ns - last) * 1e-9 for ns in t.t_ns], t.xy,
+                                params.centroid_sigma_m)
+        t.velocity, t.sigma = v, sigma
         t.moving = is_moving(v, sigma, params)
         if t.moving and t.hits >= params.confirm_frames:
             t.ever_moving = True
-        cells = clusters.cells_of(c)
-        r, col = np.divmod(cells, window.cols)
-        t.footprint = np.stack([r + window.row0, col + window.col0], axis=1)
+        t.footprint = lattice[clusters.offsets[c]:clusters.offsets[c + 1]]  # a view
         if t.hits >= params.confirm_frames and (t.moving or t.ever_moving):
             reported.append((len(survivors), c))
         survivors.append(t)
