@@ -30,6 +30,8 @@ from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
 from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
+from evperc.objects.stage import ObjectStage, objects_enabled
+from evperc.objects.tracking import TrackerState
 from evperc.output.manifest import read_manifest
 from evperc.output.npz import write_npz
 from evperc.output.quantise import dequantise, dequantise_planar
@@ -172,6 +174,8 @@ class FusionState:
     frames: int = 0
     decision_counts: np.ndarray = field(
         default_factory=lambda: np.zeros(len(DECISION_CODES), dtype=np.int64))
+    #: the object tracker's state (None: objects off, or no frame yet)
+    tracks: TrackerState | None = None
 
     @staticmethod
     def fresh(window: Window) -> FusionState:
@@ -224,6 +228,7 @@ class FusionState:
         into.window, into.offset, into.prev_ns = self.window, self.offset, self.prev_ns
         into.scan_index, into.frames = self.scan_index, self.frames
         into.decision_counts = self.decision_counts.copy()
+        into.tracks = self.tracks.copy() if self.tracks is not None else None
         return into
 
     def save(self, path: Path) -> None:
@@ -237,6 +242,8 @@ class FusionState:
                   "resolution_m": np.float64(w.resolution_m),
                   "prev_ns": np.int64(self.prev_ns), "scan_index": np.int64(self.scan_index),
                   "frames": np.int64(self.frames), "decision_counts": self.decision_counts}
+        if self.tracks is not None:
+            arrays.update(self.tracks.to_arrays())
         write_npz(path, arrays, compress=False)
 
     @staticmethod
@@ -260,7 +267,8 @@ class FusionState:
                     offset=offset,
                     prev_ns=int(npz["prev_ns"]),
                     scan_index=int(npz["scan_index"]), frames=int(npz["frames"]),
-                    decision_counts=npz["decision_counts"])
+                    decision_counts=npz["decision_counts"],
+                    tracks=TrackerState.from_arrays(npz))
         except (OSError, ValueError, KeyError) as err:
             raise OutputError(f"{path}: missing or unreadable checkpoint ({err}); rerun "
                               "without --resume and with --overwrite") from err
@@ -302,6 +310,8 @@ class Pipeline:
         #: frames whose sensor grid the fusion thread computed (:meth:`inputs`, ``defer``)
         self.sensor_grids_in_step = 0
         self._gate_buffer: np.ndarray | None = None
+        probe = Window.centred_on(0.0, 0.0, self.window_size, self.resolution)
+        self.objects = (ObjectStage(config, probe.shape) if objects_enabled(config) else None)
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -314,10 +324,13 @@ class Pipeline:
         points = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, -1.5]], np.float32)
         free, occupied = sensor_grid(points, False, np.eye(4), tiny, self.sensor_params)
         state = FusionState.fresh(tiny)
+        out = StoredOutputs.empty(tiny.shape)
         gate = gate_step(state.gate, free, occupied, 0.1, self.params)
         fused_step(state.pg, state.zeta, free, occupied, None, self.betas, 0.1, self.params,
-                   out=StoredOutputs.empty(tiny.shape), flags=state.flags,
-                   focal=state.focal, gate=gate)
+                   out=out, flags=state.flags, focal=state.focal, gate=gate)
+        if self.objects is not None:
+            ObjectStage(self.request.config, tiny.shape).step(
+                TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0)
 
     def meta(self) -> dict[str, Any]:
         """Manifest entries that describe the run (docs/output-format.md)."""
@@ -468,6 +481,13 @@ class Pipeline:
         clock.lap("fusion")
         frame = {"stamp_ns": inputs.stamp_ns, "pose": inputs.pose,
                  "origin": (window.row0, window.col0), "decision_counts": counts}
+        if self.objects is not None:  # clusters and tracks (evperc.objects), from the layers
+            if state.tracks is None:
+                state.tracks = TrackerState()
+            frame["objects"], frame["object_cells"] = self.objects.step(
+                state.tracks, out.decision, out.betp[4], out.conflict[0], window,
+                inputs.stamp_ns)
+            clock.lap("objects")
         if inputs.labelling is not None:  # a separate pass over the points, after the step
             scan, t_crs, kinds = inputs.labelling
             labels = point_labels(scan.points, kinds, t_crs, window, out.decision,
@@ -476,7 +496,6 @@ class Pipeline:
             frame["point_labels"] = (number, labels)
             clock.lap("point_labels")
         return frame
-
 
     def _gate_layer(self, shape: tuple[int, int]) -> np.ndarray:
         """The gate layer's buffer (one per run, reused every frame)."""

@@ -34,6 +34,7 @@ import numpy as np
 
 from evperc.errors import TruthError, UsageError
 from evperc.geo.window import Window, overlap
+from evperc.output.objects import OBJECT_STATES
 
 FINE = ("free", "infrastructure", "unmapped", "stopped", "moving")
 COARSE = ("free", "static", "moving")
@@ -104,6 +105,7 @@ def evaluate(run: Any, truth: Any, cells: str = "observed") -> dict[str, Any]:
     n_agents = len(getattr(truth, "agents", [])) or 0
     moving_code = codes.get("moving", -1)
     confusion = np.zeros((len(FINE), len(decisions)), dtype=np.int64)
+    objects = ObjectScore()
     rows: list[tuple[np.ndarray, ...]] = []
     stamps, matched, run_frames = [], 0, 0
 
@@ -141,12 +143,14 @@ def evaluate(run: Any, truth: Any, cells: str = "observed") -> dict[str, Any]:
         visible_now = np.bincount(agent[is_m & t.visible[tr, tc]], minlength=n) > 0
         detected = np.bincount(agent[is_m & (dec[rr, rc] == moving_code)], minlength=n) > 0
         rows.append((moving_now, visible_now, detected))
+        objects.add(f, t, (rr, rc), (tr, tc), tcodes["moving"])
 
     if run_frames and not matched:
         raise TruthError(f"{_where(truth)}: no truth frame at the stamp of any of the run's "
                          f"{run_frames} frames: not the run's drive; give the truth of the "
                          "drive the run was made from")
     metrics = _summarise(confusion, decisions)
+    metrics["objects"] = objects.summary()
     metrics["cell_set"] = cells
     metrics["frames_span_ns"] = [stamps[0], stamps[-1]] if stamps else None
     metrics["frames_matched"] = matched
@@ -170,6 +174,63 @@ def _check_pose(run: Any, truth: Any, f: Any, t: Any) -> None:
             f"{_where(truth)}: at stamp {t.stamp_ns} the truth's sensor is {distance:.1f} m "
             f"from the run's (more than {POSE_TOLERANCE_M} m): not the run's drive; give the "
             "truth of the drive the run was made from")
+class ObjectScore:
+    """Object-level scores of a run's object list (``frame.objects``) against the truth's
+    agents, over the matched frames (docs/evaluation.md).
+
+    Per frame, the true moving objects are the agents with a cell of class M that is
+    ``visible`` in this frame (in the part both windows cover); a reported ``moving`` object
+    matches the moving agent that holds most of its cells (class M cells of the truth), if
+    any. Precision = matched moving objects / moving objects reported; recall = true moving
+    objects matched by some reported one / true moving objects. A track switch: an agent
+    matched in a frame by a track other than the one that matched it last. Frames of a run
+    without an object list (``frame.objects is None``) are not scored."""
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.reported = 0
+        self.matched = 0
+        self.truth = 0
+        self.found = 0
+        self.switches = 0
+        self.last_track: dict[int, int] = {}
+
+    def add(self, f: Any, t: Any, run_cells: tuple[slice, slice],
+            truth_cells: tuple[slice, slice], moving_code: int) -> None:
+        objects = getattr(f, "objects", None)
+        if objects is None:
+            return
+        self.frames += 1
+        (rr, rc), (tr, tc) = run_cells, truth_cells
+        agent = np.where(t.classes[tr, tc] == moving_code, t.agent[tr, tc], 0)
+        visible_agents = set(np.unique(agent[t.visible[tr, tc] & (agent > 0)]).tolist())
+        self.truth += len(visible_agents)
+        labels = f.object_labels()[rr, rc]
+        moving = objects[objects["state"] == OBJECT_STATES["moving"]]
+        self.reported += len(moving)
+        found: set[int] = set()
+        for o in moving:
+            hits = agent[(labels == o["track_id"]) & (agent > 0)]
+            if hits.size == 0:
+                continue
+            best = int(np.bincount(hits).argmax())
+            self.matched += 1
+            found.add(best)
+            previous = self.last_track.get(best)
+            if previous is not None and previous != int(o["track_id"]):
+                self.switches += 1
+            self.last_track[best] = int(o["track_id"])
+        self.found += len(found & visible_agents)
+
+    def summary(self) -> dict[str, Any] | None:
+        if self.frames == 0:
+            return None
+        return {"frames": self.frames, "moving_reported": self.reported,
+                "moving_matched": self.matched, "moving_truth": self.truth,
+                "moving_found": self.found,
+                "precision": self.matched / self.reported if self.reported else None,
+                "recall": self.found / self.truth if self.truth else None,
+                "track_switches": self.switches}
 
 
 def _summarise(confusion: np.ndarray, decisions: list[str]) -> dict[str, Any]:
@@ -258,6 +319,12 @@ def format_report(metrics: dict[str, Any], other: dict[str, Any] | None = None,
         for t, counts in zip(conf["truth"], conf["counts"], strict=True):
             lines.append(f"{t:<15}" + "".join(f"{c:>10}" for c in counts))
         lat = m["latency_frames"]
+        obj = m.get("objects")
+        if obj is not None:
+            lines.append(f"objects ({n}): moving P {num(obj['precision']).strip()} "
+                         f"({obj['moving_matched']}/{obj['moving_reported']}), R "
+                         f"{num(obj['recall']).strip()} ({obj['moving_found']}/"
+                         f"{obj['moving_truth']}), track switches {obj['track_switches']}")
         lines.append(f"moving-object latency ({n}): {lat['episodes']} episodes, "
                      f"{lat['detected']} detected, {lat['missed']} missed; frames mean "
                      f"{num(lat['mean']).strip()}, median {num(lat['median']).strip()}, "

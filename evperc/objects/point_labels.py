@@ -9,8 +9,8 @@ scripts read. A point's label follows evperc's own reasoning about it:
   ``[min_range_m, max_range_m)``, or higher than ``max_obstacle_height_m`` above the ground):
   unknown — evperc says nothing about them;
 - obstacle: the decision of the window cell holding it after the scan is fused
-  (SPEC §6): ``moving`` → moving; ``static``, ``stopped``, ``infrastructure``, ``unmapped``
-  → static; ``free`` → static (the cell's evidence is of free space, the return says
+  (docs/method.md §6): ``moving`` → moving; ``static``, ``stopped``, ``infrastructure``,
+  ``unmapped`` → static; ``free`` → static (the cell's evidence is of free space, the return says
   occupied: nothing says it moves); ``unknown`` → unknown; outside the window → unknown.
 
 Cell of a point: its offset from the sensor levelled as the sensor model does it (float32

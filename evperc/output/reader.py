@@ -13,6 +13,7 @@ from evperc.errors import OutputError
 from evperc.geo.window import Window
 from evperc.output import mass_tiles
 from evperc.output.manifest import read_manifest
+from evperc.output.objects import object_labels
 from evperc.output.quantise import dequantise, dequantise_planar
 
 
@@ -31,6 +32,19 @@ class Frame:
     conflict: np.ndarray      # (rows, cols, 3) float32: ∅_FO, ∅_OF, ∅_other
     masses: np.ndarray        # (rows, cols, 32) float32
     decision_counts: np.ndarray  # (n_codes,) int64: cells per decision code
+    #: the frame's moving and stopped objects, records of
+    #: :data:`evperc.output.objects.OBJECT_DTYPE` by track id; None if the run computed no
+    #: objects (``objects.enabled = false``, or written before them)
+    objects: np.ndarray | None = None
+    #: (Σ cell_count,) uint32: flat window indices (row · cols + col) of the objects' cells,
+    #: object after object in record order
+    object_cells: np.ndarray | None = None
+
+    def object_labels(self) -> np.ndarray | None:
+        """(rows, cols) uint32: each object's cells hold its track id, 0 elsewhere."""
+        if self.objects is None:
+            return None
+        return object_labels(self.objects, self.object_cells, self.decision.shape)
 
 
 class Run:
@@ -72,6 +86,7 @@ class Run:
             raise OutputError(f"{path}: unreadable chunk ({err})") from err
         rows, cols = self.shape
         planes = self._mass_planes(path, arrays)
+        objects = self._objects(path, arrays)
         for k in range(len(arrays["stamp_ns"])):
             masses = dequantise_planar(next(planes))
             row0, col0 = (int(v) for v in arrays["origin"][k])
@@ -82,7 +97,24 @@ class Run:
                 decision=arrays["decision"][k], betp=dequantise_planar(arrays["betp"][k]),
                 zeta=dequantise(arrays["zeta"][k]),
                 conflict=dequantise_planar(arrays["conflict"][k]), masses=masses,
-                decision_counts=arrays["decision_counts"][k])
+                decision_counts=arrays["decision_counts"][k], **next(objects))
+
+    @staticmethod
+    def _objects(path: Path, arrays: dict[str, np.ndarray]) -> Iterator[dict[str, Any]]:
+        """Each frame's ``objects`` and ``object_cells`` (None without the members)."""
+        if "object_counts" not in arrays:
+            while True:
+                yield {}
+        records, cells = arrays["objects"], arrays["object_cells"]
+        ends = np.cumsum(arrays["object_counts"])
+        cell_ends = np.concatenate([[0], np.cumsum(records["cell_count"].astype(np.int64))])
+        if (ends.size and ends[-1] != records.size) or cell_ends[-1] != cells.size:
+            raise OutputError(f"{path}: object records and cells do not match their counts")
+        first = 0
+        for end in ends:
+            yield {"objects": records[first:end],
+                   "object_cells": cells[cell_ends[first]:cell_ends[end]]}
+            first = int(end)
 
     def _mass_planes(self, path: Path, arrays: dict[str, np.ndarray]) -> Iterator[np.ndarray]:
         """Each frame's dense uint8 mass planes ``(32, rows, cols)``."""

@@ -35,6 +35,7 @@ from evperc.output import mass_tiles
 from evperc.output.layers import MASS_TILE, StoredOutputs
 from evperc.output.manifest import FORMAT_VERSION, MANIFEST, read_manifest
 from evperc.output.npz import Concatenated, DeflateStream, member_writer_supported, write_npz
+from evperc.output.objects import OBJECT_DTYPE
 from evperc.output.quantise import quantise, quantise_planar
 
 log = logging.getLogger(__name__)
@@ -155,6 +156,8 @@ class _Chunk:
         self.origin = np.zeros((capacity, 2), np.int64)
         self.mass_bytes = np.zeros(capacity, np.int64)
         self.decision_counts = np.zeros((capacity, n_codes), np.int64)
+        #: each frame's object records and cells (evperc.output.objects), None: not computed
+        self.objects: list[tuple[np.ndarray, np.ndarray]] | None = None
         #: the layers deflated frame by frame (:meth:`stream`), None: deflated when written
         self.streams: dict[str, DeflateStream] | None = None
         self.streamed = 0  # frames in the streams
@@ -164,6 +167,7 @@ class _Chunk:
         """Empty, for the next chunk."""
         self.count = self.streamed = 0
         self.error = None
+        self.objects = None
         self.streams = ({name: DeflateStream(getattr(self.layers, name).dtype)
                          for name in STREAMED} if streaming else None)
 
@@ -197,12 +201,20 @@ class _Chunk:
                       "conflict": own.conflict[:k],
                       "mass_runs": Concatenated(tuple(self.layer("mass_runs", i)
                                                       for i in range(k)))}
-        return {"stamp_ns": self.stamp_ns[:k], "pose": self.pose[:k],
-                "origin": self.origin[:k], "tile_masks": layers["tile_masks"],
-                "mass_bytes": self.mass_bytes[:k], "mass_runs": layers["mass_runs"],
-                "betp": layers["betp"], "decision": layers["decision"],
-                "zeta": layers["zeta"], "conflict": layers["conflict"],
-                "decision_counts": self.decision_counts[:k]}
+        arrays = {"stamp_ns": self.stamp_ns[:k], "pose": self.pose[:k],
+                  "origin": self.origin[:k], "tile_masks": layers["tile_masks"],
+                  "mass_bytes": self.mass_bytes[:k], "mass_runs": layers["mass_runs"],
+                  "betp": layers["betp"], "decision": layers["decision"],
+                  "zeta": layers["zeta"], "conflict": layers["conflict"],
+                  "decision_counts": self.decision_counts[:k]}
+        if self.objects is not None:
+            arrays["object_counts"] = np.array([len(o) for o, _ in self.objects], np.int64)
+            arrays["objects"] = (np.concatenate([o for o, _ in self.objects])
+                                 if self.objects else np.zeros(0, OBJECT_DTYPE))
+            arrays["object_cells"] = (np.concatenate([c for _, c in self.objects])
+                                      .astype(np.uint32) if self.objects
+                                      else np.zeros(0, np.uint32))
+        return arrays
 
 
 #: frames whose layers are held at once when they are deflated frame by frame: the one
@@ -312,13 +324,25 @@ class RunWriter:
         return self._chunk.layers.view(self._reserved)
 
     def commit_frame(self, stamp_ns: int, pose: np.ndarray, origin: tuple[int, int],
-                     decision_counts: np.ndarray | None = None) -> bool:
+                     decision_counts: np.ndarray | None = None,
+                     objects: np.ndarray | None = None,
+                     object_cells: np.ndarray | None = None) -> bool:
         """The frame whose layers fill :meth:`frame_slot` is complete; a full chunk is handed
-        to the writer thread (then returns True)."""
+        to the writer thread (then returns True). ``objects``, ``object_cells``: the frame's
+        object list (:mod:`evperc.output.objects`; kept, not copied), given for every frame
+        of a run or for none."""
         if self._reserved is None:
             raise RuntimeError("commit_frame() without frame_slot()")
         c = self._chunk
         k = c.count
+        if k > 0 and (objects is None) != (c.objects is None):
+            raise RuntimeError("object lists given for some frames of a chunk only")
+        if objects is not None:
+            if objects.dtype != OBJECT_DTYPE or object_cells is None:
+                raise ValueError("objects must be OBJECT_DTYPE records with their cells")
+            if k == 0:
+                c.objects = []
+            c.objects.append((objects, object_cells))
         slot, self._reserved = self._reserved, None
         c.slots[k] = slot
         c.mass_bytes[k] = c.layers.mass_bytes[slot]

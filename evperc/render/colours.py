@@ -54,6 +54,11 @@ DECISION6_COLOURS: dict[str, RGB] = {
 #: a decision code the run names but the palette does not (a newer output format)
 UNNAMED_COLOUR: RGB = (255, 255, 128)
 
+#: Outlines, ids and velocity arrows of the run's object list (docs/output-format.md).
+#: (yellow and pink: no class, decision, ego or map-outline colour, so an outline shows over
+#: the cells it surrounds)
+OBJECT_COLOURS: dict[str, RGB] = {"moving": (255, 255, 0), "stopped": (255, 105, 180)}
+
 #: Trace of moving objects over a dimmed 4-colour decision map.
 TRACE_COLOUR: RGB = (255, 0, 0)
 TRACE_DIM = 0.3

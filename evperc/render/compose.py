@@ -24,6 +24,8 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from evperc.geo.window import Window
+from evperc.output.objects import OBJECT_STATES
+from evperc.render.colours import OBJECT_COLOURS
 from evperc.render.draw import draw_segments, upscale
 from evperc.render.map_outlines import MapOutlines
 
@@ -74,6 +76,12 @@ class Panel:
     window: Window
     pose: np.ndarray | None = None           # x_m, y_m, yaw_rad (working CRS)
     outlines: MapOutlines | None = None
+    #: the frame's object list (evperc.output.objects.OBJECT_DTYPE records), drawn over
+    objects: np.ndarray | None = None
+
+
+#: seconds of travel the velocity arrow of an object shows
+ARROW_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -201,6 +209,7 @@ class Compositor:
         assert layout is not None and self._template is not None
         canvas = self._template.copy()
         egos = []
+        drawn_objects = []
         for i, row in enumerate(grid):
             for j, panel in enumerate(row):
                 box = layout.panel_box(i, j)
@@ -210,11 +219,15 @@ class Compositor:
                     self._draw_outlines(canvas, panel, box, px)
                 if panel.pose is not None:
                     egos.append(self._ego_polygon(panel, box, px))
+                if panel.objects is not None and len(panel.objects):
+                    drawn_objects.append((panel, box))
         image = Image.fromarray(canvas)
         draw = ImageDraw.Draw(image)
         for polygon in egos:
             if polygon is not None:
                 draw.polygon(polygon, fill=EGO_FILL, outline=EGO_EDGE)
+        for panel, box in drawn_objects:
+            self._draw_objects(draw, panel, box, px)
         _, ftop, _, _ = layout.footer_box()
         draw.text((MARGIN, ftop + 8), time_text, fill=INK, font=font())
         return np.array(image)
@@ -273,6 +286,36 @@ class Compositor:
             u0, v0 = self._to_pixels(panel, box, px, seg[:, 0], seg[:, 1])
             u1, v1 = self._to_pixels(panel, box, px, seg[:, 2], seg[:, 3])
             draw_segments(canvas, np.stack([u0, v0, u1, v1], axis=1), colour, box)
+
+    def _draw_objects(self, draw: ImageDraw.ImageDraw, panel: Panel,
+                      box: tuple[int, int, int, int], px: int) -> None:
+        """Each object's bounding box, track id and velocity arrow (``ARROW_S`` of travel
+        from the centroid), in the colour of its state."""
+        left, top, right, bottom = box
+        for o in panel.objects:
+            colour = OBJECT_COLOURS["moving" if int(o["state"]) == OBJECT_STATES["moving"]
+                                    else "stopped"]
+            x0, y0, x1, y1 = (float(v) for v in o["bbox_m"])
+            u0, v1 = self._to_pixels(panel, box, px, np.array(x0), np.array(y0))
+            u1, v0 = self._to_pixels(panel, box, px, np.array(x1), np.array(y1))
+            draw.rectangle((float(u0), float(v0), float(u1) - 1, float(v1) - 1),
+                           outline=colour, width=2 if px >= 3 else 1)
+            cx, cy = (float(v) for v in o["centroid_m"])
+            vx, vy = (float(v) for v in o["velocity_m_per_s"])
+            uc, vc = (float(a) for a in self._to_pixels(panel, box, px, np.array(cx),
+                                                        np.array(cy)))
+            ue, ve = (float(a) for a in self._to_pixels(
+                panel, box, px, np.array(cx + vx * ARROW_S), np.array(cy + vy * ARROW_S)))
+            ue, ve = min(max(ue, left), right - 1), min(max(ve, top), bottom - 1)
+            if math.hypot(ue - uc, ve - vc) >= 3:
+                draw.line([(uc, vc), (ue, ve)], fill=colour, width=2)
+                ang = math.atan2(ve - vc, ue - uc)
+                head = [(ue, ve)] + [(ue - 7 * math.cos(ang + s), ve - 7 * math.sin(ang + s))
+                                     for s in (0.45, -0.45)]
+                draw.polygon(head, fill=colour)
+            tx = min(max(float(u1) + 2, left), right - text_width(str(o["track_id"])) - 1)
+            draw.text((tx, max(float(v0) - 12, top)), str(int(o["track_id"])), fill=colour,
+                      font=font())
 
     def _ego_polygon(self, panel: Panel, box: tuple[int, int, int, int], px: int
                      ) -> list[tuple[float, float]] | None:

@@ -75,7 +75,7 @@ class FrameRenderer:
                  decision_codes: Mapping[str, int] | None = None, *,
                  cell_px: int | None = None, t0_ns: int | None = None,
                  outlines: MapOutlines | None = None, label: str = "",
-                 trace: MovingTrace | None = None) -> None:
+                 trace: MovingTrace | None = None, objects: bool = True) -> None:
         bad = [name for name in layers if name not in LAYER_TITLES]
         if bad:
             raise ValueError(f"unknown layers {bad}; known: {LAYERS}")
@@ -90,6 +90,10 @@ class FrameRenderer:
         self._lut6 = c.decision_lut(self.codes, c.DECISION6_COLOURS)
         self._zeta_lut = c.ramp_lut()
         extra = ((BUILDING_OUTLINE, "building"), (ROAD_OUTLINE, "road")) if outlines else ()
+        #: draw the frames' object lists (outline, track id, velocity arrow over 1 s)
+        self.objects = objects
+        if objects:
+            extra += tuple((rgb, f"{state} object") for state, rgb in c.OBJECT_COLOURS.items())
         self._legends = {name: _legend(name, self.codes) + extra for name in self.layers}
 
     def layer_rgb(self, layer: str, frame: Any, trace: np.ndarray | None = None) -> np.ndarray:
@@ -126,8 +130,9 @@ class FrameRenderer:
         trace = self.trace.sample(frame.window) if "trace" in self.layers else None
         prefix = f"{self.label}: " if self.label else ""
         pose = np.asarray(frame.pose, dtype=np.float64)
+        objects = getattr(frame, "objects", None) if self.objects else None
         return [Panel(prefix + LAYER_TITLES[name], self.layer_rgb(name, frame, trace),
-                      self._legends[name], frame.window, pose, self.outlines)
+                      self._legends[name], frame.window, pose, self.outlines, objects)
                 for name in self.layers]
 
     def time_text(self, frame: Any) -> str:

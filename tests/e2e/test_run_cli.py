@@ -149,6 +149,9 @@ def test_interrupted_run_resumes_identically(drive: Path, tmp_path: Path, checkp
         np.testing.assert_array_equal(fa.decision, fb.decision)
         np.testing.assert_array_equal(fa.masses, fb.masses)
         np.testing.assert_array_equal(fa.zeta, fb.zeta)
+        assert fa.objects.tobytes() == fb.objects.tobytes()  # the tracker resumed exactly
+        np.testing.assert_array_equal(fa.object_cells, fb.object_cells)
+    assert sum(len(f.objects) for f in a) > 0  # the crossing car was reported
     assert not list(part.glob("checkpoint_*.npz"))
 
 

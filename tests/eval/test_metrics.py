@@ -155,3 +155,45 @@ def test_visible_cells_only(tmp_path: Path) -> None:
     assert remembered["per_class"]["free"]["recall"] == 0.5
     with pytest.raises(Exception, match="visible"):
         evaluate(run, truth, cells="everything")
+
+
+def _objects_frame(stamp: int, decision: list, objects: list[tuple[int, int, list[int]]]
+                   ) -> SimpleNamespace:
+    """A run frame with an object list: (track id, state, flat cell indices) each."""
+    from evperc.output.objects import OBJECT_DTYPE, object_labels
+
+    dec = np.array(decision, dtype=np.uint8)
+    recs = np.zeros(len(objects), OBJECT_DTYPE)
+    for k, (tid, state, cells) in enumerate(objects):
+        recs[k]["track_id"], recs[k]["state"], recs[k]["cell_count"] = tid, state, len(cells)
+    cells = np.array([c for _, _, cs in objects for c in cs], dtype=np.uint32)
+    frame = SimpleNamespace(stamp_ns=stamp, origin=(0, 0), decision=dec, objects=recs,
+                            object_cells=cells)
+    frame.object_labels = lambda: object_labels(recs, cells, dec.shape)
+    return frame
+
+
+def test_object_precision_recall_and_track_switches_by_hand(tmp_path: Path) -> None:
+    classes, agent = [[M, M, F, M, M, F]], [[1, 1, 0, 2, 2, 0]]
+    truth = load_truth(write_truth(tmp_path, [
+        {"stamp": 0, "classes": classes, "agent": agent},
+        {"stamp": 1, "classes": classes, "agent": agent},
+        {"stamp": 2, "classes": classes, "agent": agent, "visible": [[1, 1, 1, 0, 0, 1]]}],
+        agents=2))
+    dec = [[MOV, MOV, FREE, MOV, MOV, FREE]]
+    run = SimpleNamespace(decision_codes=CODES, frames=[
+        # track 5 on agent 1 (match); track 6 on a free cell (false)
+        _objects_frame(0, dec, [(5, 1, [0, 1]), (6, 1, [2])]),
+        # agent 1 now matched by track 7: one switch; track 5 stopped on agent 2: not scored
+        _objects_frame(1, dec, [(5, 2, [3]), (7, 1, [0, 1])]),
+        # agent 2 not visible: matched by track 8 (precision) but not a true one (recall)
+        _objects_frame(2, dec, [(8, 1, [3, 4])])])
+    obj = evaluate(run, truth)["objects"]
+    # reported moving 2 + 1 + 1 = 4, matched 1 + 1 + 1 = 3; true visible 2 + 2 + 1 = 5,
+    # found 1 + 1 + 0 = 2
+    assert obj["moving_reported"] == 4 and obj["moving_matched"] == 3
+    assert obj["moving_truth"] == 5 and obj["moving_found"] == 2
+    assert obj["precision"] == 0.75 and obj["recall"] == 0.4
+    assert obj["track_switches"] == 1
+    # a run without object lists has no object scores
+    assert evaluate(fake_run([{"stamp": 0, "decision": dec}]), truth)["objects"] is None

@@ -1,0 +1,56 @@
+"""The object stages alone (issue 21) over a finished run's stored frames: ``ObjectStage.step``
+on each frame's decision, betP(M) and ∅_FO (uint8 as stored), clusters and tracker timed
+apart, best of 3 per frame; prints median and 90th percentile per frame, and the mean number
+of clusters and tracks.
+
+``python benchmarks/bench_objects.py RUN_DIR`` (e.g. a run of workload (a) of bench_run.py).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from evperc import load  # noqa: E402
+from evperc.config import load_config  # noqa: E402
+from evperc.objects.stage import ObjectStage  # noqa: E402
+from evperc.objects.tracking import TrackerState, footprint_seeds, track_step  # noqa: E402
+
+
+def main(run_dir: str) -> None:
+    run = load(run_dir)
+    stage = ObjectStage(load_config(), run.shape)
+    frames = [(f.decision.copy(), np.round(f.betp[..., 4] * 255).astype(np.uint8),
+               np.round(f.conflict[..., 0] * 255).astype(np.uint8), f.window, f.stamp_ns)
+              for f in run.frames]
+    stage.step(TrackerState(), *frames[0])  # numba: load the cached code
+    times = np.zeros((3, len(frames), 2))
+    clusters_n, tracks_n = [], []
+    for rep in range(3):
+        state = TrackerState()
+        for k, (dec, betp_m, fo, window, stamp) in enumerate(frames):
+            t0 = time.perf_counter()
+            clusters = stage.clusterer.clusters(dec, betp_m, fo, window,
+                                                footprint_seeds(state, window))
+            t1 = time.perf_counter()
+            track_step(state, clusters, window, stamp, stage.tracking_params)
+            times[rep, k] = (t1 - t0, time.perf_counter() - t1)
+            if rep == 0:
+                clusters_n.append(len(clusters))
+                tracks_n.append(len(state.tracks))
+    best = times.min(axis=0) * 1e3
+    for name, col in (("clusters", 0), ("tracker", 1)):
+        print(f"{name}: median {np.median(best[:, col]):.3f} ms, 90th percentile "
+              f"{np.percentile(best[:, col], 90):.3f} ms per frame")
+    total = best.sum(axis=1)
+    print(f"both: median {np.median(total):.3f} ms; {len(frames)} frames, "
+          f"{np.mean(clusters_n):.1f} clusters and {np.mean(tracks_n):.1f} tracks a frame")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1])

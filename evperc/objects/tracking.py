@@ -1,0 +1,305 @@
+"""Tracks of clusters from frame to frame, and the motion test per object (docs/method.md,
+"Objects"; association after Dynablox, the motion test after DOGMa, Nuss et al. IJRR 2018).
+
+Association: each track predicts its centroid at the new stamp, ``c + v·Δt`` (``v`` its
+last velocity, 0 before it has one); track–cluster pairs whose distance is at most
+``gate_m`` are taken greedily, nearest first (ties: lower track index, then lower cluster
+index), each track and cluster at most once. A cluster left over starts a new track (new
+id: ids count up from 1 and are never reused). A track without a cluster is kept for
+``max_missed_frames`` frames, then dropped.
+
+Motion: over the track's last ``history_frames`` centroids ``(tᵢ, pᵢ)`` (associated frames
+only, ``tᵢ`` the stamps), the least-squares constant-velocity fit per axis,
+
+    v = Σ (tᵢ − t̄)(pᵢ − p̄) / S,   S = Σ (tᵢ − t̄)²,
+
+with the centroid noise σ² = max(σ₀², RSS / (2(n − 2))) (σ₀ = ``centroid_sigma_m``; the
+residuals of both axes pooled, 2(n − 2) degrees of freedom, when n > 2), so each velocity
+component has variance s² = σ² / S and Σ = s² I. The object moves if its speed passes both
+``|v| ≥ moving_speed_m_per_s`` and the Mahalanobis test ``vᵀ Σ⁻¹ v = |v|² / s² ≥
+motion_test`` (DOGMa's 4: two standard deviations). A track is reported once it has been
+associated in ``confirm_frames`` frames, and in a frame in which it is associated: as
+``moving`` while the test passes, as ``stopped`` once it has moved and the test fails.
+Tracks that never moved are not reported (a false seed at a wall grows a cluster that
+stays put). A track that has moved seeds the next frame's clusters with its cells
+(:func:`footprint_seeds`): a stopped car, no longer decided moving, keeps its cluster
+while its cells stay occupied."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from evperc.geo.window import Window
+from evperc.objects.clusters import Clusters
+from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
+
+
+@dataclass(frozen=True)
+class TrackingParams:
+    """The ``[objects]`` keys of the tracker (configs/default.toml)."""
+
+    #: objects.gate_m: largest distance between a track's predicted centroid and a cluster
+    #: centroid that may be associated (Dynablox: 1 m; a cluster's centroid also moves as
+    #: more of a car comes into view)
+    gate_m: float = 2.0
+    #: objects.confirm_frames: associated frames before a track is reported
+    confirm_frames: int = 3
+    #: objects.max_missed_frames: frames a track survives without a cluster
+    max_missed_frames: int = 3
+    #: objects.history_frames: centroids the velocity fit uses (10 = 1 s at 10 Hz)
+    history_frames: int = 10
+    #: objects.moving_speed_m_per_s: slower objects are not moving
+    moving_speed_m_per_s: float = 1.0
+    #: objects.motion_test: vᵀ Σ⁻¹ v at least this is motion (DOGMa: 4)
+    motion_test: float = 4.0
+    #: objects.centroid_sigma_m: least standard deviation of a cluster centroid per axis
+    centroid_sigma_m: float = 0.25
+
+    @staticmethod
+    def from_config(config: dict[str, Any]) -> TrackingParams:
+        o = config["objects"]
+        return TrackingParams(
+            gate_m=float(o["gate_m"]), confirm_frames=int(o["confirm_frames"]),
+            max_missed_frames=int(o["max_missed_frames"]),
+            history_frames=int(o["history_frames"]),
+            moving_speed_m_per_s=float(o["moving_speed_m_per_s"]),
+            motion_test=float(o["motion_test"]),
+            centroid_sigma_m=float(o["centroid_sigma_m"]))
+
+
+@dataclass
+class Track:
+    """One tracked object."""
+
+    track_id: int
+    hits: int = 0                # frames associated with a cluster
+    missed: int = 0              # consecutive frames without one
+    ever_moving: bool = False
+    t_ns: list[int] = field(default_factory=list)          # recent associated stamps
+    xy: list[tuple[float, float]] = field(default_factory=list)  # their centroids
+    velocity: tuple[float, float] = (0.0, 0.0)
+    sigma: float = math.inf      # standard deviation of each velocity component
+    moving: bool = False         # the motion test passed at the last association
+    #: global lattice (iy, ix) of the cells of the last associated cluster (int64 (m, 2))
+    footprint: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+
+
+def velocity_fit(t_s: Sequence[float], xy: Sequence[Sequence[float]], sigma0: float
+                 ) -> tuple[tuple[float, float], float]:
+    """Least-squares constant velocity of centroids ``xy`` (n pairs) at times ``t_s`` (n)
+    and the standard deviation of each component (module docstring); ``inf`` for n < 2.
+    Plain floats: n is at most ``history_frames``, and numpy's per-call cost would be
+    most of the tracker's time with tens of tracks."""
+    n = len(t_s)
+    if n < 2:
+        return (0.0, 0.0), math.inf
+    tm = sum(t_s) / n
+    xm = sum(p[0] for p in xy) / n
+    ym = sum(p[1] for p in xy) / n
+    s = stx = sty = 0.0
+    for t, (x, y) in zip(t_s, xy, strict=True):
+        dt = t - tm
+        s += dt * dt
+        stx += dt * (x - xm)
+        sty += dt * (y - ym)
+    if s <= 0.0:
+        return (0.0, 0.0), math.inf
+    vx, vy = stx / s, sty / s
+    var = sigma0 * sigma0
+    if n > 2:
+        rss = 0.0
+        for t, (x, y) in zip(t_s, xy, strict=True):
+            dt = t - tm
+            ex = x - xm - vx * dt
+            ey = y - ym - vy * dt
+            rss += ex * ex + ey * ey
+        var = max(var, rss / (2 * (n - 2)))
+    return (vx, vy), math.sqrt(var / s)
+
+
+def is_moving(v: Sequence[float], sigma: float, params: TrackingParams) -> bool:
+    """Speed threshold and Mahalanobis test ``|v|² / s² ≥ motion_test``."""
+    speed2 = v[0] * v[0] + v[1] * v[1]
+    if not math.isfinite(sigma) or speed2 < params.moving_speed_m_per_s ** 2:
+        return False
+    return sigma == 0.0 or speed2 / (sigma * sigma) >= params.motion_test
+
+
+class TrackerState:
+    """The tracks and the next id; part of the run's checkpointed state."""
+
+    def __init__(self) -> None:
+        self.next_id = 1
+        self.tracks: list[Track] = []
+        self.prev_ns: int | None = None
+
+    def copy(self) -> TrackerState:
+        other = TrackerState()
+        other.next_id, other.prev_ns = self.next_id, self.prev_ns
+        other.tracks = [Track(t.track_id, t.hits, t.missed, t.ever_moving, list(t.t_ns),
+                              list(t.xy), t.velocity, t.sigma, t.moving, t.footprint.copy())
+                        for t in self.tracks]
+        return other
+
+    def to_arrays(self, prefix: str = "objects_") -> dict[str, np.ndarray]:
+        """Flat arrays for the checkpoint (:meth:`from_arrays` reads them back exactly)."""
+        n = len(self.tracks)
+        history = max([len(t.t_ns) for t in self.tracks], default=0)
+        hist_t = np.zeros((n, history), np.int64)
+        hist_xy = np.zeros((n, history, 2), np.float64)
+        hist_n = np.zeros(n, np.int64)
+        for i, t in enumerate(self.tracks):
+            k = len(t.t_ns)
+            hist_n[i] = k
+            hist_t[i, :k] = t.t_ns
+            hist_xy[i, :k] = t.xy
+        fps = [t.footprint for t in self.tracks]
+        return {f"{prefix}next_id": np.int64(self.next_id),
+                f"{prefix}prev_ns": np.int64(-1 if self.prev_ns is None else self.prev_ns),
+                f"{prefix}id": np.array([t.track_id for t in self.tracks], np.int64),
+                f"{prefix}hits": np.array([t.hits for t in self.tracks], np.int64),
+                f"{prefix}missed": np.array([t.missed for t in self.tracks], np.int64),
+                f"{prefix}flags": np.array([[t.ever_moving, t.moving] for t in self.tracks],
+                                           np.uint8).reshape(n, 2),
+                f"{prefix}hist_n": hist_n, f"{prefix}hist_t": hist_t,
+                f"{prefix}hist_xy": hist_xy,
+                f"{prefix}velocity": np.array([t.velocity for t in self.tracks],
+                                              np.float64).reshape(n, 2),
+                f"{prefix}sigma": np.array([t.sigma for t in self.tracks], np.float64),
+                f"{prefix}fp_n": np.array([len(f) for f in fps], np.int64),
+                f"{prefix}fp": (np.concatenate(fps) if fps else np.zeros((0, 2), np.int64))}
+
+    @staticmethod
+    def from_arrays(arrays: Any, prefix: str = "objects_") -> TrackerState | None:
+        """The state saved by :meth:`to_arrays`, or None if ``arrays`` holds none."""
+        if f"{prefix}next_id" not in arrays:
+            return None
+        state = TrackerState()
+        state.next_id = int(arrays[f"{prefix}next_id"])
+        prev = int(arrays[f"{prefix}prev_ns"])
+        state.prev_ns = None if prev < 0 else prev
+        fp = arrays[f"{prefix}fp"]
+        ends = np.cumsum(arrays[f"{prefix}fp_n"])
+        for i, tid in enumerate(arrays[f"{prefix}id"]):
+            k = int(arrays[f"{prefix}hist_n"][i])
+            ever, moving = (bool(v) for v in arrays[f"{prefix}flags"][i])
+            vx, vy = (float(v) for v in arrays[f"{prefix}velocity"][i])
+            state.tracks.append(Track(
+                int(tid), int(arrays[f"{prefix}hits"][i]), int(arrays[f"{prefix}missed"][i]),
+                ever, [int(v) for v in arrays[f"{prefix}hist_t"][i, :k]],
+                [(float(x), float(y)) for x, y in arrays[f"{prefix}hist_xy"][i, :k]],
+                (vx, vy), float(arrays[f"{prefix}sigma"][i]), moving,
+                np.array(fp[ends[i] - arrays[f"{prefix}fp_n"][i]:ends[i]], np.int64)))
+        return state
+
+
+def footprint_seeds(state: TrackerState, window: Window) -> np.ndarray:
+    """Flat window indices of the cells held in their last frame by the tracks that have
+    moved (extra seeds for :meth:`evperc.objects.clusters.Clusterer.clusters`)."""
+    parts = [t.footprint for t in state.tracks if t.ever_moving and len(t.footprint)]
+    if not parts:
+        return np.zeros(0, np.int64)
+    g = np.concatenate(parts)
+    r = g[:, 0] - window.row0
+    c = g[:, 1] - window.col0
+    inside = (r >= 0) & (r < window.rows) & (c >= 0) & (c < window.cols)
+    return r[inside] * window.cols + c[inside]
+
+
+def _associate(predicted: np.ndarray, centroids: np.ndarray, gate_m: float
+               ) -> list[tuple[int, int]]:
+    """Greedy nearest-first pairs (track, cluster) within the gate."""
+    if len(predicted) == 0 or len(centroids) == 0:
+        return []
+    d = np.hypot(predicted[:, None, 0] - centroids[None, :, 0],
+                 predicted[:, None, 1] - centroids[None, :, 1])
+    ti, ci = np.nonzero(d <= gate_m)
+    order = np.lexsort((ci, ti, d[ti, ci]))
+    used_t: set[int] = set()
+    used_c: set[int] = set()
+    pairs = []
+    for k in order:
+        t, c = int(ti[k]), int(ci[k])
+        if t in used_t or c in used_c:
+            continue
+        used_t.add(t)
+        used_c.add(c)
+        pairs.append((t, c))
+    return pairs
+
+
+def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns: int,
+               params: TrackingParams) -> tuple[np.ndarray, np.ndarray]:
+    """Associate this frame's ``clusters`` with ``state``'s tracks (updated in place);
+    returns the frame's reported objects (records of
+    :data:`evperc.output.objects.OBJECT_DTYPE`, by track id) and their cells (flat window
+    indices, concatenated in record order)."""
+    dt_s = 0.0 if state.prev_ns is None else (stamp_ns - state.prev_ns) * 1e-9
+    state.prev_ns = stamp_ns
+    tracks = state.tracks
+    predicted = np.array([(t.xy[-1][0] + t.velocity[0] * dt_s,
+                           t.xy[-1][1] + t.velocity[1] * dt_s) for t in tracks],
+                         np.float64).reshape(len(tracks), 2)
+    pairs = _associate(predicted, clusters.centroid_m, params.gate_m)
+    of_track = dict(pairs)
+    taken = {c for _, c in pairs}
+    for c in range(len(clusters)):
+        if c not in taken:
+            tracks.append(Track(state.next_id))
+            state.next_id += 1
+            of_track[len(tracks) - 1] = c
+    # global lattice (iy, ix) of every cluster cell, once for the frame
+    r, col = np.divmod(clusters.cells, window.cols)
+    lattice = np.stack([r + window.row0, col + window.col0], axis=1)
+    reported: list[tuple[int, int]] = []  # (track index, cluster index)
+    survivors: list[Track] = []
+    for i, t in enumerate(tracks):
+        c = of_track.get(i)
+        if c is None:
+            t.missed += 1
+            if t.missed <= params.max_missed_frames:
+                survivors.append(t)
+            continue
+        t.missed = 0
+        t.hits += 1
+        t.t_ns.append(int(stamp_ns))
+        t.xy.append((float(clusters.centroid_m[c, 0]), float(clusters.centroid_m[c, 1])))
+        del t.t_ns[:-params.history_frames], t.xy[:-params.history_frames]
+        last = t.t_ns[-1]
+        v, sigma = velocity_fit([(ns - last) * 1e-9 for ns in t.t_ns], t.xy,
+                                params.centroid_sigma_m)
+        t.velocity, t.sigma = v, sigma
+        t.moving = is_moving(v, sigma, params)
+        if t.moving and t.hits >= params.confirm_frames:
+            t.ever_moving = True
+        t.footprint = lattice[clusters.offsets[c]:clusters.offsets[c + 1]]  # a view
+        if t.hits >= params.confirm_frames and (t.moving or t.ever_moving):
+            reported.append((len(survivors), c))
+        survivors.append(t)
+    state.tracks = survivors
+    reported.sort(key=lambda p: survivors[p[0]].track_id)
+    records = np.zeros(len(reported), OBJECT_DTYPE)
+    pieces = []
+    for k, (i, c) in enumerate(reported):
+        t = survivors[i]
+        cells = clusters.cells_of(c)
+        pieces.append(cells)
+        rec = records[k]
+        rec["track_id"] = t.track_id
+        rec["state"] = OBJECT_STATES["moving" if t.moving else "stopped"]
+        rec["cell_count"] = len(cells)
+        rec["age_frames"] = t.hits
+        rec["centroid_m"] = clusters.centroid_m[c]
+        rec["bbox_m"] = clusters.bbox_m[c]
+        rec["extent_m"] = clusters.bbox_m[c, 2:] - clusters.bbox_m[c, :2]
+        rec["velocity_m_per_s"] = t.velocity
+        rec["speed_sigma_m_per_s"] = t.sigma
+        rec["mean_betp_moving"] = clusters.mean_betp_moving[c]
+    cells_out = (np.concatenate(pieces).astype(np.uint32) if pieces
+                 else np.zeros(0, np.uint32))
+    return records, cells_out

@@ -1,0 +1,117 @@
+"""Clusters on hand-made grids (evperc.objects.clusters); expected values worked out by hand
+in the comments, and the cells against scipy's 8-connected labelling as an independent
+reference on random grids."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evperc.fusion.twin import DECISION_CODES as D
+from evperc.geo.window import Window
+from evperc.objects.clusters import Clusterer, ClusterParams
+
+RES = 0.5
+WIN = Window(RES, 10, 12, 10, 20)  # south-west cell at lattice (10, 20): x 10 m, y 5 m
+
+
+def _grids(shape=(10, 12)):
+    dec = np.full(shape, D["free"], np.uint8)
+    return dec, np.zeros(shape, np.uint8), np.zeros(shape, np.uint8)
+
+
+def _cluster(dec, betp_m, fo, params=None, extra=None, window=WIN):
+    params = params or ClusterParams()
+    return Clusterer(params, dec.shape).clusters(dec, betp_m, fo, window, extra)
+
+
+def test_block_with_moving_front_is_one_cluster_with_hand_computed_geometry():
+    dec, betp_m, fo = _grids()
+    dec[2:4, 4:6] = D["static"]      # rows 2-3, cols 4-5: the car's body, never seen free
+    dec[2:4, 6] = D["moving"]        # col 6: its front, seen moving
+    betp_m[2:4, 6] = 255
+    betp_m[2:4, 4:6] = 51
+    c = _cluster(dec, betp_m, fo)
+    assert len(c) == 1
+    # cells rows 2,3 x cols 4,5,6: mean col 5, mean row 2.5
+    # x = (20 + 5 + 0.5) * 0.5 = 12.75, y = (10 + 2.5 + 0.5) * 0.5 = 6.5
+    np.testing.assert_allclose(c.centroid_m[0], [12.75, 6.5])
+    # outer edges: cols 4..6 -> x 12.0 .. 13.5; rows 2..3 -> y 6.0 .. 7.0
+    np.testing.assert_allclose(c.bbox_m[0], [12.0, 6.0, 13.5, 7.0])
+    assert c.seeds[0] == 2
+    assert sorted(c.cells_of(0)) == sorted(r * 12 + col for r in (2, 3) for col in (4, 5, 6))
+    # (2·255 + 4·51) / 6 / 255 = 714 / 1530
+    assert c.mean_betp_moving[0] == pytest.approx(714 / 1530, abs=1e-6)
+
+
+def test_growth_is_8_connected_through_occupied_not_infrastructure_nor_free():
+    dec, betp_m, fo = _grids()
+    dec[5, 5] = D["moving"]
+    dec[5, 6] = D["stopped"]
+    dec[6, 7] = D["unmapped"]          # diagonal neighbour of (5, 6): joins
+    dec[4, 4] = D["static"]            # diagonal of the seed: joins
+    dec[5, 4] = D["infrastructure"]    # a mapped building: does not join
+    dec[6, 3] = D["static"]            # touches only the building cell: does not join
+    dec[7, 9] = D["static"]            # two cells from (6, 7): does not join
+    dec[4, 5] = D["unknown"]
+    c = _cluster(dec, betp_m, fo)
+    assert len(c) == 1
+    assert sorted(c.cells_of(0)) == sorted([5 * 12 + 5, 5 * 12 + 6, 6 * 12 + 7, 4 * 12 + 4])
+
+
+def test_no_seed_no_cluster_and_small_or_long_clusters_dropped():
+    dec, betp_m, fo = _grids()
+    dec[1:3, 1:4] = D["static"]        # 6 occupied cells, none moving
+    dec[8, 0] = D["moving"]            # 2 cells: below min_cells = 3
+    dec[8, 1] = D["static"]
+    assert len(_cluster(dec, betp_m, fo)) == 0
+    assert len(_cluster(dec, betp_m, fo, ClusterParams(min_cells=2))) == 1
+    wall = np.full((4, 60), D["free"], np.uint8)
+    wall[1, :] = D["static"]           # 60 cells = 30 m of wall
+    wall[1, 30] = D["moving"]          # one false seed on it
+    z = np.zeros_like(wall)
+    w = Window(RES, 4, 60, 0, 0)
+    assert len(_cluster(wall, z, z, window=w)) == 0
+    assert len(_cluster(wall, z, z, ClusterParams(max_extent_m=30.0), window=w)) == 1
+    wall[1, 40:] = D["free"]           # 40 cells = 20.0 m: at the limit, kept
+    assert len(_cluster(wall, z, z, window=w)) == 1
+
+
+def test_conflict_seeds_from_threshold_and_extra_seeds():
+    dec, betp_m, fo = _grids()
+    dec[2, 2:5] = D["static"]
+    fo[2, 3] = 153                     # 153 / 255 = 0.6
+    assert len(_cluster(dec, betp_m, fo)) == 0                      # off by default
+    assert len(_cluster(dec, betp_m, fo, ClusterParams(seed_conflict_fo=0.6))) == 1
+    assert len(_cluster(dec, betp_m, fo, ClusterParams(seed_conflict_fo=0.61))) == 0
+    extra = np.array([2 * 12 + 4, 9 * 12 + 11, -5, 10_000], np.int64)  # 2 occupied-less/outside
+    c = _cluster(dec, betp_m, fo, extra=extra)
+    assert len(c) == 1 and c.seeds[0] == 0 and len(c.cells_of(0)) == 3
+
+
+def test_scratch_is_cleared_between_frames():
+    dec, betp_m, fo = _grids()
+    dec[3, 3:6] = D["moving"]
+    clusterer = Clusterer(ClusterParams(), dec.shape)
+    a = clusterer.clusters(dec, betp_m, fo, WIN)
+    b = clusterer.clusters(dec, betp_m, fo, WIN)
+    assert len(a) == len(b) == 1
+    np.testing.assert_array_equal(a.cells, b.cells)
+
+
+def test_against_scipy_labelling_on_random_grids():
+    ndimage = pytest.importorskip("scipy.ndimage")
+    rng = np.random.default_rng(7)
+    codes = np.array([D["free"], D["unknown"], D["moving"], D["static"], D["stopped"],
+                      D["infrastructure"], D["unmapped"]], np.uint8)
+    for _ in range(20):
+        dec = codes[rng.choice(7, size=(40, 50), p=[.45, .1, .03, .2, .1, .07, .05])]
+        z = np.zeros_like(dec)
+        w = Window(RES, 40, 50, 0, 0)
+        got = _cluster(dec, z, z, ClusterParams(min_cells=1, max_extent_m=1e3), window=w)
+        occupied = np.isin(dec, [D["moving"], D["static"], D["stopped"], D["unmapped"]])
+        labels, _ = ndimage.label(occupied, structure=np.ones((3, 3)))
+        seeded = np.unique(labels[dec == D["moving"]])
+        expected = {frozenset(np.flatnonzero(labels.ravel() == k)) for k in seeded}
+        found = {frozenset(c) for c in (got.cells_of(k) for k in range(len(got)))}
+        assert found == expected

@@ -1,0 +1,86 @@
+"""The object list through `evperc run` and `evperc.load`: stored per frame, consistent with
+the frame's layers, off with ``objects.enabled = false`` (then the chunks are as before)."""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import evperc
+from evperc.config import load_config
+from evperc.fusion.twin import DECISION_CODES as D
+from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
+from evperc.output.writer import RunWriter
+from evperc.runner import RunRequest, run
+from tests.e2e.scenes import write_street_drive
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    tmp = tmp_path_factory.mktemp("objects")
+    drive = write_street_drive(tmp / "street.mcap", n_scans=30)
+    out = []
+    for enabled in (True, False):
+        config = load_config(overrides={"grid.window_size_m": 40.0, "output.chunk_frames": 10,
+                                        "objects.enabled": enabled})
+        run(RunRequest(log_path=drive, out_dir=tmp / f"on{enabled}", config=config))
+        out.append(tmp / f"on{enabled}")
+    return out[0], out[1]
+
+
+def test_objects_are_stored_and_agree_with_the_frame(runs: tuple[Path, Path]) -> None:
+    on, _ = runs
+    frames = list(evperc.load(on).frames)
+    with_objects = [f for f in frames if len(f.objects)]
+    assert with_objects, "the crossing car (2 m/s north) is reported"
+    for f in frames:
+        assert f.objects.dtype == OBJECT_DTYPE
+        labels = f.object_labels()
+        assert (labels > 0).sum() == f.objects["cell_count"].sum()  # cells not shared
+        for o in f.objects:
+            cells = labels == o["track_id"]
+            # its cells are occupied now, never mapped infrastructure or free
+            assert np.isin(f.decision[cells], [D["moving"], D["static"], D["stopped"],
+                                               D["unmapped"]]).all()
+            rows, cols = np.nonzero(cells)
+            x, y = f.window.cell_centres()
+            np.testing.assert_allclose(o["centroid_m"], [x[cols].mean(), y[rows].mean()])
+            np.testing.assert_allclose(o["mean_betp_moving"], f.betp[cells, 4].mean(),
+                                       atol=1e-5)
+    car = [o for f in with_objects for o in f.objects]
+    assert {int(o["track_id"]) for o in car} == {1}
+    assert all(o["state"] == OBJECT_STATES["moving"] for o in car)
+    # the car crosses north at 2 m/s: the fitted vy, median over its frames
+    assert 1.0 < float(np.median([o["velocity_m_per_s"][1] for o in car])) < 3.0
+
+
+def test_objects_off_leaves_the_grids_and_the_chunks_as_before(runs: tuple[Path, Path]
+                                                               ) -> None:
+    on, off = runs
+    for a, b in zip(evperc.load(on).frames, evperc.load(off).frames, strict=True):
+        np.testing.assert_array_equal(a.decision, b.decision)  # objects do not feed back
+        np.testing.assert_array_equal(a.masses, b.masses)
+        assert b.objects is None and b.object_labels() is None
+    names = zipfile.ZipFile(off / "frames" / "chunk_00000.npz").namelist()
+    assert not any(n.startswith("object") for n in names)
+    assert {"objects.npy", "object_counts.npy", "object_cells.npy"} <= set(
+        zipfile.ZipFile(on / "frames" / "chunk_00000.npz").namelist())
+
+
+def test_writer_refuses_objects_for_some_frames_only(tmp_path: Path) -> None:
+    config = load_config(overrides={"output.compress": False})
+    meta = {"rows": 4, "cols": 4, "decision_codes": D}
+    writer = RunWriter(tmp_path / "w", config, meta)
+    try:
+        writer.frame_slot()
+        writer.commit_frame(1, np.zeros(3), (0, 0), np.zeros(7, np.int64),
+                            objects=np.zeros(0, OBJECT_DTYPE),
+                            object_cells=np.zeros(0, np.uint32))
+        writer.frame_slot()
+        with pytest.raises(RuntimeError, match="some frames"):
+            writer.commit_frame(2, np.zeros(3), (0, 0), np.zeros(7, np.int64))
+    finally:
+        writer.abort()
