@@ -271,8 +271,9 @@ class Pipeline:
             read = load_map_cached if reuse_map else load_map
             map_data = read(request.map_path, request.roads_path, config_map=config["map"])
             self.map_data = map_data.to_crs(self.georef.crs)
-            self.rasteriser = PriorRasteriser(self.map_data, self.resolution,
-                                              config["map"]["tile_size_cells"])
+            self.rasteriser = PriorRasteriser(
+                self.map_data, self.resolution, config["map"]["tile_size_cells"],
+                building_margin_m=config["map"]["building_margin_m"])
         self.betas = (config["map"]["beta_building"], config["map"]["beta_road"],
                       config["map"]["beta_other"])
         self.params = FusionParams.from_config(config)
