@@ -185,15 +185,20 @@ def config_tag(config: Path | None) -> str:
 
 
 def resolve_config(name: str, work: Path) -> Path | None:
-    """``default`` → no file; ``spec`` → the SPEC §5-§6 values written to WORK; else a path."""
+    """``default`` → no file; ``spec`` → the SPEC §5-§6 values written to WORK (the tuned
+    keys only); ``kurdej2013`` → the shipped preset (the paper's method: SPEC's values and
+    issue 20's margins off); else a path."""
     if name == "default":
         return None
+    if name == "kurdej2013":
+        return REPO / "configs" / "kurdej2013.toml"
     if name == "spec":
         values = {s: {**SPEC_FIXED.get(s, {}), **keys} for s, keys in SPEC_VALUES.items()}
         return write_config(work / "configs" / "spec.toml", values)
     path = Path(name)
     if not path.is_file():
-        raise SystemExit(f"--config {name}: no such file (or use 'default' / 'spec')")
+        raise SystemExit(f"--config {name}: no such file (or use 'default' / 'spec' / "
+                         "'kurdej2013')")
     return path.resolve()
 
 
@@ -592,7 +597,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--work", type=Path, default=Path("evaluation-work"),
                         help="work directory (drives, runs, evaluations are cached there)")
     parser.add_argument("--config", action="append",
-                        help="report mode: 'default', 'spec' (the SPEC §5-§6 values) or a TOML "
+                        help="report mode: 'default', 'spec' (the SPEC §5-§6 values of the tuned "
+                             "keys), 'kurdej2013' (the paper's method, configs/kurdej2013.toml) "
+                             "or a TOML "
                              "file; repeat to compare configs (full tables for the first)")
     parser.add_argument("--tune", action="store_true", help="grid search on the tuning seeds")
     parser.add_argument("--all", action="store_true",

@@ -13,9 +13,8 @@ latitude, RFC 7946) with json, pyproj and shapely directly.
 from __future__ import annotations
 
 import argparse
-import sys
-
 import json
+import sys
 
 import numpy as np
 import pyproj
