@@ -16,6 +16,7 @@ from typing import Any
 import click
 
 from evperc import __version__
+from evperc.config import PRESETS
 from evperc.errors import EvpercError, OutputError, UsageError
 
 log = logging.getLogger("evperc")
@@ -132,6 +133,10 @@ def cli(ctx: click.Context, verbose: int, quiet: int) -> None:
 @click.option("--no-map", is_flag=True, help="Run without a map (vacuous prior): the baseline.")
 @click.option("--config", "config_path", type=click.Path(path_type=Path),
               help="TOML file overriding configs/default.toml.")
+@click.option("--preset", type=click.Choice(PRESETS),
+              help="Shipped config applied under --config: kurdej2013 = the paper's method "
+                   "as docs/method.md reads it (no conservative free space, widened "
+                   "buildings, motion gate or object list).")
 @click.option("--out", "out_dir", type=click.Path(path_type=Path),
               help="Output directory  [default: ./evperc-out/<log stem>/]")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output directory.")
@@ -151,7 +156,8 @@ def cli(ctx: click.Context, verbose: int, quiet: int) -> None:
 @verbosity_options
 @user_errors
 def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path | None,
-                no_map: bool, config_path: Path | None, out_dir: Path | None, overwrite: bool,
+                no_map: bool, config_path: Path | None, preset: str | None,
+                out_dir: Path | None, overwrite: bool,
                 resume_dir: Path | None, start_s: float | None, end_s: float | None, every: int,
                 lidar_topic: str | None, pose_topic: str | None,
                 render_dir: Path | None, point_labels: bool) -> None:
@@ -169,9 +175,10 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
     from evperc.runner import RunRequest, request_from_manifest, run
 
     if resume_dir is not None:
-        if log_path is not None or map_path is not None or config_path is not None:
+        if (log_path is not None or map_path is not None or config_path is not None
+                or preset is not None):
             raise UsageError("--resume takes the log, map and config of the interrupted run; "
-                             "give no LOG, --map or --config with it")
+                             "give no LOG, --map, --config or --preset with it")
         request = request_from_manifest(resume_dir)
         out_dir = resume_dir
     else:
@@ -179,7 +186,7 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
             raise UsageError("give LOG (an MCAP, .bag, ROS 2 bag or KITTI sequence folder) "
                              "or --resume DIR")
         check_map_options(map_path, roads_path, no_map)
-        config = load_config(config_path)
+        config = load_config(config_path, preset=preset)
         out_dir = out_dir or Path("evperc-out") / log_path.stem
         request = RunRequest(log_path=log_path, out_dir=out_dir, config=config,
                              map_path=map_path, roads_path=roads_path, overwrite=overwrite,
@@ -470,6 +477,10 @@ def _check_same_frames(out_dir: Path, metrics: dict[str, Any], compare_dir: Path
                    "outputs, resume interrupted ones).")
 @click.option("--config", "config_path", type=click.Path(path_type=Path),
               help="TOML file overriding configs/default.toml (same for every log).")
+@click.option("--preset", type=click.Choice(PRESETS),
+              help="Shipped config applied under --config: kurdej2013 = the paper's method "
+                   "as docs/method.md reads it (no conservative free space, widened "
+                   "buildings, motion gate or object list).")
 @click.option("--workers", type=click.IntRange(min=1),
               help="Worker processes of the local cluster  [default: number of cores]")
 @click.option("--scheduler", metavar="ADDR",
@@ -480,12 +491,11 @@ def _check_same_frames(out_dir: Path, metrics: dict[str, Any], compare_dir: Path
 @user_errors
 def batch_command(logs: tuple[Path, ...], list_path: Path | None, map_path: Path | None,
                   roads_path: Path | None, no_map: bool, out_root: Path,
-                  overwrite: bool, config_path: Path | None, workers: int | None,
-                  scheduler: str | None, json_path: Path | None) -> None:
+                  overwrite: bool, config_path: Path | None, preset: str | None,
+                  workers: int | None, scheduler: str | None, json_path: Path | None) -> None:
     """Run `evperc run` on many logs (any kind it reads) as tasks on a Dask cluster; skip
-    finished outputs,
-    resume interrupted ones (or, with --overwrite, redo them). Exit code 1 if any log
-    failed, 2 for bad usage.
+    finished outputs, resume interrupted ones (or, with --overwrite, redo them). Exit code 1
+    if any log failed, 2 for bad usage.
 
     \b
     evperc batch logs/*.mcap --map city.geojson --out runs/
@@ -504,7 +514,7 @@ def batch_command(logs: tuple[Path, ...], list_path: Path | None, map_path: Path
                          "its own workers, give one of the two")
     all_logs = list(logs) + (read_log_list(list_path) if list_path is not None else [])
     request = BatchRequest(logs=tuple(all_logs), out_root=out_root,
-                           config=load_config(config_path), map_path=map_path,
+                           config=load_config(config_path, preset=preset), map_path=map_path,
                            roads_path=roads_path, workers=workers or os.cpu_count() or 1,
                            scheduler=scheduler, overwrite=overwrite)
     if json_path is not None and json_path.exists() and not overwrite:

@@ -1,4 +1,9 @@
-"""Configuration: defaults from ``configs/default.toml``, a user file on top, validation.
+"""Configuration: defaults from ``configs/default.toml``, optionally a preset, a user file on
+top, validation.
+
+A *preset* is a shipped TOML file (``configs/<name>.toml``, listed in :data:`PRESETS`) applied
+between the defaults and the user's file: ``--preset kurdej2013`` is the paper's method as
+SPEC describes it (every mechanism evperc adds switched off, every value SPEC's).
 
 The default file is the schema: a user key must exist there (except in open tables such as
 ``map.road_width_m``) and have the same type. Ranges and choices are declared in
@@ -19,6 +24,10 @@ import tomli_w
 from evperc.errors import ConfigError
 
 DEFAULT_PATH = Path(__file__).with_name("default.toml")
+PRESET_DIR = Path(__file__).with_name("presets")
+
+#: shipped presets (``evperc run --preset NAME``), each ``PRESET_DIR/NAME.toml``
+PRESETS = ("kurdej2013",)
 
 #: Tables whose keys are free (a user may add classes); values must be numbers.
 OPEN_TABLES = {"map.road_width_m"}
@@ -37,11 +46,14 @@ RULES: dict[str, tuple] = {
     "sensor.ground_threshold_m": ("range", 0.0, 10.0, False, False),
     "sensor.max_obstacle_height_m": ("range", 0.0, 100.0, True, False),
     "sensor.sensor_height_m": ("range", 0.0, 100.0, False, False),
+    "sensor.free_margin_m": ("range", 0.0, 10.0, False, False),
+    "sensor.free_erosion_m": ("range", 0.0, 10.0, False, False),
     "map.beta_building": ("range", *_UNIT_INTERVAL, False, False),
     "map.beta_road": ("range", *_UNIT_INTERVAL, False, False),
     "map.beta_other": ("range", *_UNIT_INTERVAL, False, False),
     "map.tile_size_cells": ("range", 8, 8192, False, False),
     "map.default_road_width_m": ("range", 0.0, 200.0, False, False),
+    "map.building_margin_m": ("range", 0.0, 20.0, False, False),
     "fusion.prior_where": ("choice", "observed", "everywhere"),
     "fusion.discount": ("choice", "contextual", "classical"),
     "fusion.discount_period_s": ("range", 0.0, 3600.0, True, False),
@@ -109,29 +121,43 @@ def default_config() -> dict[str, Any]:
         return tomllib.load(f)
 
 
-def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None
-                ) -> dict[str, Any]:
-    """Defaults, updated by the TOML file at ``path`` and by dotted-key ``overrides``; validated.
+def preset_path(name: str) -> Path:
+    """The file of the shipped preset ``name``; ConfigError naming the presets if unknown."""
+    if name not in PRESETS:
+        raise ConfigError(f"--preset {name}: unknown preset (shipped: {', '.join(PRESETS)})")
+    return PRESET_DIR / f"{name}.toml"
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    try:
+        with path.open("rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError as err:
+        raise ConfigError(f"{path}: config file not found") from err
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: not valid TOML ({err})") from err
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read config ({err.strerror})") from err
+
+
+def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None,
+                preset: str | None = None) -> dict[str, Any]:
+    """Defaults, updated by the preset ``preset`` (:data:`PRESETS`), then by the TOML file at
+    ``path`` and by dotted-key ``overrides``; validated.
 
     Raises :class:`ConfigError` naming the file and every bad key.
     """
     config = default_config()
     source = "the defaults"
+    merge_problems = []
+    if preset is not None:
+        p = preset_path(preset)
+        source = str(p)
+        merge_problems += _merge(config, _read_toml(p), prefix="")
     if path is not None:
         path = Path(path)
-        source = str(path)
-        try:
-            with path.open("rb") as f:
-                user = tomllib.load(f)
-        except FileNotFoundError as err:
-            raise ConfigError(f"{path}: config file not found") from err
-        except tomllib.TOMLDecodeError as err:
-            raise ConfigError(f"{path}: not valid TOML ({err})") from err
-        except OSError as err:
-            raise ConfigError(f"{path}: cannot read config ({err.strerror})") from err
-        merge_problems = _merge(config, user, prefix="")
-    else:
-        merge_problems = []
+        source = str(path) if preset is None else f"{p} + {path}"
+        merge_problems += _merge(config, _read_toml(path), prefix="")
     for dotted, value in (overrides or {}).items():
         *tables, key = dotted.split(".")
         node = config

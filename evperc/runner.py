@@ -24,7 +24,7 @@ from evperc.fusion.twin import CLASSES, DECISION_CODES, OMEGA, FusionParams
 from evperc.geo import georef as georef_mod
 from evperc.geo.crs import working_crs
 from evperc.geo.maps import MapData, check_overlap, load_map, load_map_cached
-from evperc.geo.prior import PriorRasteriser
+from evperc.geo.prior import CONTEXT_BUILDING, PriorRasteriser
 from evperc.geo.window import Window
 from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
@@ -71,6 +71,8 @@ class FrameInputs:
     free: np.ndarray | None       # sensor grid m({F}), float32 window.shape (None: not yet)
     occupied: np.ndarray | None   # sensor grid m({O})
     labels: np.ndarray | None     # map context labels, None without a map
+    #: cells within map.building_margin_m of a building (bool), None without map or margin
+    near_building: np.ndarray | None
     seconds: dict[str, float]     # time spent preparing it, per stage
     scan: PosedScan | None = None  # the scan whose sensor grid is still to compute
     t_crs: np.ndarray | None = None  # its sensor pose in the working CRS
@@ -294,12 +296,19 @@ class Pipeline:
         self.window_size = config["grid"]["window_size_m"]
         self.map_data: MapData | None = None
         self.rasteriser: PriorRasteriser | None = None
+        self.near_rasteriser: PriorRasteriser | None = None
         if request.map_path is not None:
             read = load_map_cached if reuse_map else load_map
             map_data = read(request.map_path, request.roads_path, config_map=config["map"])
             self.map_data = map_data.to_crs(self.georef.crs)
-            self.rasteriser = PriorRasteriser(self.map_data, self.resolution,
-                                              config["map"]["tile_size_cells"])
+            tile = config["map"]["tile_size_cells"]
+            self.rasteriser = PriorRasteriser(self.map_data, self.resolution, tile)
+            margin = config["map"]["building_margin_m"]
+            # the buildings widened by the margin close the motion gate (method.md §4a);
+            # the prior keeps the mapped outlines
+            self.near_rasteriser = (PriorRasteriser(
+                replace(self.map_data, roads=self.map_data.roads[:0]), self.resolution, tile,
+                building_margin_m=margin) if margin > 0 else None)
         self.betas = (config["map"]["beta_building"], config["map"]["beta_road"],
                       config["map"]["beta_other"])
         self.params = FusionParams.from_config(config)
@@ -413,8 +422,10 @@ class Pipeline:
             self._overlap_checked = True
         t1 = time.perf_counter()
         labels = self.rasteriser.labels(window) if self.rasteriser is not None else None
+        near = (self.near_rasteriser.labels(window) == CONTEXT_BUILDING
+                if self.near_rasteriser is not None else None)
         t2 = time.perf_counter()
-        inputs = FrameInputs(scan.stamp_ns, pose, window, None, None, labels,
+        inputs = FrameInputs(scan.stamp_ns, pose, window, None, None, labels, near,
                              {"geometry": t1 - t0, "prior": t2 - t1}, scan, t_crs)
         return self.sensor_grid(inputs) if sensor else inputs
 
@@ -470,7 +481,8 @@ class Pipeline:
         # compiled pass, quantised straight into the chunk buffer; evperc.fusion.twin is the
         # numpy twin it is tested on
         gate = (gate_step(state.gate, inputs.free, inputs.occupied, dt_s, self.params,
-                          offset=state.offset, shift=shift, out=self._gate_layer(window.shape))
+                          offset=state.offset, shift=shift, out=self._gate_layer(window.shape),
+                          closed=inputs.near_building)
                 if self.params.gated else None)
         fused_step(state.pg, state.zeta, inputs.free, inputs.occupied, inputs.labels,
                    self.betas, dt_s, self.params, out=out, flags=state.flags, focal=state.focal,

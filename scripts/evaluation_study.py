@@ -185,15 +185,20 @@ def config_tag(config: Path | None) -> str:
 
 
 def resolve_config(name: str, work: Path) -> Path | None:
-    """``default`` → no file; ``spec`` → the untuned values written to WORK; else a path."""
+    """``default`` → no file; ``spec`` → the untuned values of the tuned keys, written to WORK;
+    ``kurdej2013`` → the shipped preset (the paper's method: its values and the margins and
+    the motion gate off); else a path."""
     if name == "default":
         return None
+    if name == "kurdej2013":
+        return REPO / "configs" / "kurdej2013.toml"
     if name == "spec":
         values = {s: {**SPEC_FIXED.get(s, {}), **keys} for s, keys in SPEC_VALUES.items()}
         return write_config(work / "configs" / "spec.toml", values)
     path = Path(name)
     if not path.is_file():
-        raise SystemExit(f"--config {name}: no such file (or use 'default' / 'spec')")
+        raise SystemExit(f"--config {name}: no such file (or use 'default' / 'spec' / "
+                         "'kurdej2013')")
     return path.resolve()
 
 
@@ -429,7 +434,7 @@ def _prepare_drive(directory: Path) -> tuple[Any, Any]:
     frames = []
     for _, inputs in pipe.inputs(-1):
         frames.append((inputs.stamp_ns, inputs.window, inputs.free, inputs.occupied,
-                       inputs.labels))
+                       inputs.labels, inputs.near_building))
     prepared = types.SimpleNamespace(frames=frames, betas=pipe.betas,
                                      resolution_m=pipe.resolution, base=config)
     truth = load_truth(directory / "truth")
@@ -458,12 +463,13 @@ def replay(prepared: Any, overrides: dict[str, dict[str, float]], with_map: bool
     prev = None
     state = FusionState()
     out = []
-    for stamp, w, free, occupied, labels in prepared.frames:
+    for stamp, w, free, occupied, labels, near in prepared.frames:
         shift = state.move_to(w)  # the runner's circular buffer
         dt = 0.0 if prev is None else (stamp - prev) * 1e-9
         prev = stamp
         gate = (gate_step(state.gate, free, occupied, dt, params, offset=state.offset,
-                          shift=shift) if params.gated else None)
+                          shift=shift, closed=near if with_map else None)
+                if params.gated else None)
         res = fused_step(state.pg, state.zeta, free, occupied, labels if with_map else None,
                          prepared.betas, dt, params, flags=state.flags, offset=state.offset,
                          shift=shift, gate=gate)
@@ -595,7 +601,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--work", type=Path, default=Path("evaluation-work"),
                         help="work directory (drives, runs, evaluations are cached there)")
     parser.add_argument("--config", action="append",
-                        help="report mode: 'default', 'spec' (the untuned values) or a TOML "
+                        help="report mode: 'default', 'spec' (the untuned values of the tuned "
+                             "keys), 'kurdej2013' (the paper's method, configs/kurdej2013.toml) "
+                             "or a TOML "
                              "file; repeat to compare configs (full tables for the first)")
     parser.add_argument("--tune", action="store_true", help="grid search on the tuning seeds")
     parser.add_argument("--all", action="store_true",

@@ -98,3 +98,61 @@ def test_dump_round_trips() -> None:
     again = tomllib.loads(dumps(config))
     assert again["fusion"] == config["fusion"]
     assert math.isnan(again["input"]["origin_lat_deg"])
+
+
+# --- conservative free space, widened buildings, the kurdej2013 preset (issue 20) ---------
+
+#: SPEC §3-§6 values, typed from /work/shared/SPEC.md (not read from any evperc file)
+SPEC = {
+    ("grid", "cell_size_m"): 0.5, ("sensor", "mu_free"): 0.7, ("sensor", "mu_occupied"): 0.8,
+    ("sensor", "ground_threshold_m"): 0.3, ("map", "beta_building"): 0.9,
+    ("map", "beta_road"): 0.9, ("map", "beta_other"): 0.8,
+    ("fusion", "prior_where"): "observed", ("fusion", "discount"): "contextual",
+    ("fusion", "discount_free"): 0.1, ("fusion", "discount_moving"): 0.1,
+    ("fusion", "discount_stopped"): 0.02, ("fusion", "discount_unmapped"): 0.01,
+    ("fusion", "discount_infrastructure"): 0.0, ("fusion", "residual_conflict"): "omega",
+    ("fusion", "stopped_target"): "stopped", ("fusion", "zeta_increment"): 0.1,
+    ("fusion", "zeta_decrement"): 0.5, ("fusion", "gamma_occupied"): 0.6,
+    ("fusion", "gamma_conflict"): 0.2, ("decision", "min_betp"): 0.5,
+    ("decision", "max_ignorance"): 0.5,
+    # evperc's additions, off in the paper's method
+    ("sensor", "free_margin_m"): 0.0, ("sensor", "free_erosion_m"): 0.0,
+    ("map", "building_margin_m"): 0.0,
+}
+
+
+@pytest.mark.parametrize("key", ["sensor.free_margin_m", "sensor.free_erosion_m",
+                                 "map.building_margin_m"])
+def test_new_margins_are_validated(tmp_path: Path, key: str) -> None:
+    table, name = key.split(".")
+    with pytest.raises(ConfigError, match=rf"user.toml: {key} = -0.5 is outside \[0.0, "):
+        load_config(write(tmp_path, f"[{table}]\n{name} = -0.5\n"))
+    with pytest.raises(ConfigError, match=rf"{key} must be float, got str"):
+        load_config(write(tmp_path, f'[{table}]\n{name} = "wide"\n'))
+    assert load_config(write(tmp_path, f"[{table}]\n{name} = 1\n"))[table][name] == 1.0
+
+
+def test_preset_kurdej2013_is_the_spec() -> None:
+    config = load_config(preset="kurdej2013")
+    for (table, key), value in SPEC.items():
+        assert config[table][key] == value, f"{table}.{key}"
+
+
+def test_preset_is_applied_under_the_user_file(tmp_path: Path) -> None:
+    path = write(tmp_path, "[fusion]\nzeta_increment = 0.3\n")
+    config = load_config(path, preset="kurdej2013")
+    assert config["fusion"]["zeta_increment"] == 0.3          # the user's file wins
+    assert config["fusion"]["zeta_decrement"] == 0.5          # the preset's (SPEC) value
+    assert config["sensor"]["free_margin_m"] == 0.0
+
+
+def test_unknown_preset_names_the_shipped_ones() -> None:
+    with pytest.raises(ConfigError, match="--preset paper: unknown preset .shipped: kurdej2013"):
+        load_config(preset="paper")
+
+
+def test_packaged_preset_is_the_repo_file() -> None:
+    from evperc.config import preset_path
+
+    assert preset_path("kurdej2013").resolve() == (
+        REPO / "configs" / "kurdej2013.toml").resolve()

@@ -66,12 +66,17 @@ class GateState:
 
 def gate_step(state: GateState, free: np.ndarray, occupied: np.ndarray, dt_s: float,
               params: FusionParams, *, offset: tuple[int, int] = (0, 0),
-              shift: tuple[int, int] = (0, 0), out: np.ndarray | None = None) -> np.ndarray:
+              shift: tuple[int, int] = (0, 0), out: np.ndarray | None = None,
+              closed: np.ndarray | None = None) -> np.ndarray:
     """Update ``state`` in place with this scan's sensor grid (m({F}), m({O}), window
     order) and return the gate layer (uint8 window order, 1 = ∅_FO may go to {M}).
 
     ``offset``, ``shift``: as :func:`evperc.fusion.fused.fused_step` (the same values, the state
-    shares the fusion state's circular buffer); cells entering the window are reset."""
+    shares the fusion state's circular buffer); cells entering the window are reset.
+    ``closed``: bool (window order), cells whose gate stays shut whatever their history —
+    the cells within ``map.building_margin_m`` of a mapped building (docs/method.md §4a): a
+    conflict there is the building's face seen from a new angle, not motion. The state is
+    updated as elsewhere."""
     shape = state.ever.shape
     if state.times.shape != (3, *shape) or state.times.dtype != np.float32:
         raise ValueError(f"gate times must be float32 (3, {shape[0]}, {shape[1]})")
@@ -87,6 +92,10 @@ def gate_step(state: GateState, free: np.ndarray, occupied: np.ndarray, dt_s: fl
                free32, occ32, np.float32(max(dt_s, 0.0)), np.float32(params.gate_min_free),
                np.float32(params.gate_free_s), np.float32(params.gate_revoke_s),
                np.float32(params.gate_gap_s), marks, out)
+    if closed is not None:
+        if closed.shape != shape:
+            raise ValueError(f"closed mask of shape {closed.shape}, the gate state is {shape}")
+        out[closed] = 0
     return out
 
 

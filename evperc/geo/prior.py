@@ -2,7 +2,10 @@
 
 Each cell is classified by its centre point ``((ix + 0.5)·r, (iy + 0.5)·r)``: inside a
 building → ``CONTEXT_BUILDING``, else inside a road surface → ``CONTEXT_ROAD``, else
-``CONTEXT_OTHER`` (priority building > road > other where polygons overlap).
+``CONTEXT_OTHER`` (priority building > road > other where polygons overlap). Buildings may be
+widened first by ``building_margin_m`` (:func:`widen_buildings`, docs/method.md "Widened
+buildings"): a return at a building face then falls in a building cell although the map or the
+pose is off by up to that margin.
 
 Polygons are closed: a centre exactly on a polygon's edge or vertex counts as inside it
 (``intersects``, i.e. ``polygon.covers(point)``; ``contains`` would say outside). So two
@@ -39,6 +42,7 @@ FOCAL_ROAD = _F | _S | _M              # {F, S, M}
 FOCAL_OTHER = _F | _U | _S | _M        # {F, U, S, M}
 
 DEFAULT_MAX_TILES = 64  # 64 tiles of 256² uint8 cells = 4 MiB
+_BUFFER_QUAD_SEGS = 4   # segments per quarter circle of a widened building's rounded corners
 
 
 class PriorRasteriser:
@@ -49,14 +53,18 @@ class PriorRasteriser:
     cache), ``tiles_cached`` (tiles held now)."""
 
     def __init__(self, map_data: MapData, resolution_m: float, tile_size_cells: int,
-                 max_tiles: int = DEFAULT_MAX_TILES) -> None:
+                 max_tiles: int = DEFAULT_MAX_TILES, building_margin_m: float = 0.0) -> None:
         if resolution_m <= 0 or tile_size_cells < 1 or max_tiles < 1:
             raise ValueError("resolution_m, tile_size_cells and max_tiles must be positive")
+        if not building_margin_m >= 0:
+            raise ValueError(f"building_margin_m must be >= 0, got {building_margin_m}")
         self.resolution_m = float(resolution_m)
         self.tile_size = int(tile_size_cells)
         self.max_tiles = int(max_tiles)
+        self.building_margin_m = float(building_margin_m)
         self._geoms = {CONTEXT_ROAD: np.asarray(map_data.roads, dtype=object),
-                       CONTEXT_BUILDING: np.asarray(map_data.buildings, dtype=object)}
+                       CONTEXT_BUILDING: widen_buildings(
+                           np.asarray(map_data.buildings, dtype=object), building_margin_m)}
         for geoms in self._geoms.values():
             shapely.prepare(geoms)
         self._bounds = {k: shapely.bounds(g).reshape(-1, 4) for k, g in self._geoms.items()}
@@ -132,6 +140,16 @@ class PriorRasteriser:
                                                ys[r0[i]:r1[i], None])
             out[hit] = context
         return out
+
+
+def widen_buildings(buildings: np.ndarray, margin_m: float) -> np.ndarray:
+    """The building polygons grown by ``margin_m`` (the map's and the pose's error): every point
+    within ``margin_m`` of a building is in its widened polygon (a round buffer, each quarter
+    circle approximated by ``_BUFFER_QUAD_SEGS`` segments, so up to ``margin·(1 − cos(π/4n))``
+    ≈ 2 % short of the margin at the corners). ``margin_m = 0``: the polygons themselves."""
+    if margin_m <= 0 or buildings.size == 0:
+        return buildings
+    return shapely.buffer(buildings, margin_m, quad_segs=_BUFFER_QUAD_SEGS)
 
 
 def prior_masses(labels: np.ndarray, beta_building: float, beta_road: float,

@@ -17,6 +17,7 @@ from evperc.sensor.beams import (
     polar_bins,
     sensor_heading,
 )
+from evperc.sensor.conservative import conservative_free
 from evperc.sensor.evidence import beam_extents
 from evperc.sensor.ground import OBSTACLE, classify_points, histogram_shape
 from evperc.sensor.params import SensorParams
@@ -55,7 +56,9 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
     the local ground (:mod:`.ground`; for ``planar`` scans every point is an obstacle); each
     azimuth bin gives free / occupied / unknown polar cells (:mod:`.evidence`), mapped onto
     the window with occupied > free > unknown (:mod:`.projection`). Then
-    free = μ_F where free, occupied = μ_O where occupied, 0 elsewhere.
+    free = μ_F where free, occupied = μ_O where occupied, 0 elsewhere; last, free cells within
+    ``free_margin_m`` of an occupied cell or ``free_erosion_m`` of an unknown one lose their
+    free mass (:mod:`.conservative`; both 0 in the paper's model).
 
     Compiled (numba) passes over the points and the cells on per-thread work arrays that are
     reused from call to call; the returned grids are new arrays (views of one block).
@@ -100,6 +103,11 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
     if log.isEnabledFor(logging.DEBUG):
         log.debug("sensor grid: %d points kept, %d obstacle", int((az_bin >= 0).sum()),
                   int((kind == OBSTACLE).sum()))
-    return rasterise(state, window, sensor_xy, heading, layout, obstacle_bin, free_end,
-                     params.mu_free, params.mu_occupied,
-                     _scratch.take("cell_azimuth", window.rows * window.cols, np.float32))
+    free, occupied = rasterise(state, window, sensor_xy, heading, layout, obstacle_bin,
+                               free_end, params.mu_free, params.mu_occupied,
+                               _scratch.take("cell_azimuth", window.rows * window.cols,
+                                             np.float32))
+    # rasterise leaves in ``state`` the final state of every cell
+    conservative_free(state, free, window.resolution_m, params.free_margin_m,
+                      params.free_erosion_m)
+    return free, occupied

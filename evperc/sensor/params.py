@@ -11,8 +11,10 @@ from typing import Any
 class SensorParams:
     """Moras 2011 sensor-model parameters; units in the field names.
 
-    ``range_bin_m`` is the depth of a polar range bin (method.md §3: the cell size); ``None`` means
-    the resolution of the window the grid is computed on.
+    ``range_bin_m`` is the depth of a polar range bin (method.md §3: the cell size); ``None``
+    means the resolution of the window the grid is computed on. ``free_margin_m`` (d_s) and
+    ``free_erosion_m`` (d_p) are the conservative-free-space margins of
+    :mod:`evperc.sensor.conservative`; 0 is the paper's model.
     """
 
     mu_free: float = 0.7
@@ -24,6 +26,8 @@ class SensorParams:
     max_obstacle_height_m: float = 2.5
     sensor_height_m: float = 1.73
     range_bin_m: float | None = None
+    free_margin_m: float = 0.0
+    free_erosion_m: float = 0.0
 
     @staticmethod
     def from_config(sensor: Mapping[str, Any], cell_size_m: float) -> SensorParams:
@@ -38,4 +42,6 @@ class SensorParams:
             max_obstacle_height_m=float(sensor["max_obstacle_height_m"]),
             sensor_height_m=float(sensor["sensor_height_m"]),
             range_bin_m=float(cell_size_m),
+            free_margin_m=float(sensor["free_margin_m"]),
+            free_erosion_m=float(sensor["free_erosion_m"]),
         )

@@ -173,3 +173,31 @@ def test_prior_masses_per_context() -> None:
     assert prior_masses(labels, 0.9, 0.7, 0.6, dtype=np.float64).dtype == np.float64
     with pytest.raises(ValueError):
         prior_masses(labels, 1.2, 0.7, 0.6)
+
+
+def test_widened_building_covers_cells_within_the_margin() -> None:
+    # a 10 m square building [0, 10]² at 0.5 m cells, widened by 0.5 m. Cell column ix has
+    # its centre at x = (ix + 0.5)·0.5: column 20 (x = 10.25, 0.25 m outside the east face)
+    # becomes building, column 21 (x = 10.75, 0.75 m out) does not; at the north-east corner
+    # the cell (20, 20) (centre 0.354 m from the corner) is in, (20, 21) (0.79 m) is out.
+    from evperc.geo.maps import MapData
+
+    square = shapely.box(0.0, 0.0, 10.0, 10.0)
+    data = MapData(buildings=np.array([square], dtype=object),
+                   roads=np.array([], dtype=object), crs=pyproj.CRS("EPSG:32635"),
+                   source="test")
+    window = Window(0.5, 30, 30, -5, -5)        # cells -5..24 in both axes
+    plain = PriorRasteriser(data, 0.5, 16).labels(window)
+    wide = PriorRasteriser(data, 0.5, 16, building_margin_m=0.5).labels(window)
+
+    def at(labels: np.ndarray, iy: int, ix: int) -> int:
+        return int(labels[iy - window.row0, ix - window.col0])
+
+    assert at(plain, 5, 20) == CONTEXT_OTHER and at(wide, 5, 20) == CONTEXT_BUILDING
+    assert at(wide, 5, 21) == CONTEXT_OTHER
+    assert at(wide, 5, -1) == CONTEXT_BUILDING and at(wide, 5, -2) == CONTEXT_OTHER
+    assert at(wide, 20, 20) == CONTEXT_BUILDING and at(wide, 20, 21) == CONTEXT_OTHER
+    # the building grows by one ring of cells, corners included (0.354 m from the corner):
+    # 20² → 22² cells
+    assert int((plain == CONTEXT_BUILDING).sum()) == 400
+    assert int((wide == CONTEXT_BUILDING).sum()) == 484
