@@ -3,7 +3,7 @@ top, validation.
 
 A *preset* is a shipped TOML file (``configs/<name>.toml``, listed in :data:`PRESETS`) applied
 between the defaults and the user's file: ``--preset kurdej2013`` is the paper's method as
-SPEC describes it (every mechanism evperc adds switched off, every value SPEC's).
+docs/method.md reads it (every mechanism evperc adds switched off, every value the untuned one).
 
 The default file is the schema: a user key must exist there (except in open tables such as
 ``map.road_width_m``) and have the same type. Ranges and choices are declared in

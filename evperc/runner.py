@@ -401,7 +401,7 @@ class Pipeline:
         share of the log's time span requested, every N-th): the progress bar's total, an
         estimate where scans are skipped or the span cuts the log."""
         r = self.request
-        scans = self.reader.source.topics[self.reader.lidar_topic].messages
+        scans = self.reader.scan_count
         length = max(self.reader.end_ns - self.reader.start_ns, 1)
         start = 0 if r.start_s is None else min(max(int(r.start_s * 1e9), 0), length)
         end = length if r.end_s is None else min(max(int(r.end_s * 1e9), start), length)

@@ -23,7 +23,7 @@ def test_no_citation_of_a_spec_the_repository_does_not_have() -> None:
 def test_method_sections_cited_exist() -> None:
     method = (ROOT / "docs" / "method.md").read_text()
     sections = {int(n) for n in re.findall(r"^## (\d+)\. ", method, flags=re.M)}
-    assert sections == set(range(1, 8))
+    assert sections == set(range(1, max(sections) + 1)) and max(sections) >= 7  # §1–§7, no gap
     for path in [*TEXTS, *sorted((ROOT / "evperc").rglob("*.py"))]:
         for n in re.findall(r"method(?:\.md)? §(\d+)", path.read_text()):
             assert int(n) in sections, (path, n)

@@ -176,6 +176,11 @@ class KittiLog:
         """Just after the last scan's stamp (ranges are half-open)."""
         return int(self.stamps_ns[-1]) + 1
 
+    @property
+    def scan_count(self) -> int:
+        """Scans of the sequence (its ``.bin`` files)."""
+        return len(self.numbers)
+
     def read_points(self, i: int) -> tuple[np.ndarray, np.ndarray | None, int]:
         """``(points, source_index, count)`` of the i-th scan: its finite x, y, z (float32,
         (N, 3)), their indices in the file (None when every point is finite) and the file's

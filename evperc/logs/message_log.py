@@ -168,6 +168,11 @@ class LogReader:
     # --- topic detection -----------------------------------------------------------------
 
     @property
+    def scan_count(self) -> int:
+        """Lidar messages in the log (its summary's count; the scans before skipping)."""
+        return self.source.topics[self.lidar_topic].messages
+
+    @property
     def lidar_topic(self) -> str:
         if "lidar" not in self._chosen:
             topic = self._choose("lidar", LIDAR_ADAPTERS, "--lidar-topic")

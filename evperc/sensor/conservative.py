@@ -1,7 +1,7 @@
 """Conservative free space: two neighbourhood passes on one scan's sensor grid (docs/method.md,
 "Conservative free space"; after DUFOMap's d_s and d_p, Duberg et al. RA-L 2024).
 
-The paper's sensor model (SPEC §3) gives m({F}) = μ_F to every world cell a ray passes. At
+The paper's sensor model (method.md §3) gives m({F}) = μ_F to every world cell a ray passes. At
 0.5 m cells that carves the faces of walls and car sides seen at grazing angles (a ray that
 passes a wall within a few centimetres marks the wall's cell free), and a later return in such a
 cell is then an "object appeared" conflict ∅_FO, i.e. false motion. Two margins withhold the
