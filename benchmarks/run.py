@@ -36,10 +36,30 @@ def _fmt(value: object) -> str:
     return str(value)
 
 
+def cpu() -> str:
+    """The CPU model, its widest float vectors, and the CPU numba compiles for (speed
+    figures name both: the fused kernel runs 4, 8 or 16 cells per instruction)."""
+    import llvmlite.binding as llvm
+    from numba.core import config
+
+    info = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
+    model = next((line.split(":", 1)[1].strip() for line in info.splitlines()
+                  if line.startswith("model name")), platform.processor() or platform.machine())
+    flags = set(next((line.split(":", 1)[1].split() for line in info.splitlines()
+                      if line.startswith("flags")), []))
+    if platform.machine() in ("arm64", "aarch64"):
+        width = "NEON, 128-bit"
+    else:
+        width = ("AVX-512, 512-bit" if "avx512f" in flags else "AVX2, 256-bit" if "avx2" in flags
+                 else "SSE2, 128-bit" if flags else "vector width unknown")
+    target = config.CPU_NAME or llvm.get_host_cpu_name()
+    return f"{model} ({width}), numba target {target}"
+
+
 def main(argv: list[str]) -> int:
     sys.path.insert(0, str(HERE))
     names = argv or sorted(p.stem.removeprefix("bench_") for p in HERE.glob("bench_*.py"))
-    print(f"# evperc benchmarks — {platform.processor() or platform.machine()}, "
+    print(f"# evperc benchmarks — {cpu()}, "
           f"Python {platform.python_version()}, {time.strftime('%Y-%m-%d %H:%M')}")
     for name in names:
         module = importlib.import_module(f"bench_{name}")

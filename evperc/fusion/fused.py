@@ -26,8 +26,11 @@ format stores it, written straight into the writer's chunk buffer: no float copi
 masses in the block-sparse layout of :mod:`evperc.output.mass_tiles`, tiles of 64 cells, so an
 unobserved tile writes its Ω plane only).
 
-Arithmetic is float32 (``fastmath``: LLVM may reassociate sums), so results equal the numpy
-twin to float32 round-off (~1e-6), not bit for bit. The kernels are compiled once and
+Arithmetic is float32, each operation one IEEE-754 operation in the order the generated
+code writes it (no reassociation, FMA contraction or reciprocal estimates:
+:data:`evperc.fusion.codegen.FASTMATH`), so a cell's bits do not depend on its lane, its
+neighbours, the code path or the vector width; results equal the numpy twin (float64) to
+float32 round-off (~1e-6), not bit for bit. The kernels are compiled once and
 cached (``cache=True``, ~10 s each on first use, ~19 s for the lean ones with their road
 body); the default options run a *lean* variant without the operations that are
 identities for them (:func:`_kernel`). ``threads`` shares a frame's rows among threads

@@ -46,7 +46,7 @@ TILE = 64
 ROAD_ZERO_MASK = np.uint32(0xccc0ccc)
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, fastmath={'ninf', 'nnan'}, error_model="numpy")
 def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
                observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, betp, conflict, decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
@@ -925,7 +925,7 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                 dc[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * STRIDE + l0) + np.uint64(t)])
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, fastmath={'ninf', 'nnan'}, error_model="numpy")
 def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
                observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
@@ -1856,7 +1856,7 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
         q_length[0] = np.int64(pos)
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, fastmath={'ninf', 'nnan'}, error_model="numpy")
 def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
                observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, betp, conflict, decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
@@ -3008,7 +3008,7 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
                 dc[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * STRIDE + l0) + np.uint64(t)])
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, fastmath={'ninf', 'nnan'}, error_model="numpy")
 def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
                observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
