@@ -1,5 +1,6 @@
 """Process plumbing of a run: the decode thread's prefetch, the fused step's thread count,
-glibc's malloc thresholds. Nothing here knows the method; the runner calls it.
+glibc's malloc thresholds, whether numba's kernels are cached. Nothing here knows the
+method; the runner calls it.
 
 Prefetch: pulling the items of an iterator in a background thread, a few ahead of their
 consumer.
@@ -25,6 +26,7 @@ import queue
 import threading
 import time
 from collections.abc import Iterable, Iterator
+from pathlib import Path
 from typing import TypeVar
 
 log = logging.getLogger(__name__)
@@ -180,3 +182,18 @@ def keep_freed_memory() -> bool:
         return all(applied)
     except (OSError, AttributeError):  # not glibc (macOS, musl): nothing to tune
         return False
+
+
+def kernels_cached() -> bool:
+    """Whether numba has cached the fused step's kernels (its index files, ``*.nbi``, in
+    ``NUMBA_CACHE_DIR`` or beside the module): a cheap guess that the next call will not
+    compile for a minute. A cache of an older evperc counts as cached (numba then compiles
+    again, without this warning)."""
+    from evperc.fusion import kernel as fused_kernel
+
+    here = Path(fused_kernel.__file__)
+    folders = [here.parent / "__pycache__"]
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        folders.append(Path(os.environ["NUMBA_CACHE_DIR"]))
+    return any(next(folder.rglob(f"{here.stem}.*.nbi"), None) is not None
+               for folder in folders if folder.is_dir())

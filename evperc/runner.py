@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import shutil
 import threading
 import time
@@ -36,7 +35,7 @@ from evperc.output.manifest import read_manifest
 from evperc.output.npz import write_npz
 from evperc.output.quantise import dequantise, dequantise_planar
 from evperc.output.writer import RunWriter, check_output_dir
-from evperc.plumbing import fusion_threads, keep_freed_memory, prefetched
+from evperc.plumbing import fusion_threads, keep_freed_memory, kernels_cached, prefetched
 from evperc.progress import bar as progress_bar
 from evperc.sensor import SensorParams, sensor_grid
 
@@ -515,21 +514,6 @@ class Pipeline:
         if layer is None or layer.shape != shape:
             layer = self._gate_buffer = np.empty(shape, np.uint8)
         return layer
-
-
-def kernels_cached() -> bool:
-    """Whether numba has cached the fused step's kernels (its index files, ``*.nbi``, in
-    ``NUMBA_CACHE_DIR`` or beside the module): a cheap guess that the next call will not
-    compile for a minute. A cache of an older evperc counts as cached (numba then compiles
-    again, without this warning)."""
-    from evperc.fusion import kernel as fused_kernel
-
-    here = Path(fused_kernel.__file__)
-    folders = [here.parent / "__pycache__"]
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        folders.append(Path(os.environ["NUMBA_CACHE_DIR"]))
-    return any(next(folder.rglob(f"{here.stem}.*.nbi"), None) is not None
-               for folder in folders if folder.is_dir())
 
 
 def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:
