@@ -1,0 +1,159 @@
+#!/usr/bin/env python3
+"""The headline, ablation and object tables of docs/evaluation.md, from the evaluations that
+``scripts/evaluation_study.py`` cached in its work directory (run that first, with the same
+``--work`` and the configs named here):
+
+    .venv/bin/python scripts/evaluation_study.py --work W --config default \\
+        --config kurdej2013 --config configs/ablation/no_free_margin.toml \\
+        --config configs/ablation/no_gate.toml --config configs/ablation/no_building_margin.toml
+    .venv/bin/python scripts/report_tables.py --work W
+
+Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
+tables), except the missed episodes and the object counts, which are pooled over the seeds.
+Moving cells are scored strictly (the truth's centre-in convention, docs/truth-format.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import evaluation_study as study  # noqa: E402
+
+ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
+             ("**defaults**", "default"),
+             ("no free margin (d_s 0)", "configs/ablation/no_free_margin.toml"),
+             ("no motion gate", "configs/ablation/no_gate.toml"),
+             ("no building margin", "configs/ablation/no_building_margin.toml"))
+
+
+def _get(m: dict[str, Any], *path: str) -> float | None:
+    for p in path:
+        m = m[p]
+    return m  # type: ignore[return-value]
+
+
+def _missed(ms: list[dict[str, Any]]) -> str:
+    eps = sum(m["latency_frames"]["episodes"] for m in ms)
+    missed = sum(m["latency_frames"]["missed"] for m in ms)
+    return f"{missed} of {eps}"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--work", type=Path, required=True)
+    parser.add_argument("--seeds", default=study.TEST_SEEDS)
+    parser.add_argument("--profiles", default="ibeo4,hdl64")
+    parser.add_argument("--kitti", type=Path,
+                        help="instead: the SemanticKITTI table from the DIR/{default,kurdej2013}-"
+                             "SEQ.json files of `evperc evaluate --semantickitti --json`")
+    args = parser.parse_args()
+    if args.kitti is not None:
+        return kitti_table(args.kitti)
+    profiles = args.profiles.split(",")
+    drives = [study.Drive(p, int(s), study.DEFAULT_SECONDS[p]) for p in profiles
+              for s in args.seeds.split(",")]
+    tags = {name: study.config_tag(study.resolve_config(name, args.work))
+            for _, name in ABLATIONS}
+    ms_ = study._mean_sd
+
+    def runs(profile: str, name: str, cells: str) -> tuple[list, list]:
+        ds = [d for d in drives if d.profile == profile]
+        return study.load_metrics(args.work, tags[name], ds, cells)
+
+    print("### Headline\n")
+    print("| profile | method | map | cells | moving P | moving R | moving F1 | free P | "
+          "stopped F1 | infrastructure P | missed moving episodes |")
+    print("|" + "---|" * 11)
+    for profile in profiles:
+        for label, name in ABLATIONS[:2]:
+            for k, with_map in ((0, "with"), (1, "without")):
+                for cells in ("visible", "observed"):
+                    ms = runs(profile, name, cells)[k]
+                    obs = runs(profile, name, "observed")[k]
+                    infra = ms_(_get(m, "per_class", "infrastructure", "precision") for m in ms) \
+                        if with_map == "with" else "–"
+                    print(f"| {profile} | {label} | {with_map} | {cells} | "
+                          + " | ".join(ms_(_get(m, *p) for m in ms) for p in (
+                              ("per_class", "moving", "precision"),
+                              ("per_class", "moving", "recall"),
+                              ("per_class", "moving", "f1"),
+                              ("coarse", "free", "precision"),
+                              ("per_class", "stopped", "f1")))
+                          + f" | {infra} | {_missed(obs) if cells == 'observed' else '–'} |")
+
+    print("\n### Ablation (visible cells; missed episodes on observed cells)\n")
+    print("| profile | config | map | moving P | moving R | moving F1 | free P | stopped F1 | "
+          "infrastructure P | missed moving episodes |")
+    print("|" + "---|" * 10)
+    for profile in profiles:
+        for k, with_map in ((0, "with"), (1, "without")):
+            for label, name in ABLATIONS:
+                ms = runs(profile, name, "visible")[k]
+                obs = runs(profile, name, "observed")[k]
+                infra = ms_(_get(m, "per_class", "infrastructure", "precision") for m in ms) \
+                    if with_map == "with" else "–"
+                print(f"| {profile} | {label} | {with_map} | "
+                      + " | ".join(ms_(_get(m, *p) for m in ms) for p in (
+                          ("per_class", "moving", "precision"), ("per_class", "moving", "recall"),
+                          ("per_class", "moving", "f1"), ("coarse", "free", "precision"),
+                          ("per_class", "stopped", "f1")))
+                      + f" | {infra} | {_missed(obs)} |")
+
+    print("\n### Objects (defaults, visible cells, pooled over the seeds)\n")
+    print("| profile | map | moving objects reported | matched | precision | true moving "
+          "(agent-frames) | found | recall | track switches |")
+    print("|" + "---|" * 9)
+    for profile in profiles:
+        for k, with_map in ((0, "with"), (1, "without")):
+            obj = [m["objects"] for m in runs(profile, "default", "visible")[k]]
+            if any(o is None for o in obj):
+                continue
+            rep = sum(o["moving_reported"] for o in obj)
+            mat = sum(o["moving_matched"] for o in obj)
+            tru = sum(o["moving_truth"] for o in obj)
+            fnd = sum(o["moving_found"] for o in obj)
+            sw = sum(o["track_switches"] for o in obj)
+            p = f"{mat / rep:.3f}" if rep else "–"
+            r = f"{fnd / tru:.3f}" if tru else "–"
+            print(f"| {profile} | {with_map} | {rep:,} | {mat:,} | {p} | {tru:,} | {fnd:,} | "
+                  f"{r} | {sw} |")
+    return 0
+
+
+KITTI_CONFIGS = (("**defaults**", "default"), ("paper's method", "kurdej2013"),
+                 ("no motion gate", "no_gate"), ("no free margin", "no_free_margin"))
+
+
+def kitti_table(folder: Path) -> int:
+    """Scans from the third on (`--warmup 2`): moving IoU, P, R and the static points decided
+    moving (% of the scored points) per slice and config; a config whose DIR/CONFIG-SEQ.json
+    is missing is left out."""
+    tuning = {"00", "09"}
+    print("| seq | used for | moving points | config | IoU | P | R | static→moving |")
+    print("|" + "---|" * 8)
+
+    def f(v: float | None) -> str:
+        return "–" if v is None else f"{v:.3f}"
+
+    for seq in ("00", "01", "05", "07", "09", "10"):
+        use = "tuning (sensor side)" if seq in tuning else "held out"
+        for label, config in KITTI_CONFIGS:
+            path = folder / f"{config}-{seq}.json"
+            if not path.is_file():
+                continue
+            o = json.loads(path.read_text())["overall"]
+            truth = o["moving_truth"]
+            iou = f(o["iou"]) if truth else f"– ({o['fp']:,} FP)"
+            print(f"| {seq} | {use} | {truth:,} | {label} | {iou} | {f(o['precision'])} | "
+                  f"{f(o['recall']) if truth else '–'} | {100 * o['static_as_moving']:.2f} % |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
