@@ -32,6 +32,12 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("no building margin", "configs/ablation/no_building_margin.toml"))
 
 
+#: the scores of the headline and ablation rows, in column order
+SCORE_KEYS = (("per_class", "moving", "precision"), ("per_class", "moving", "recall"),
+              ("per_class", "moving", "f1"), ("coarse", "free", "precision"),
+              ("per_class", "stopped", "f1"))
+
+
 def _get(m: dict[str, Any], *path: str) -> float | None:
     for p in path:
         m = m[p]
@@ -66,6 +72,10 @@ def main() -> int:
         ds = [d for d in drives if d.profile == profile]
         return study.load_metrics(args.work, tags[name], ds, cells)
 
+    def scores(ms: list) -> str:
+        """moving P, R, F1, free P, stopped F1 (mean ± sd over the seeds), as table cells"""
+        return " | ".join(ms_(_get(m, *key) for m in ms) for key in SCORE_KEYS)
+
     print("### Headline\n")
     print("| profile | method | map | cells | moving P | moving R | moving F1 | free P | "
           "stopped F1 | infrastructure P | missed moving episodes |")
@@ -78,14 +88,8 @@ def main() -> int:
                     obs = runs(profile, name, "observed")[k]
                     infra = ms_(_get(m, "per_class", "infrastructure", "precision") for m in ms) \
                         if with_map == "with" else "–"
-                    print(f"| {profile} | {label} | {with_map} | {cells} | "
-                          + " | ".join(ms_(_get(m, *p) for m in ms) for p in (
-                              ("per_class", "moving", "precision"),
-                              ("per_class", "moving", "recall"),
-                              ("per_class", "moving", "f1"),
-                              ("coarse", "free", "precision"),
-                              ("per_class", "stopped", "f1")))
-                          + f" | {infra} | {_missed(obs) if cells == 'observed' else '–'} |")
+                    print(f"| {profile} | {label} | {with_map} | {cells} | {scores(ms)}"
+                          f" | {infra} | {_missed(obs) if cells == 'observed' else '–'} |")
 
     print("\n### Ablation (visible cells; missed episodes on observed cells)\n")
     print("| profile | config | map | moving P | moving R | moving F1 | free P | stopped F1 | "
@@ -98,12 +102,8 @@ def main() -> int:
                 obs = runs(profile, name, "observed")[k]
                 infra = ms_(_get(m, "per_class", "infrastructure", "precision") for m in ms) \
                     if with_map == "with" else "–"
-                print(f"| {profile} | {label} | {with_map} | "
-                      + " | ".join(ms_(_get(m, *p) for m in ms) for p in (
-                          ("per_class", "moving", "precision"), ("per_class", "moving", "recall"),
-                          ("per_class", "moving", "f1"), ("coarse", "free", "precision"),
-                          ("per_class", "stopped", "f1")))
-                      + f" | {infra} | {_missed(obs)} |")
+                print(f"| {profile} | {label} | {with_map} | {scores(ms)} | {infra} | "
+                      f"{_missed(obs)} |")
 
     print("\n### Objects (defaults, visible cells, pooled over the seeds)\n")
     print("| profile | map | moving objects reported | matched | precision | true moving "
