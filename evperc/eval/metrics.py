@@ -16,6 +16,15 @@ use free / static = {I, U, S} / moving, where every static decision (``static``,
 For class c over the evaluated cells: precision = TP / #(decided c), recall = TP / #(truth c),
 F1 = 2PR / (P + R), support = #(truth c); undefined ratios are ``None``.
 
+Moving cells within one cell (``moving_within_one_cell``): the truth's class raster puts a
+cell in an object's footprint when its centre lies in it (strict, the scores above); a return
+from a car's surface often falls in a cell whose centre is just outside the footprint, or the
+footprint's edge crosses the cell. So the moving class is also scored with a tolerance of one
+cell (8-neighbourhood, centres at most 0.71 m apart at 0.5 m cells): a cell decided ``moving``
+is correct if it or one of its 8 neighbours is truth M (the neighbour need not be evaluated
+itself); a truth M cell is found if it or one of its 8 neighbours is decided ``moving``.
+Precision = correct / decided moving, recall = found / truth M, over the evaluated cells.
+
 Detection latency, per moving episode of a simulated agent: an episode is a maximal run of
 consecutive matched frames in which the agent has at least one evaluated cell of truth
 class M. Its onset is the first frame of the episode in which a ray of that frame hits or
@@ -105,6 +114,7 @@ def evaluate(run: Any, truth: Any, cells: str = "observed") -> dict[str, Any]:
     n_agents = len(getattr(truth, "agents", [])) or 0
     moving_code = codes.get("moving", -1)
     confusion = np.zeros((len(FINE), len(decisions)), dtype=np.int64)
+    tolerant = np.zeros(4, dtype=np.int64)  # correct, decided moving, found, truth M
     objects = ObjectScore()
     rows: list[tuple[np.ndarray, ...]] = []
     stamps, matched, run_frames = [], 0, 0
@@ -132,6 +142,13 @@ def evaluate(run: Any, truth: Any, cells: str = "observed") -> dict[str, Any]:
         ok = np.asarray(scored[tr, tc], dtype=bool) & (tc_ >= 0) & (d >= 0)
         confusion += np.bincount(tc_[ok] * len(decisions) + d[ok],
                                  minlength=confusion.size).reshape(confusion.shape)
+        decided_m = dec == moving_code
+        truth_m = t.classes == tcodes["moving"]
+        near_truth_m = dilate_one_cell(truth_m)[tr, tc]
+        near_decided_m = dilate_one_cell(decided_m)[rr, rc]
+        dm, tm = decided_m[rr, rc] & ok, truth_m[tr, tc] & ok
+        tolerant += (int((dm & near_truth_m).sum()), int(dm.sum()),
+                     int((tm & near_decided_m).sum()), int(tm.sum()))
         agent = np.where(ok, t.agent[tr, tc], 0)
         n = max(n_agents, int(agent.max(initial=0))) + 1
         if n > n_agents + 1:
@@ -150,6 +167,7 @@ def evaluate(run: Any, truth: Any, cells: str = "observed") -> dict[str, Any]:
                          f"{run_frames} frames: not the run's drive; give the truth of the "
                          "drive the run was made from")
     metrics = _summarise(confusion, decisions)
+    metrics["moving_within_one_cell"] = _tolerant_scores(tolerant)
     metrics["objects"] = objects.summary()
     metrics["cell_set"] = cells
     metrics["frames_span_ns"] = [stamps[0], stamps[-1]] if stamps else None
@@ -157,6 +175,27 @@ def evaluate(run: Any, truth: Any, cells: str = "observed") -> dict[str, Any]:
     metrics["frames_unmatched"] = run_frames - matched
     metrics["latency_frames"] = _latency(rows, np.array(stamps, dtype=np.int64))
     return metrics
+
+
+def dilate_one_cell(mask: np.ndarray) -> np.ndarray:
+    """``mask`` OR-ed with its 8 neighbours (cells beyond the edge are False)."""
+    rows, cols = mask.shape
+    padded = np.zeros((rows + 2, cols + 2), dtype=bool)
+    padded[1:-1, 1:-1] = mask
+    out = np.zeros_like(mask, dtype=bool)
+    for dr in range(3):
+        for dc in range(3):
+            out |= padded[dr:dr + rows, dc:dc + cols]
+    return out
+
+
+def _tolerant_scores(counts: np.ndarray) -> dict[str, Any]:
+    correct, decided, found, truth = (int(v) for v in counts)
+    p = correct / decided if decided else None
+    r = found / truth if truth else None
+    f1 = 2 * p * r / (p + r) if p is not None and r is not None and p + r > 0 else None
+    return {"precision": p, "recall": r, "f1": f1, "decided": decided, "correct": correct,
+            "support": truth, "found": found, "tolerance_cells": 1}
 
 
 def _where(truth: Any) -> str:
@@ -319,6 +358,11 @@ def format_report(metrics: dict[str, Any], other: dict[str, Any] | None = None,
         for t, counts in zip(conf["truth"], conf["counts"], strict=True):
             lines.append(f"{t:<15}" + "".join(f"{c:>10}" for c in counts))
         lat = m["latency_frames"]
+        tol = m.get("moving_within_one_cell")
+        if tol is not None:
+            lines.append(f"moving within one cell ({n}): P {num(tol['precision']).strip()} "
+                         f"({tol['correct']}/{tol['decided']}), R {num(tol['recall']).strip()} "
+                         f"({tol['found']}/{tol['support']}), F1 {num(tol['f1']).strip()}")
         obj = m.get("objects")
         if obj is not None:
             lines.append(f"objects ({n}): moving P {num(obj['precision']).strip()} "

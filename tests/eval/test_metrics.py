@@ -75,6 +75,38 @@ def test_per_class_and_coarse_scores_by_hand(tmp_path: Path) -> None:
     assert m["stopped_vs_moving"]["moving"]["moving"] == 1
 
 
+def test_moving_within_one_cell_by_hand(tmp_path: Path) -> None:
+    # truth: a 2-cell moving footprint in row 1, columns 1-2; the top-left cell unevaluated
+    truth = load_truth(write_truth(tmp_path, [{
+        "stamp": 7,
+        "classes": [[F, F, F, F, F], [F, M, M, F, F], [F, F, F, F, F], [F, F, F, F, I]],
+        "visible": [[0, 1, 1, 1, 1], [1, 1, 1, 1, 1], [1, 1, 1, 1, 1], [1, 1, 1, 1, 1]]}]))
+    run = fake_run([{"stamp": 7, "decision": [
+        [FREE, FREE, FREE, MOV, FREE],   # (0,3): diagonal to truth (1,2): correct
+        [FREE, FREE, FREE, FREE, MOV],   # (1,4): two columns off: wrong
+        [FREE, FREE, FREE, FREE, FREE],
+        [MOV, FREE, FREE, FREE, FREE]]}])  # (3,0): far off: wrong
+    m = evaluate(run, truth, cells="visible")
+    tol = m["moving_within_one_cell"]
+    # decided moving 3, correct 1 (0,3); truth M 2: (1,2) has the decided (0,3) as a
+    # neighbour, (1,1) has none of them
+    assert (tol["decided"], tol["correct"], tol["support"], tol["found"]) == (3, 1, 2, 1)
+    assert tol["precision"] == pytest.approx(1 / 3) and tol["recall"] == pytest.approx(0.5)
+    assert tol["f1"] == pytest.approx(0.4)
+    # strict: no decided moving cell is truth M
+    assert m["per_class"]["moving"]["precision"] == 0.0
+    # a decided cell at the window's edge whose neighbour is unevaluated truth M still counts
+    run2 = fake_run([{"stamp": 7, "decision": [[MOV, FREE, FREE, FREE, FREE],
+                                               [FREE] * 5, [FREE] * 5, [FREE] * 5]}])
+    tol2 = evaluate(run2, truth, cells="visible")["moving_within_one_cell"]
+    assert (tol2["decided"], tol2["correct"]) == (0, 0)  # (0,0) itself unevaluated: not scored
+    run3 = fake_run([{"stamp": 7, "decision": [[FREE, FREE, FREE, FREE, FREE],
+                                               [MOV, FREE, FREE, FREE, FREE],
+                                               [FREE] * 5, [FREE] * 5]}])
+    tol3 = evaluate(run3, truth, cells="visible")["moving_within_one_cell"]
+    assert (tol3["decided"], tol3["correct"], tol3["found"]) == (1, 1, 1)
+
+
 def test_windows_compared_where_both_cover(tmp_path: Path) -> None:
     truth = load_truth(write_truth(tmp_path, [{"stamp": 5, "classes": [[F, I, I], [F, F, M]]}]))
     # run window shifted one column east: its columns 0, 1 are the truth's columns 1, 2
