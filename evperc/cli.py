@@ -313,7 +313,8 @@ def render_command(out_dir: Path, dest: Path | None, dest_alias: Path | None,
 @cli.command("export")
 @click.argument("out_dir", metavar="RUN_DIR", type=click.Path(path_type=Path))
 @click.option("--out", "mcap_path", type=click.Path(path_type=Path),
-              help="MCAP file to write (foxglove.Grid + foxglove.FrameTransform).")
+              help="MCAP file to write (foxglove.Grid + foxglove.FrameTransform, and "
+                   "foxglove.SceneUpdate of the objects if the run lists them).")
 @click.option("--mcap", "mcap_alias", type=click.Path(path_type=Path), hidden=True)
 @click.option("--frames", "frames_text", metavar="A:B:STEP",
               help="Frames to export, Python slice rules  [default: all]")
@@ -325,7 +326,7 @@ def render_command(out_dir: Path, dest: Path | None, dest_alias: Path | None,
 @user_errors
 def export_command(out_dir: Path, mcap_path: Path | None, mcap_alias: Path | None,
                    frames_text: str | None, frame_id: str, overwrite: bool) -> None:
-    """Export the grids of RUN_DIR to an MCAP file for Foxglove."""
+    """Export the grids (and object list) of RUN_DIR to an MCAP file for Foxglove."""
     from evperc.output.export import export_mcap
     from evperc.output.reader import load
     from evperc.render.run_render import parse_frames

@@ -17,9 +17,13 @@ the row order of the run (docs/conventions.md). Each cell holds, little-endian::
 frame its poses are in, e.g. ``map`` or ``odom``: the manifest's ``world_frame``) places that
 frame in the CRS (the run's geo-reference ``T_crs_world``, planar; the identity when the run
 worked in the log's own frame). Open this file together with the log in Foxglove and the
-grids lie under the log's point clouds. A metadata record ``evperc`` names the CRS,
-resolution, frames and decision codes. Messages are encoded with the foxglove-sdk's schemas
-and written with the ``mcap`` writer, at log time = the frame's ``stamp_ns``.
+grids lie under the log's point clouds. On ``/evperc/objects``, for a run with an object list
+(``frame.objects``), one ``foxglove.SceneUpdate`` per frame: a box, a velocity arrow and a
+label per object, entity id ``track-N``, and deletions of the tracks gone since the previous
+exported frame (:mod:`evperc.output.scene`); a run without objects has no such channel. A
+metadata record ``evperc`` names the CRS, resolution, frames and decision codes. Messages
+are encoded with the foxglove-sdk's schemas and written with the ``mcap`` writer, at log
+time = the frame's ``stamp_ns``.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from evperc.errors import OutputError
+from evperc.output.scene import OBJECTS_TOPIC, scene_message
 from evperc.progress import bar
 from evperc.render.colours import pignistic_colour
 
@@ -140,8 +145,8 @@ def export_mcap(run: Any, mcap_path: str | Path, *, frames: slice = slice(None),
     """Write the selected frames of ``run`` to ``mcap_path`` (see the module docstring).
 
     The file appears only when complete (written under a temporary name, then renamed).
-    Returns ``{"frames", "path"}``."""
-    from foxglove.messages import FrameTransform, Grid
+    Returns ``{"frames", "path", "topics"}``."""
+    from foxglove.messages import FrameTransform, Grid, SceneUpdate
     from mcap.writer import Writer
 
     from evperc.render.run_render import select_frames
@@ -168,11 +173,19 @@ def export_mcap(run: Any, mcap_path: str | Path, *, frames: slice = slice(None),
             writer = Writer(stream)
             writer.start(profile="", library="evperc")
             channels = {}
+            schemas: dict[str, int] = {}
+
+            def register(topic: str, message: Any) -> None:
+                schema = message.get_schema()
+                if schema.name not in schemas:
+                    schemas[schema.name] = writer.register_schema(schema.name, schema.encoding,
+                                                                  schema.data)
+                channels[topic] = writer.register_channel(topic, "protobuf",
+                                                          schemas[schema.name])
+
             for topic, message in ((GRID_TOPIC, Grid), (EGO_TOPIC, FrameTransform),
                                    (WORLD_TOPIC, FrameTransform)):
-                schema = message.get_schema()
-                schema_id = writer.register_schema(schema.name, schema.encoding, schema.data)
-                channels[topic] = writer.register_channel(topic, "protobuf", schema_id)
+                register(topic, message)
             writer.add_metadata("evperc", {
                 "crs": str(run.manifest.get("crs", "local")),
                 "resolution_m": repr(float(run.manifest.get("resolution_m", 0.0))),
@@ -181,8 +194,16 @@ def export_mcap(run: Any, mcap_path: str | Path, *, frames: slice = slice(None),
                 "decision_codes": json.dumps(dict(run.decision_codes), sort_keys=True),
                 "source": str(getattr(run, "out_dir", ""))})
             total = len(range(*frames.indices(len(run))))
+            shown: set[str] = set()  # the object entities of the previous exported frame
             for frame in bar(select_frames(run, frames), total=total, desc="export"):
                 stamp = int(frame.stamp_ns)
+                if frame.objects is not None:
+                    if OBJECTS_TOPIC not in channels:  # a run lists objects in every frame
+                        register(OBJECTS_TOPIC, SceneUpdate)
+                    scene, shown = scene_message(frame.objects, _timestamp(stamp), frame_id,
+                                                 shown)
+                    writer.add_message(channels[OBJECTS_TOPIC], stamp, scene, stamp,
+                                       sequence=count)
                 writer.add_message(channels[GRID_TOPIC], stamp, grid_message(frame, frame_id),
                                    stamp, sequence=count)
                 writer.add_message(channels[EGO_TOPIC], stamp,
@@ -201,5 +222,9 @@ def export_mcap(run: Any, mcap_path: str | Path, *, frames: slice = slice(None),
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    log.info("%d frames -> %s (%s, %s, %s)", count, path, GRID_TOPIC, EGO_TOPIC, WORLD_TOPIC)
-    return {"frames": count, "path": path}
+    if OBJECTS_TOPIC not in channels:
+        log.info("%s: the run has no object list (objects.enabled = false, or made before "
+                 "it): no %s", path, OBJECTS_TOPIC)
+    topics = [t for t in channels if t != WORLD_TOPIC or world_frame]
+    log.info("%d frames -> %s (%s)", count, path, ", ".join(topics))
+    return {"frames": count, "path": path, "topics": topics}

@@ -365,9 +365,11 @@ class RunWriter:
 
     def add(self, stamp_ns: int, pose: np.ndarray, origin: tuple[int, int], masses: np.ndarray,
             betp: np.ndarray, decision: np.ndarray, zeta: np.ndarray, conflict: np.ndarray,
-            decision_counts: np.ndarray | None = None) -> bool:
+            decision_counts: np.ndarray | None = None, objects: np.ndarray | None = None,
+            object_cells: np.ndarray | None = None) -> bool:
         """Queue one frame of float layers, interleaved ``(rows, cols, k)`` (quantised at once:
-        the caller may reuse its arrays); see :meth:`commit_frame`."""
+        the caller may reuse its arrays), and its object list if any; see
+        :meth:`commit_frame`."""
         if tuple(decision.shape) != self._shape:
             raise ValueError(f"frame of shape {decision.shape}, the run's window is "
                              f"{self._shape}")
@@ -381,7 +383,8 @@ class RunWriter:
         slot.decision[...] = decision
         slot.zeta[...] = quantise(zeta)
         quantise_planar(conflict, out=slot.conflict)
-        return self.commit_frame(stamp_ns, pose, origin, decision_counts)
+        return self.commit_frame(stamp_ns, pose, origin, decision_counts, objects,
+                                 object_cells)
 
     def _wait(self) -> None:
         if self._pending is not None:

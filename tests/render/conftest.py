@@ -33,8 +33,10 @@ def make_frame(rows: int = 8, cols: int = 10, *, row0: int = 0, col0: int = 0,
         masses=np.zeros((rows, cols, 32), np.float32))
 
 
-def write_run(out: Path, frames: list[SimpleNamespace], crs: str = "EPSG:32631") -> Path:
-    """Write ``frames`` as a real `evperc run` output folder (RunWriter, format_version 1)."""
+def write_run(out: Path, frames: list[SimpleNamespace], crs: str = "EPSG:32631",
+              objects: list[tuple[np.ndarray, np.ndarray]] | None = None) -> Path:
+    """Write ``frames`` as a real `evperc run` output folder (RunWriter); ``objects``: each
+    frame's object records and cells (docs/output-format.md, "Objects"), or none."""
     first = frames[0]
     config = load_config()
     config["output"]["chunk_frames"] = 2
@@ -42,14 +44,16 @@ def write_run(out: Path, frames: list[SimpleNamespace], crs: str = "EPSG:32631")
             "resolution_m": first.window.resolution_m, "rows": first.window.rows,
             "cols": first.window.cols}
     writer = RunWriter(out, config, meta)
-    for f in frames:
+    for i, f in enumerate(frames):
+        records, cells = objects[i] if objects is not None else (None, None)
         # masses that agree with the betP given: each class's betP on its singleton (a
         # Bayesian mass function, whose betP is itself); cells with no betP are vacuous
         masses = np.zeros(f.window.shape + (32,), np.float32)
         for k in range(5):
             masses[..., 1 << k] = f.betp[..., k]
         masses[..., 31] = 1.0 - f.betp.sum(axis=-1)
-        writer.add(f.stamp_ns, f.pose, f.origin, masses, f.betp, f.decision, f.zeta, f.conflict)
+        writer.add(f.stamp_ns, f.pose, f.origin, masses, f.betp, f.decision, f.zeta, f.conflict,
+                   objects=records, object_cells=cells)
     writer.close({"frames": len(frames)})
     return out
 
