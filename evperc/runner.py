@@ -29,7 +29,7 @@ from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
 from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
-from evperc.objects.stage import ObjectStage, objects_enabled
+from evperc.objects.stage import ObjectStage, fill_moving, fills_decision, objects_enabled
 from evperc.objects.tracking import TrackerState
 from evperc.output.manifest import read_manifest
 from evperc.output.npz import write_npz
@@ -320,6 +320,7 @@ class Pipeline:
         self._gate_buffer: np.ndarray | None = None
         probe = Window.centred_on(0.0, 0.0, self.window_size, self.resolution)
         self.objects = (ObjectStage(config, probe.shape) if objects_enabled(config) else None)
+        self.fill_moving = fills_decision(config)
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -338,7 +339,8 @@ class Pipeline:
                    out=out, flags=state.flags, focal=state.focal, gate=gate)
         if self.objects is not None:
             ObjectStage(self.request.config, tiny.shape).step(
-                TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0)
+                TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0,
+                occupied_now=occupied > 0)
 
     def meta(self) -> dict[str, Any]:
         """Manifest entries that describe the run (docs/output-format.md)."""
@@ -487,18 +489,21 @@ class Pipeline:
                    self.betas, dt_s, self.params, out=out, flags=state.flags, focal=state.focal,
                    offset=state.offset, shift=shift, threads=self.fusion_threads, gate=gate)
         state.frames += 1
-        counts = count_codes(out.decision, len(state.decision_counts))
-        state.decision_counts += counts
         clock.lap("fusion")
         frame = {"stamp_ns": inputs.stamp_ns, "pose": inputs.pose,
-                 "origin": (window.row0, window.col0), "decision_counts": counts}
+                 "origin": (window.row0, window.col0)}
         if self.objects is not None:  # clusters and tracks (evperc.objects), from the layers
             if state.tracks is None:
                 state.tracks = TrackerState()
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
-                inputs.stamp_ns)
+                inputs.stamp_ns, occupied_now=inputs.occupied > 0)
+            if self.fill_moving:  # the moving objects' cells decided moving (method.md §8)
+                fill_moving(out.decision, frame["objects"], frame["object_cells"])
             clock.lap("objects")
+        counts = count_codes(out.decision, len(state.decision_counts))
+        state.decision_counts += counts
+        frame["decision_counts"] = counts
         if inputs.labelling is not None:  # a separate pass over the points, after the step
             scan, t_crs, kinds = inputs.labelling
             labels = point_labels(scan.points, kinds, t_crs, window, out.decision,

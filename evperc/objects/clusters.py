@@ -4,9 +4,20 @@
 Seeds are the cells decided ``moving`` this frame (and, optionally, the cells whose
 conflict ∅_FO — free before, occupied now — reaches ``seed_conflict_fo``, and the cells an
 existing track held in the previous frame). From each seed a cluster grows 8-connected
-through the cells decided occupied now: ``moving``, ``static``, ``stopped`` and
-``unmapped``, whatever their history: the far side of a car, never seen free, joins the
-cells whose conflict revealed it. ``infrastructure`` cells do not take part: the map says
+through the cells decided occupied: ``moving``, ``static``, ``stopped`` and ``unmapped``,
+whatever their history: the far side of a car, never seen free, joins the cells whose
+conflict revealed it.
+
+With ``seeds = "occupied"`` (the default) the growth is limited to what the scan sees now
+— a cell decided ``moving``, or decided occupied and holding a return of this scan
+(``occupied_now``, the sensor grid's m({O}) > 0) — and every such cell seeds: each connected
+group of them is a cluster, whether or not any of its cells conflicts. A car driving ahead
+of the ego enters cells that were inside it a scan before and never gives the ∅_FO
+conflict; as a cluster it is tracked, and the tracker's motion evidence
+(:mod:`evperc.objects.tracking`) decides whether it moves. Cells the grid still remembers
+occupied but no return hits now (the trail a car leaves until rays carve it free) stay out,
+so a cluster is the object where it is now (Dynablox grows through the voxels occupied in the
+current scan). ``infrastructure`` cells do not take part: the map says
 a building stands there, it cannot move, and a car at a façade would otherwise grow into
 the whole building. A cluster is kept if it has at least ``min_cells`` cells and its
 bounding box is at most ``max_extent_m`` on each side (a false seed at a wall grows along
@@ -44,13 +55,17 @@ class ClusterParams:
     #: objects.seed_conflict_fo: cells with ∅_FO at least this seed a cluster too, even if
     #: not decided moving; 0 = off (only decided-moving cells seed)
     seed_conflict_fo: float = 0.0
+    #: objects.seeds: "moving" (decided-moving cells seed, growth through every occupied
+    #: decision) or "occupied" (every cell seen occupied now seeds; module docstring)
+    seeds: str = "occupied"
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> ClusterParams:
         o = config["objects"]
         return ClusterParams(min_cells=int(o["min_cluster_cells"]),
                              max_extent_m=float(o["max_cluster_extent_m"]),
-                             seed_conflict_fo=float(o["seed_conflict_fo"]))
+                             seed_conflict_fo=float(o["seed_conflict_fo"]),
+                             seeds=str(o["seeds"]))
 
 
 @dataclass(frozen=True)
@@ -83,12 +98,13 @@ _MOVING = DECISION_CODES["moving"]
 
 
 @numba.njit(cache=True, nogil=True)
-def _flood(decision: np.ndarray, conflict_fo: np.ndarray, cols: int, fo_q: int, moving: int,
-           grows: np.ndarray, extra: np.ndarray, mark: np.ndarray, cells: np.ndarray,
-           stats: np.ndarray) -> tuple[int, int]:
+def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_all: bool,
+           cols: int, fo_q: int, moving: int, grows: np.ndarray, extra: np.ndarray,
+           mark: np.ndarray, cells: np.ndarray, stats: np.ndarray) -> tuple[int, int]:
     """Flood fill from every seed; returns (clusters, cells). ``stats[k]``: count, seeds,
-    Σrow, Σcol, min row, max row, min col, max col. ``decision``, ``conflict_fo``: the
-    window's cells, flat (row-major, ``cols`` a row)."""
+    Σrow, Σcol, min row, max row, min col, max col. ``decision``, ``conflict_fo``, ``now``
+    (1: a cell a cluster may hold unless decided moving): the window's cells, flat
+    (row-major, ``cols`` a row). ``seed_all``: every cell a cluster may hold seeds."""
     total = decision.shape[0]
     rows = total // cols
     n_clusters = 0
@@ -97,14 +113,18 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, cols: int, fo_q: int, 
     for s in range(n_extra + total):
         if s < n_extra:
             start = extra[s]
-            if start < 0 or start >= total or mark[start] or not grows[decision[start]]:
+            if (start < 0 or start >= total or mark[start] or not grows[decision[start]]
+                    or not (now[start] or decision[start] == moving)):
                 continue
         else:
             start = s - n_extra
             if mark[start]:
                 continue
             d = decision[start]
-            if d != moving and not (fo_q > 0 and conflict_fo[start] >= fo_q):
+            if seed_all:
+                if not (d == moving or (grows[d] and now[start])):
+                    continue
+            elif d != moving and not (fo_q > 0 and conflict_fo[start] >= fo_q):
                 continue
         k = n_clusters
         n_clusters += 1
@@ -147,7 +167,8 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, cols: int, fo_q: int, 
                     if mark[j]:
                         continue
                     dj = decision[j]
-                    if grows[dj] or (fo_q > 0 and conflict_fo[j] >= fo_q):
+                    if ((grows[dj] and (now[j] or dj == moving))
+                            or (fo_q > 0 and conflict_fo[j] >= fo_q)):
                         mark[j] = 1
                         cells[n_cells] = j
                         n_cells += 1
@@ -177,20 +198,30 @@ class Clusterer:
         # the stored ∅_FO is q / 255: q >= ceil(255 · threshold) (0: no conflict seeds)
         thr = params.seed_conflict_fo
         self._fo_q = max(1, int(np.ceil(255.0 * thr - 1e-9))) if thr > 0 else 0
+        self._everywhere = np.ones(n, np.uint8)  # ``now`` where the growth is not limited
 
     def clusters(self, decision: np.ndarray, betp_moving: np.ndarray, conflict_fo: np.ndarray,
-                 window: Window, extra_seeds: np.ndarray | None = None) -> Clusters:
+                 window: Window, extra_seeds: np.ndarray | None = None,
+                 occupied_now: np.ndarray | None = None) -> Clusters:
         """The kept clusters of one frame. ``decision`` (rows, cols) uint8 codes;
         ``betp_moving`` and ``conflict_fo``: betP(M) and ∅_FO as stored (uint8, ×255);
         ``extra_seeds``: flat window indices that seed too if occupied now (a track's
-        cells of the previous frame)."""
+        cells of the previous frame); ``occupied_now``: (rows, cols) bool, the cells holding
+        a return of this scan (required with ``seeds = "occupied"``, unused otherwise)."""
         if decision.shape != self.shape:
             raise ValueError(f"window {decision.shape}, the clusterer's is {self.shape}")
         extra = (np.zeros(0, np.int64) if extra_seeds is None
                  else np.ascontiguousarray(extra_seeds, np.int64))
-        n, used = _flood(decision.reshape(-1), conflict_fo.reshape(-1), self.shape[1],
-                         self._fo_q, _MOVING, _GROWS, extra, self._mark, self._cells,
-                         self._stats)
+        seed_all = self.params.seeds == "occupied"
+        if seed_all:
+            if occupied_now is None or occupied_now.shape != self.shape:
+                raise ValueError("seeds = 'occupied' needs the scan's occupied cells")
+            now = np.ascontiguousarray(occupied_now, np.uint8).reshape(-1)
+        else:
+            now = self._everywhere
+        n, used = _flood(decision.reshape(-1), conflict_fo.reshape(-1), now, seed_all,
+                         self.shape[1], self._fo_q, _MOVING, _GROWS, extra, self._mark,
+                         self._cells, self._stats)
         stats = self._stats[:n]
         count = stats[:, 0]
         offsets = np.zeros(n + 1, np.int64)

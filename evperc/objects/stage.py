@@ -1,9 +1,12 @@
 """The object stages of one frame in a row (docs/method.md, "Objects"): clusters
-(:mod:`evperc.objects.clusters`) seeded by the frame's moving cells and the footprints of
-the tracks that moved, then the tracker (:mod:`evperc.objects.tracking`).
+(:mod:`evperc.objects.clusters`) of the cells seen occupied now (or seeded by the frame's
+moving cells and the footprints of the tracks that moved), then the tracker
+(:mod:`evperc.objects.tracking`), then :func:`fill_moving`, which decides the cells of the
+moving objects ``moving``.
 
-Inputs are a frame's stored outputs only (decision, betP(M) and ∅_FO as uint8 ×255, the
-window, the stamp): the stage does not depend on how the fusion decided them."""
+Inputs are a frame's stored outputs (decision, betP(M) and ∅_FO as uint8 ×255, the window,
+the stamp) and the cells holding a return of the scan: the stage does not depend on how the
+fusion decided them."""
 
 from __future__ import annotations
 
@@ -11,15 +14,24 @@ from typing import Any
 
 import numpy as np
 
+from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
 from evperc.objects.clusters import Clusterer, ClusterParams
 from evperc.objects.tracking import TrackerState, TrackingParams, footprint_seeds, track_step
+from evperc.output.objects import OBJECT_STATES
+
+MOVING = DECISION_CODES["moving"]
 
 
 def objects_enabled(config: dict[str, Any]) -> bool:
     """Whether a run with ``config`` computes objects (a config written before the
     ``[objects]`` table existed, e.g. an old run's manifest on resume: no)."""
     return bool(config.get("objects", {}).get("enabled", False))
+
+
+def fills_decision(config: dict[str, Any]) -> bool:
+    """Whether the moving objects' cells are decided ``moving`` (``objects.fill_moving``)."""
+    return objects_enabled(config) and bool(config["objects"].get("fill_moving", False))
 
 
 class ObjectStage:
@@ -31,13 +43,31 @@ class ObjectStage:
         self.clusterer = Clusterer(self.cluster_params, shape)
 
     def step(self, state: TrackerState, decision: np.ndarray, betp_moving: np.ndarray,
-             conflict_fo: np.ndarray, window: Window, stamp_ns: int
-             ) -> tuple[np.ndarray, np.ndarray]:
+             conflict_fo: np.ndarray, window: Window, stamp_ns: int,
+             occupied_now: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The frame's reported objects and their cells (:func:`track_step`); ``state``
-        is updated in place."""
+        is updated in place. ``occupied_now``: (rows, cols) bool, the cells holding a
+        return of this scan."""
         seeds = footprint_seeds(state, window)
-        clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds)
-        return track_step(state, clusters, window, stamp_ns, self.tracking_params)
+        clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds,
+                                           occupied_now)
+        return track_step(state, clusters, window, stamp_ns, self.tracking_params, decision)
 
     def history(self) -> int:
         return self.tracking_params.history_frames
+
+
+def fill_moving(decision: np.ndarray, objects: np.ndarray, cells: np.ndarray) -> int:
+    """Decide ``moving`` every cell of the frame's ``moving`` objects (``decision``, a
+    frame's uint8 codes, changed in place; ``objects`` and ``cells`` as :func:`track_step`
+    returns them); returns the cells changed. The masses are not changed (docs/method.md,
+    "Objects": why the object decision is a decision, not evidence)."""
+    if len(objects) == 0:
+        return 0
+    moving = objects["state"] == OBJECT_STATES["moving"]
+    of_object = np.repeat(moving, objects["cell_count"].astype(np.int64))
+    flat = decision.reshape(-1)
+    target = cells[of_object].astype(np.int64)
+    changed = int(np.count_nonzero(flat[target] != MOVING))
+    flat[target] = MOVING
+    return changed

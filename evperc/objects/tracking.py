@@ -17,7 +17,20 @@ with the centroid noise σ² = max(σ₀², RSS / (2(n − 2))) (σ₀ = ``centr
 residuals of both axes pooled, 2(n − 2) degrees of freedom, when n > 2), so each velocity
 component has variance s² = σ² / S and Σ = s² I. The object moves if its speed passes both
 ``|v| ≥ moving_speed_m_per_s`` and the Mahalanobis test ``vᵀ Σ⁻¹ v = |v|² / s² ≥
-motion_test`` (DOGMa's 4: two standard deviations). A track is reported once it has been
+motion_test`` (DOGMa's 4: two standard deviations), and the grid has shown motion evidence of
+one kind (below) in at least ``motion_evidence_frames`` of the frames in which the velocity
+passed the test (counted per kind over the track's life). A centroid alone is no proof: the
+cluster of a parked car grows as the ego drives past and more of it comes into view, and its
+centroid then drifts at a walking pace. Evidence of a frame, from the grid:
+
+- *conflict*: the cluster holds at least ``conflict_cells`` cells decided ``moving`` (the
+  fusion's ∅_FO, through the motion gate: free before, occupied now);
+- *vacated*: of the cells the track held ``vacated_frames`` associations ago, a share of at
+  least ``vacated_share`` is decided ``free`` now (occupied then, seen free now: the object
+  left them). A static object's cells stay occupied; a car driving ahead of the ego, which
+  never conflicts, frees the road behind it at every scan.
+
+A track is reported once it has been
 associated in ``confirm_frames`` frames, and in a frame in which it is associated: as
 ``moving`` while the test passes, as ``stopped`` once it has moved and the test fails.
 Tracks that never moved are not reported (a false seed at a wall grows a cluster that
@@ -35,8 +48,12 @@ from typing import Any
 import numpy as np
 
 from evperc.geo.window import Window
+from evperc.fusion.twin import DECISION_CODES
 from evperc.objects.clusters import Clusters
 from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
+
+
+_FREE = DECISION_CODES["free"]
 
 
 @dataclass(frozen=True)
@@ -59,6 +76,16 @@ class TrackingParams:
     motion_test: float = 4.0
     #: objects.centroid_sigma_m: least standard deviation of a cluster centroid per axis
     centroid_sigma_m: float = 0.25
+    #: objects.motion_evidence_frames: frames with conflict evidence, or frames with vacated
+    #: evidence, among those whose velocity passed, before the object moves (0: the
+    #: velocity test alone)
+    motion_evidence_frames: int = 3
+    #: objects.conflict_cells: decided-moving cells a cluster needs for conflict evidence
+    conflict_cells: int = 2
+    #: objects.vacated_frames: the footprint compared is the one this many associations ago
+    vacated_frames: int = 3
+    #: objects.vacated_share: share of that footprint decided free now for vacated evidence
+    vacated_share: float = 0.3
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> TrackingParams:
@@ -69,7 +96,10 @@ class TrackingParams:
             history_frames=int(o["history_frames"]),
             moving_speed_m_per_s=float(o["moving_speed_m_per_s"]),
             motion_test=float(o["motion_test"]),
-            centroid_sigma_m=float(o["centroid_sigma_m"]))
+            centroid_sigma_m=float(o["centroid_sigma_m"]),
+            motion_evidence_frames=int(o["motion_evidence_frames"]),
+            conflict_cells=int(o["conflict_cells"]), vacated_frames=int(o["vacated_frames"]),
+            vacated_share=float(o["vacated_share"]))
 
 
 @dataclass
@@ -87,6 +117,10 @@ class Track:
     moving: bool = False         # the motion test passed at the last association
     #: global lattice (iy, ix) of the cells of the last associated cluster (int64 (m, 2))
     footprint: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    conflict_frames: int = 0     # frames with conflict evidence (module docstring)
+    vacated_frames: int = 0      # frames with vacated evidence
+    #: the footprints of the previous associations, oldest first (at most vacated_frames)
+    past: list[np.ndarray] = field(default_factory=list)
 
 
 def velocity_fit(t_s: Sequence[float], xy: Sequence[Sequence[float]], sigma0: float
@@ -142,7 +176,9 @@ class TrackerState:
         other = TrackerState()
         other.next_id, other.prev_ns = self.next_id, self.prev_ns
         other.tracks = [Track(t.track_id, t.hits, t.missed, t.ever_moving, list(t.t_ns),
-                              list(t.xy), t.velocity, t.sigma, t.moving, t.footprint.copy())
+                              list(t.xy), t.velocity, t.sigma, t.moving, t.footprint.copy(),
+                              t.conflict_frames, t.vacated_frames,
+                              [f.copy() for f in t.past])
                         for t in self.tracks]
         return other
 
@@ -159,6 +195,13 @@ class TrackerState:
             hist_t[i, :k] = t.t_ns
             hist_xy[i, :k] = t.xy
         fps = [t.footprint for t in self.tracks]
+        depth = max([len(t.past) for t in self.tracks], default=0)
+        past_n = np.full((n, depth), -1, np.int64)  # cells of each past footprint, -1: none
+        pasts = []
+        for i, t in enumerate(self.tracks):
+            for k, f in enumerate(t.past):
+                past_n[i, k] = len(f)
+                pasts.append(f)
         return {f"{prefix}next_id": np.int64(self.next_id),
                 f"{prefix}prev_ns": np.int64(-1 if self.prev_ns is None else self.prev_ns),
                 f"{prefix}id": np.array([t.track_id for t in self.tracks], np.int64),
@@ -172,7 +215,12 @@ class TrackerState:
                                               np.float64).reshape(n, 2),
                 f"{prefix}sigma": np.array([t.sigma for t in self.tracks], np.float64),
                 f"{prefix}fp_n": np.array([len(f) for f in fps], np.int64),
-                f"{prefix}fp": (np.concatenate(fps) if fps else np.zeros((0, 2), np.int64))}
+                f"{prefix}fp": (np.concatenate(fps) if fps else np.zeros((0, 2), np.int64)),
+                f"{prefix}evidence": np.array([(t.conflict_frames, t.vacated_frames)
+                                               for t in self.tracks], np.int64).reshape(n, 2),
+                f"{prefix}past_n": past_n,
+                f"{prefix}past": (np.concatenate(pasts) if pasts
+                                  else np.zeros((0, 2), np.int64))}
 
     @staticmethod
     def from_arrays(arrays: Any, prefix: str = "objects_") -> TrackerState | None:
@@ -185,6 +233,10 @@ class TrackerState:
         state.prev_ns = None if prev < 0 else prev
         fp = arrays[f"{prefix}fp"]
         ends = np.cumsum(arrays[f"{prefix}fp_n"])
+        has_past = f"{prefix}past_n" in arrays  # checkpoints written before motion evidence
+        past_n = arrays[f"{prefix}past_n"] if has_past else None
+        past = arrays[f"{prefix}past"] if has_past else None
+        past_at = 0
         for i, tid in enumerate(arrays[f"{prefix}id"]):
             k = int(arrays[f"{prefix}hist_n"][i])
             ever, moving = (bool(v) for v in arrays[f"{prefix}flags"][i])
@@ -195,6 +247,15 @@ class TrackerState:
                 [(float(x), float(y)) for x, y in arrays[f"{prefix}hist_xy"][i, :k]],
                 (vx, vy), float(arrays[f"{prefix}sigma"][i]), moving,
                 np.array(fp[ends[i] - arrays[f"{prefix}fp_n"][i]:ends[i]], np.int64)))
+            if has_past:
+                t = state.tracks[-1]
+                t.conflict_frames, t.vacated_frames = (
+                    int(v) for v in arrays[f"{prefix}evidence"][i])
+                for m in past_n[i]:
+                    if m < 0:
+                        break
+                    t.past.append(np.array(past[past_at:past_at + m], np.int64))
+                    past_at += int(m)
         return state
 
 
@@ -233,12 +294,26 @@ def _associate(predicted: np.ndarray, centroids: np.ndarray, gate_m: float
     return pairs
 
 
+def vacated_share(footprint: np.ndarray, decision: np.ndarray, window: Window) -> float:
+    """Share of ``footprint``'s cells (global lattice (iy, ix)) decided ``free`` now; cells
+    outside the window count as not free."""
+    if len(footprint) == 0:
+        return 0.0
+    r = footprint[:, 0] - window.row0
+    c = footprint[:, 1] - window.col0
+    inside = (r >= 0) & (r < window.rows) & (c >= 0) & (c < window.cols)
+    free = int(np.count_nonzero(decision[r[inside], c[inside]] == _FREE))
+    return free / len(footprint)
+
+
 def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns: int,
-               params: TrackingParams) -> tuple[np.ndarray, np.ndarray]:
+               params: TrackingParams, decision: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Associate this frame's ``clusters`` with ``state``'s tracks (updated in place);
     returns the frame's reported objects (records of
     :data:`evperc.output.objects.OBJECT_DTYPE`, by track id) and their cells (flat window
-    indices, concatenated in record order)."""
+    indices, concatenated in record order). ``decision``: the frame's decided cells, for
+    the vacated evidence (None: no vacated evidence)."""
     dt_s = 0.0 if state.prev_ns is None else (stamp_ns - state.prev_ns) * 1e-9
     state.prev_ns = stamp_ns
     tracks = state.tracks
@@ -274,7 +349,18 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
         v, sigma = velocity_fit([(ns - last) * 1e-9 for ns in t.t_ns], t.xy,
                                 params.centroid_sigma_m)
         t.velocity, t.sigma = v, sigma
-        t.moving = is_moving(v, sigma, params)
+        if len(t.footprint):  # the previous association's cells join the past
+            t.past.append(t.footprint)
+            del t.past[:-params.vacated_frames]
+        conflict = clusters.seeds[c] >= params.conflict_cells
+        vacated = (decision is not None and len(t.past) == params.vacated_frames
+                   and vacated_share(t.past[0], decision, window) >= params.vacated_share)
+        fast = is_moving(v, sigma, params)
+        if fast:  # evidence counts in the frames whose velocity passes the test
+            t.conflict_frames += int(conflict)
+            t.vacated_frames += int(vacated)
+        need = params.motion_evidence_frames
+        t.moving = fast and max(t.conflict_frames, t.vacated_frames) >= need
         if t.moving and t.hits >= params.confirm_frames:
             t.ever_moving = True
         t.footprint = lattice[clusters.offsets[c]:clusters.offsets[c + 1]]  # a view
