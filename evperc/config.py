@@ -89,6 +89,8 @@ RULES: dict[str, tuple] = {
     "objects.moving_speed_m_per_s": ("range", 0.0, 100.0, False, False),
     "objects.motion_test": ("range", 0.0, 1e6, False, False),
     "objects.centroid_sigma_m": ("range", 0.0, 100.0, True, False),
+    "objects.unmapped_max_width_m": ("range", 0.0, 100.0, True, False),
+    "objects.unmapped_min_age_s": ("range", 0.0, 3600.0, False, False),
     "input.max_pose_gap_s": ("range", 0.0, 1e6, True, False),
     "input.origin_lat_deg": ("range", -90.0, 90.0, False, False),
     "input.origin_lon_deg": ("range", -180.0, 180.0, False, False),
