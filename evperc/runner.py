@@ -31,6 +31,13 @@ from evperc.logs.transforms import extrinsic_matrix
 from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
 from evperc.objects.stage import ObjectStage, fill_moving, fills_decision, objects_enabled
 from evperc.objects.tracking import TrackerState
+from evperc.objects.unmapped import (
+    UnmappedCue,
+    UnmappedParams,
+    UnmappedState,
+    moving_object_cells,
+    unmapped_enabled,
+)
 from evperc.output.manifest import read_manifest
 from evperc.output.npz import write_npz
 from evperc.output.quantise import dequantise, dequantise_planar
@@ -177,6 +184,8 @@ class FusionState:
         default_factory=lambda: np.zeros(len(DECISION_CODES), dtype=np.int64))
     #: the object tracker's state (None: objects off, or no frame yet)
     tracks: TrackerState | None = None
+    #: the unmapped cue's per-cell state, in the circular buffer (None: cue off, or no frame)
+    unmapped: UnmappedState | None = None
 
     @staticmethod
     def fresh(window: Window) -> FusionState:
@@ -230,6 +239,7 @@ class FusionState:
         into.scan_index, into.frames = self.scan_index, self.frames
         into.decision_counts = self.decision_counts.copy()
         into.tracks = self.tracks.copy() if self.tracks is not None else None
+        into.unmapped = self.unmapped.copy() if self.unmapped is not None else None
         return into
 
     def save(self, path: Path) -> None:
@@ -245,6 +255,8 @@ class FusionState:
                   "frames": np.int64(self.frames), "decision_counts": self.decision_counts}
         if self.tracks is not None:
             arrays.update(self.tracks.to_arrays())
+        if self.unmapped is not None:
+            arrays.update(self.unmapped.to_arrays())
         write_npz(path, arrays, compress=False)
 
     @staticmethod
@@ -269,7 +281,8 @@ class FusionState:
                     prev_ns=int(npz["prev_ns"]),
                     scan_index=int(npz["scan_index"]), frames=int(npz["frames"]),
                     decision_counts=npz["decision_counts"],
-                    tracks=TrackerState.from_arrays(npz))
+                    tracks=TrackerState.from_arrays(npz),
+                    unmapped=UnmappedState.from_arrays(npz))
         except (OSError, ValueError, KeyError) as err:
             raise OutputError(f"{path}: missing or unreadable checkpoint ({err}); rerun "
                               "without --resume and with --overwrite") from err
@@ -321,6 +334,8 @@ class Pipeline:
         probe = Window.centred_on(0.0, 0.0, self.window_size, self.resolution)
         self.objects = (ObjectStage(config, probe.shape) if objects_enabled(config) else None)
         self.fill_moving = fills_decision(config)
+        self.unmapped = (UnmappedCue(UnmappedParams.from_config(config), probe.shape,
+                                     self.resolution) if unmapped_enabled(config) else None)
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -341,6 +356,9 @@ class Pipeline:
             ObjectStage(self.request.config, tiny.shape).step(
                 TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0,
                 occupied_now=occupied > 0)
+        if self.unmapped is not None:
+            UnmappedCue(self.unmapped.params, tiny.shape, self.resolution).step(
+                UnmappedState.fresh(tiny.shape), out.decision, None, 0.1)
 
     def meta(self) -> dict[str, Any]:
         """Manifest entries that describe the run (docs/output-format.md)."""
@@ -490,8 +508,8 @@ class Pipeline:
                    offset=state.offset, shift=shift, threads=self.fusion_threads, gate=gate)
         state.frames += 1
         clock.lap("fusion")
-        frame = {"stamp_ns": inputs.stamp_ns, "pose": inputs.pose,
-                 "origin": (window.row0, window.col0)}
+        frame: dict[str, Any] = {"stamp_ns": inputs.stamp_ns, "pose": inputs.pose,
+                                 "origin": (window.row0, window.col0)}
         if self.objects is not None:  # clusters and tracks (evperc.objects), from the layers
             if state.tracks is None:
                 state.tracks = TrackerState()
@@ -501,9 +519,17 @@ class Pipeline:
             if self.fill_moving:  # the moving objects' cells decided moving (method.md §8)
                 fill_moving(out.decision, frame["objects"], frame["object_cells"])
             clock.lap("objects")
-        counts = count_codes(out.decision, len(state.decision_counts))
+        if self.unmapped is not None:  # decision-level pass (evperc.objects.unmapped)
+            if state.unmapped is None:
+                state.unmapped = UnmappedState.fresh(window.shape)
+            self.unmapped.step(state.unmapped, out.decision, inputs.labels, dt_s,
+                               moving_cells=moving_object_cells(frame.get("objects"),
+                                                                frame.get("object_cells")),
+                               offset=state.offset, shift=shift)
+            clock.lap("unmapped")
+        # counted after every pass that changes the decision: the counts match the stored one
+        frame["decision_counts"] = counts = count_codes(out.decision, len(state.decision_counts))
         state.decision_counts += counts
-        frame["decision_counts"] = counts
         if inputs.labelling is not None:  # a separate pass over the points, after the step
             scan, t_crs, kinds = inputs.labelling
             labels = point_labels(scan.points, kinds, t_crs, window, out.decision,

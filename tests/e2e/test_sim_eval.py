@@ -87,3 +87,16 @@ def test_the_map_helps(scores: dict[str, Any]) -> None:
         # the map must not cost static F1 (the building margin closes the motion gate only; it
         # no longer widens the prior, which had cost this)
         assert with_map["coarse"]["static"]["f1"] >= without["coarse"]["static"]["f1"]
+
+
+def test_unmapped_is_decided_with_the_map_only(scores: dict[str, Any]) -> None:
+    """The unmapped cue (docs/method.md, "Unmapped infrastructure") relabels thin static
+    things off the road; it needs the map's road edge and does nothing without it."""
+    for cells, recall, precision in (("observed", 0.221, 0.375), ("visible", 0.159, 0.337)):
+        with_map, without = scores[cells]["map"], scores[cells]["nomap"]
+        got = with_map["per_class"]["unmapped"]
+        assert got["support"] > 300  # measured 1055 observed, 421 visible cells
+        assert got["recall"] >= recall / 2, got  # measured values in the tuple above
+        assert got["precision"] >= precision / 2, got
+        assert without["per_class"]["unmapped"]["recall"] == 0.0
+        assert without["per_class"]["unmapped"]["precision"] is None  # never decided
