@@ -57,7 +57,7 @@ class ClusterParams:
     seed_conflict_fo: float = 0.0
     #: objects.seeds: "moving" (decided-moving cells seed, growth through every occupied
     #: decision) or "occupied" (every cell seen occupied now seeds; module docstring)
-    seeds: str = "occupied"
+    seeds: str = "moving"  # configs/default.toml: "occupied"
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> ClusterParams:

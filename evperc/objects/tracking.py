@@ -79,7 +79,7 @@ class TrackingParams:
     #: objects.motion_evidence_frames: frames with conflict evidence, or frames with vacated
     #: evidence, among those whose velocity passed, before the object moves (0: the
     #: velocity test alone)
-    motion_evidence_frames: int = 3
+    motion_evidence_frames: int = 0  # configs/default.toml: 3
     #: objects.conflict_cells: decided-moving cells a cluster needs for conflict evidence
     conflict_cells: int = 2
     #: objects.vacated_frames: the footprint compared is the one this many associations ago

@@ -19,20 +19,23 @@ from tests.e2e.scenes import write_street_drive
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
+    """Objects on (the defaults), off, and on without ``fill_moving``."""
     tmp = tmp_path_factory.mktemp("objects")
     drive = write_street_drive(tmp / "street.mcap", n_scans=30)
     out = []
-    for enabled in (True, False):
+    for name, enabled, fill in (("on", True, True), ("off", False, True),
+                                ("nofill", True, False)):
         config = load_config(overrides={"grid.window_size_m": 40.0, "output.chunk_frames": 10,
-                                        "objects.enabled": enabled})
-        run(RunRequest(log_path=drive, out_dir=tmp / f"on{enabled}", config=config))
-        out.append(tmp / f"on{enabled}")
-    return out[0], out[1]
+                                        "objects.enabled": enabled,
+                                        "objects.fill_moving": fill})
+        run(RunRequest(log_path=drive, out_dir=tmp / name, config=config))
+        out.append(tmp / name)
+    return out[0], out[1], out[2]
 
 
-def test_objects_are_stored_and_agree_with_the_frame(runs: tuple[Path, Path]) -> None:
-    on, _ = runs
+def test_objects_are_stored_and_agree_with_the_frame(runs: tuple[Path, Path, Path]) -> None:
+    on, _, _ = runs
     frames = list(evperc.load(on).frames)
     with_objects = [f for f in frames if len(f.objects)]
     assert with_objects, "the crossing car (2 m/s north) is reported"
@@ -57,13 +60,27 @@ def test_objects_are_stored_and_agree_with_the_frame(runs: tuple[Path, Path]) ->
     assert 1.0 < float(np.median([o["velocity_m_per_s"][1] for o in car])) < 3.0
 
 
-def test_objects_off_leaves_the_grids_and_the_chunks_as_before(runs: tuple[Path, Path]
-                                                               ) -> None:
-    on, off = runs
-    for a, b in zip(evperc.load(on).frames, evperc.load(off).frames, strict=True):
-        np.testing.assert_array_equal(a.decision, b.decision)  # objects do not feed back
-        np.testing.assert_array_equal(a.masses, b.masses)
+def test_objects_change_only_their_moving_cells_and_no_mass(runs: tuple[Path, Path, Path]
+                                                             ) -> None:
+    on, off, nofill = runs
+    filled = 0
+    for a, b, c in zip(evperc.load(on).frames, evperc.load(off).frames,
+                       evperc.load(nofill).frames, strict=True):
+        np.testing.assert_array_equal(a.masses, b.masses)  # never evidence (method.md §8)
+        np.testing.assert_array_equal(c.decision, b.decision)  # without the fill: as off
+        labels = a.object_labels()
+        moving_ids = a.objects["track_id"][a.objects["state"] == OBJECT_STATES["moving"]]
+        in_moving = np.isin(labels, moving_ids) & (labels > 0)
+        assert (a.decision[in_moving] == D["moving"]).all()  # the fill
+        differ = a.decision != b.decision
+        assert not (differ & ~in_moving).any()  # and nothing else
+        filled += int(differ.sum())
         assert b.objects is None and b.object_labels() is None
+    assert filled > 0, "the crossing car's far cells, decided occupied, become moving"
+
+
+def test_objects_off_leaves_the_chunks_as_before(runs: tuple[Path, Path, Path]) -> None:
+    on, off, _ = runs
     names = zipfile.ZipFile(off / "frames" / "chunk_00000.npz").namelist()
     assert not any(n.startswith("object") for n in names)
     assert {"objects.npy", "object_counts.npy", "object_cells.npy"} <= set(
