@@ -156,3 +156,14 @@ def test_packaged_preset_is_the_repo_file() -> None:
 
     assert preset_path("kurdej2013").resolve() == (
         REPO / "configs" / "kurdej2013.toml").resolve()
+
+
+def test_object_evidence_keys_are_validated(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"objects.seeds"):
+        load_config(write(tmp_path, '[objects]\nseeds = "everything"\n'))
+    with pytest.raises(ConfigError, match=r"objects.vacated_share = 0.0 is outside"):
+        load_config(write(tmp_path, "[objects]\nvacated_share = 0.0\n"))
+    with pytest.raises(ConfigError, match=r"objects.motion_evidence_frames = -1 is outside"):
+        load_config(write(tmp_path, "[objects]\nmotion_evidence_frames = -1\n"))
+    config = load_config(write(tmp_path, '[objects]\nseeds = "moving"\nfill_moving = false\n'))
+    assert config["objects"]["seeds"] == "moving" and config["objects"]["fill_moving"] is False

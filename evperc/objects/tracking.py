@@ -47,11 +47,10 @@ from typing import Any
 
 import numpy as np
 
-from evperc.geo.window import Window
 from evperc.fusion.twin import DECISION_CODES
+from evperc.geo.window import Window
 from evperc.objects.clusters import Clusters
 from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
-
 
 _FREE = DECISION_CODES["free"]
 

@@ -1,0 +1,165 @@
+"""Clusters of the cells seen occupied now, the tracker's motion evidence and the fill of the
+moving objects' cells (evperc.objects; docs/method.md §8), on hand-made frames whose
+expected outcome is worked out in the comments."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evperc.fusion.twin import DECISION_CODES as D
+from evperc.geo.window import Window
+from evperc.objects.clusters import Clusterer, ClusterParams
+from evperc.objects.stage import fill_moving
+from evperc.objects.tracking import TrackerState, TrackingParams, footprint_seeds, track_step
+from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
+
+RES = 0.5
+T0 = 1_700_000_000_000_000_000
+DT = 100_000_000  # 10 Hz
+SHAPE = (20, 60)
+WIN = Window(RES, *SHAPE, 0, 0)
+Z = np.zeros(SHAPE, np.uint8)
+OCCUPIED = ClusterParams(seeds="occupied")
+EVIDENCE = TrackingParams(motion_evidence_frames=3, conflict_cells=2, vacated_frames=3,
+                          vacated_share=0.3)
+
+
+def test_occupied_seeds_cluster_what_holds_a_return_now_and_not_the_trail() -> None:
+    dec = np.full(SHAPE, D["free"], np.uint8)
+    dec[5:7, 10:16] = D["static"]          # 2 x 6 cells decided occupied ...
+    now = np.zeros(SHAPE, bool)
+    now[5:7, 13:16] = True                 # ... of which the east 2 x 3 hold a return now
+    dec[10, 40] = D["moving"]              # a moving cell without a return this scan ...
+    dec[10, 41] = D["moving"]
+    dec[11, 40] = D["static"]              # ... next to a static one with a return
+    now[11, 40] = True
+    c = Clusterer(ClusterParams(seeds="occupied", min_cells=1), SHAPE).clusters(
+        dec, Z, Z, WIN, occupied_now=now)
+    assert len(c) == 2
+    first = sorted(c.cells_of(0).tolist())
+    # the 6 cells with a return; the 6 remembered cells west of them (the trail) stay out
+    assert first == sorted(r * 60 + col for r in (5, 6) for col in (13, 14, 15))
+    assert c.seeds[0] == 0                 # no conflict cell in it
+    second = sorted(c.cells_of(1).tolist())
+    assert second == sorted([10 * 60 + 40, 10 * 60 + 41, 11 * 60 + 40])
+    assert c.seeds[1] == 2                 # its two cells decided moving
+    # the classic mode: nothing decided moving near the block, so no cluster there
+    classic = Clusterer(ClusterParams(seeds="moving", min_cells=1), SHAPE).clusters(
+        dec, Z, Z, WIN)
+    assert len(classic) == 1 and sorted(classic.cells_of(0).tolist()) == second
+
+
+class Run:
+    """Frames through the clusterer (occupied seeds) and the tracker, as ObjectStage does."""
+
+    def __init__(self, params: TrackingParams) -> None:
+        self.state = TrackerState()
+        self.clusterer = Clusterer(OCCUPIED, SHAPE)
+        self.params = params
+        self.k = 0
+
+    def step(self, dec: np.ndarray) -> np.ndarray:
+        now = (dec != D["free"]) & (dec != D["unknown"])  # every occupied cell holds a return
+        clusters = self.clusterer.clusters(dec, Z, Z, WIN, footprint_seeds(self.state, WIN),
+                                           now)
+        recs, _ = track_step(self.state, clusters, WIN, T0 + self.k * DT, self.params, dec)
+        self.k += 1
+        return recs
+
+
+def _moving_from(frames: list[np.ndarray], params: TrackingParams) -> int | None:
+    """The first frame in which an object is reported moving (None: never)."""
+    run = Run(params)
+    for k, dec in enumerate(frames):
+        recs = run.step(dec)
+        if (recs["state"] == OBJECT_STATES["moving"]).any():
+            return k
+    return None
+
+
+def _car_ahead(k: int) -> np.ndarray:
+    """A 2 x 3 block decided static (no conflict: it enters cells that were inside it), one
+    cell east per frame; the road it left is seen free."""
+    dec = np.full(SHAPE, D["free"], np.uint8)
+    dec[5:7, 10 + k:13 + k] = D["static"]
+    return dec
+
+
+def test_a_car_ahead_moves_by_the_cells_it_vacates() -> None:
+    frames = [_car_ahead(k) for k in range(10)]
+    # velocity: 5 m/s from frame 2 on (3 centroids 0.5 m apart; |v|²/s² = 8 >= 4).
+    # vacated: from frame 3 on, the footprint of 3 associations ago (frame k - 3: cols
+    # 7+k..9+k) is all free now (share 1 >= 0.3); frames 3, 4, 5 give 3 frames of evidence
+    assert _moving_from(frames, EVIDENCE) == 5
+    # the same with vacated evidence out of reach (share > 1 never): never moving
+    no_vacated = TrackingParams(motion_evidence_frames=3, vacated_share=1.0,
+                                vacated_frames=3)
+    frames_kept = [f.copy() for f in frames]
+    for k, f in enumerate(frames_kept):  # the vacated cells not seen (unknown), not free
+        f[5:7, 10:10 + k] = D["unknown"]
+    assert _moving_from(frames_kept, no_vacated) is None
+
+
+def _parked_car_coming_into_view(k: int) -> np.ndarray:
+    """A parked car whose side comes into view a column per frame: the cluster grows east,
+    its old cells stay occupied (a static object frees nothing)."""
+    dec = np.full(SHAPE, D["free"], np.uint8)
+    dec[5:7, 10:13 + k] = D["static"]
+    return dec
+
+
+def test_a_growing_static_cluster_is_not_moving_without_evidence() -> None:
+    frames = [_parked_car_coming_into_view(k) for k in range(8)]
+    # its centroid drifts 0.25 m a frame (2.5 m/s): at frame 3, n = 4, S = 0.05,
+    # s = 0.25 / sqrt(0.05) = 1.118, |v|²/s² = 6.25 / 1.25 = 5 >= 4 — the velocity test
+    # alone calls it moving there ...
+    assert _moving_from(frames, TrackingParams(motion_evidence_frames=0)) == 3
+    # ... the evidence does not: no conflict cell, and nothing it held is free now
+    assert _moving_from(frames, EVIDENCE) is None
+
+
+def _conflicting_block(k: int) -> np.ndarray:
+    """A 2 x 3 block one cell east per frame, its front column decided moving (2 conflict
+    cells), the road behind unknown (not seen: no vacated evidence)."""
+    dec = np.full(SHAPE, D["unknown"], np.uint8)
+    dec[5:7, 10 + k:13 + k] = D["static"]
+    dec[5:7, 12 + k] = D["moving"]
+    return dec
+
+
+def test_conflict_cells_are_evidence_from_the_frames_whose_velocity_passes() -> None:
+    frames = [_conflicting_block(k) for k in range(8)]
+    # velocity passes from frame 2: conflict evidence in frames 2, 3, 4 -> moving at 4
+    assert _moving_from(frames, EVIDENCE) == 4
+    # one conflict cell is not enough with conflict_cells = 3
+    strict = TrackingParams(motion_evidence_frames=3, conflict_cells=3)
+    assert _moving_from(frames, strict) is None
+
+
+def test_checkpoint_keeps_the_evidence_and_the_past_footprints() -> None:
+    frames = [_car_ahead(k) for k in range(10)]
+    a, b = Run(EVIDENCE), Run(EVIDENCE)
+    for dec in frames[:4]:
+        a.step(dec)
+        b.step(dec)
+    b.state = TrackerState.from_arrays(b.state.to_arrays())
+    t = b.state.tracks[0]
+    assert (t.conflict_frames, t.vacated_frames, len(t.past)) == (0, 1, 3)
+    for dec in frames[4:]:
+        ra, rb = a.step(dec), b.step(dec)
+        assert ra.tobytes() == rb.tobytes()
+
+
+def test_fill_moving_decides_only_the_moving_objects_cells() -> None:
+    dec = np.full((4, 5), D["static"], np.uint8)
+    dec[0, 0] = D["moving"]
+    objects = np.zeros(2, OBJECT_DTYPE)
+    objects["track_id"] = [1, 2]
+    objects["state"] = [OBJECT_STATES["moving"], OBJECT_STATES["stopped"]]
+    objects["cell_count"] = [3, 2]
+    cells = np.array([0, 1, 6, 18, 19], np.uint32)  # object 1: (0,0) (0,1) (1,1); 2: (3,3) (3,4)
+    assert fill_moving(dec, objects, cells) == 2   # (0,0) was moving already
+    expected = np.full((4, 5), D["static"], np.uint8)
+    expected[0, 0] = expected[0, 1] = expected[1, 1] = D["moving"]
+    np.testing.assert_array_equal(dec, expected)
+    assert fill_moving(dec, objects[:0], cells[:0]) == 0
