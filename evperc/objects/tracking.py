@@ -155,6 +155,36 @@ def velocity_fit(t_s: Sequence[float], xy: Sequence[Sequence[float]], sigma0: fl
     return (vx, vy), math.sqrt(var / s)
 
 
+def velocity_fits(t_s: np.ndarray, xy: np.ndarray, count: np.ndarray, sigma0: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`velocity_fit` of many tracks at once: ``t_s`` (n, H) and ``xy`` (n, H, 2), of
+    which the first ``count[i]`` columns of row i are the track's (the rest ignored);
+    returns v (n, 2) and the standard deviation (n,), ``inf`` (and v = 0) where count < 2 or
+    the stamps do not differ. Equal to :func:`velocity_fit` row by row up to round-off (the
+    sums are taken in another order; tests/objects/test_tracking.py)."""
+    n, h = t_s.shape
+    valid = np.arange(h)[None, :] < count[:, None]
+    k = np.maximum(count, 1).astype(np.float64)
+    t = np.where(valid, t_s, 0.0)
+    x = np.where(valid, xy[..., 0], 0.0)
+    y = np.where(valid, xy[..., 1], 0.0)
+    dt = np.where(valid, t - (t.sum(axis=1) / k)[:, None], 0.0)
+    dx = np.where(valid, x - (x.sum(axis=1) / k)[:, None], 0.0)
+    dy = np.where(valid, y - (y.sum(axis=1) / k)[:, None], 0.0)
+    s = (dt * dt).sum(axis=1)
+    ok = (count >= 2) & (s > 0.0)
+    s_safe = np.where(ok, s, 1.0)
+    vx = np.where(ok, (dt * dx).sum(axis=1) / s_safe, 0.0)
+    vy = np.where(ok, (dt * dy).sum(axis=1) / s_safe, 0.0)
+    ex = dx - vx[:, None] * dt
+    ey = dy - vy[:, None] * dt
+    rss = np.where(valid, ex * ex + ey * ey, 0.0).sum(axis=1)
+    dof = np.maximum(2 * (count - 2), 1)
+    var = np.where(count > 2, np.maximum(sigma0 * sigma0, rss / dof), sigma0 * sigma0)
+    sigma = np.where(ok, np.sqrt(var / s_safe), np.inf)
+    return np.stack([vx, vy], axis=1), sigma
+
+
 def is_moving(v: Sequence[float], sigma: float, params: TrackingParams) -> bool:
     """Speed threshold and Mahalanobis test ``|v|² / s² ≥ motion_test``."""
     speed2 = v[0] * v[0] + v[1] * v[1]
@@ -332,6 +362,22 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
     lattice = np.stack([r + window.row0, col + window.col0], axis=1)
     reported: list[tuple[int, int]] = []  # (track index, cluster index)
     survivors: list[Track] = []
+    associated = [(i, t, c) for i, t in enumerate(tracks)
+                  if (c := of_track.get(i)) is not None]
+    history = params.history_frames
+    hist_t = np.zeros((len(associated), history))
+    hist_xy = np.zeros((len(associated), history, 2))
+    count = np.zeros(len(associated), np.int64)
+    for k, (_, t, c) in enumerate(associated):
+        t.t_ns.append(int(stamp_ns))
+        t.xy.append((float(clusters.centroid_m[c, 0]), float(clusters.centroid_m[c, 1])))
+        del t.t_ns[:-history], t.xy[:-history]
+        m = count[k] = len(t.t_ns)
+        hist_t[k, :m] = [(ns - stamp_ns) * 1e-9 for ns in t.t_ns]
+        hist_xy[k, :m] = t.xy
+    # one vectorised fit for the frame's tracks (velocity_fit is its per-track reference)
+    fit_v, fit_sigma = velocity_fits(hist_t, hist_xy, count, params.centroid_sigma_m)
+    fit_of = {i: k for k, (i, _, _) in enumerate(associated)}
     for i, t in enumerate(tracks):
         c = of_track.get(i)
         if c is None:
@@ -341,23 +387,19 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
             continue
         t.missed = 0
         t.hits += 1
-        t.t_ns.append(int(stamp_ns))
-        t.xy.append((float(clusters.centroid_m[c, 0]), float(clusters.centroid_m[c, 1])))
-        del t.t_ns[:-params.history_frames], t.xy[:-params.history_frames]
-        last = t.t_ns[-1]
-        v, sigma = velocity_fit([(ns - last) * 1e-9 for ns in t.t_ns], t.xy,
-                                params.centroid_sigma_m)
+        k = fit_of[i]
+        v = (float(fit_v[k, 0]), float(fit_v[k, 1]))
+        sigma = float(fit_sigma[k])
         t.velocity, t.sigma = v, sigma
         if len(t.footprint):  # the previous association's cells join the past
             t.past.append(t.footprint)
             del t.past[:-params.vacated_frames]
-        conflict = clusters.seeds[c] >= params.conflict_cells
-        vacated = (decision is not None and len(t.past) == params.vacated_frames
-                   and vacated_share(t.past[0], decision, window) >= params.vacated_share)
         fast = is_moving(v, sigma, params)
         if fast:  # evidence counts in the frames whose velocity passes the test
-            t.conflict_frames += int(conflict)
-            t.vacated_frames += int(vacated)
+            t.conflict_frames += int(clusters.seeds[c] >= params.conflict_cells)
+            t.vacated_frames += int(
+                decision is not None and len(t.past) == params.vacated_frames
+                and vacated_share(t.past[0], decision, window) >= params.vacated_share)
         need = params.motion_evidence_frames
         t.moving = fast and max(t.conflict_frames, t.vacated_frames) >= need
         if t.moving and t.hits >= params.confirm_frames:
