@@ -1,7 +1,8 @@
 """The object stages alone (issue 21) over a finished run's stored frames: ``ObjectStage.step``
 on each frame's decision, betP(M) and ∅_FO (uint8 as stored), clusters and tracker timed
 apart, best of 3 per frame; prints median and 90th percentile per frame, and the mean number
-of clusters and tracks.
+of clusters and tracks. The scan's occupied cells are not stored: every cell decided
+occupied stands in for them (more cells than the run's stage sees, so an upper bound).
 
 ``python benchmarks/bench_objects.py RUN_DIR`` (e.g. a run of workload (a) of bench_run.py).
 """
@@ -18,27 +19,32 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from evperc import load  # noqa: E402
 from evperc.config import load_config  # noqa: E402
+from evperc.fusion.twin import DECISION_CODES  # noqa: E402
 from evperc.objects.stage import ObjectStage  # noqa: E402
 from evperc.objects.tracking import TrackerState, footprint_seeds, track_step  # noqa: E402
+
+OCCUPIED = [DECISION_CODES[n] for n in ("moving", "static", "stopped", "unmapped")]
 
 
 def main(run_dir: str) -> None:
     run = load(run_dir)
     stage = ObjectStage(load_config(), run.shape)
     frames = [(f.decision.copy(), np.round(f.betp[..., 4] * 255).astype(np.uint8),
-               np.round(f.conflict[..., 0] * 255).astype(np.uint8), f.window, f.stamp_ns)
+               np.round(f.conflict[..., 0] * 255).astype(np.uint8), f.window, f.stamp_ns,
+               np.isin(f.decision, OCCUPIED))
               for f in run.frames]
-    stage.step(TrackerState(), *frames[0])  # numba: load the cached code
+    dec0, betp0, fo0, window0, stamp0, now0 = frames[0]
+    stage.step(TrackerState(), dec0, betp0, fo0, window0, stamp0, now0)  # numba: load the code
     times = np.zeros((3, len(frames), 2))
     clusters_n, tracks_n = [], []
     for rep in range(3):
         state = TrackerState()
-        for k, (dec, betp_m, fo, window, stamp) in enumerate(frames):
+        for k, (dec, betp_m, fo, window, stamp, now) in enumerate(frames):
             t0 = time.perf_counter()
             clusters = stage.clusterer.clusters(dec, betp_m, fo, window,
-                                                footprint_seeds(state, window))
+                                                footprint_seeds(state, window), now)
             t1 = time.perf_counter()
-            track_step(state, clusters, window, stamp, stage.tracking_params)
+            track_step(state, clusters, window, stamp, stage.tracking_params, dec)
             times[rep, k] = (t1 - t0, time.perf_counter() - t1)
             if rep == 0:
                 clusters_n.append(len(clusters))
