@@ -4,7 +4,8 @@ apart, best of 3 per frame; prints median and 90th percentile per frame, and the
 of clusters and tracks. The scan's occupied cells are not stored: every cell decided
 occupied stands in for them (more cells than the run's stage sees, so an upper bound).
 
-``python benchmarks/bench_objects.py RUN_DIR`` (e.g. a run of workload (a) of bench_run.py).
+``python benchmarks/bench_objects.py RUN_DIR`` (e.g. a run of workload (a) of bench_run.py);
+in `make bench` (``run()``) workload (a)'s run of bench_run.py, made first if missing.
 """
 
 from __future__ import annotations
@@ -26,7 +27,20 @@ from evperc.objects.tracking import TrackerState, footprint_seeds, track_step  #
 OCCUPIED = [DECISION_CODES[n] for n in ("moving", "static", "stopped", "unmapped")]
 
 
-def main(run_dir: str) -> None:
+def run() -> list[dict]:
+    """`make bench`: the stages on workload (a) (bench_run.py's run, made if missing)."""
+    import bench_run
+
+    out = bench_run.CACHE / "runs" / "a"
+    if not (out / "manifest.json").exists():
+        sim = bench_run.simulate("sim-hdl64-10s", "hdl64", 10)
+        bench_run.run_evperc(sim, out, bench_run.config_file("window200", bench_run.WINDOW_200))
+    return measure(str(out))
+
+
+def measure(run_dir: str) -> list[dict]:
+    """Per-frame times of the clusters and the tracker (ms, median and 90th percentile of
+    the best of 3), and the clusters and tracks a frame."""
     run = load(run_dir)
     stage = ObjectStage(load_config(), run.shape)
     frames = [(f.decision.copy(), np.round(f.betp[..., 4] * 255).astype(np.uint8),
@@ -50,13 +64,17 @@ def main(run_dir: str) -> None:
                 clusters_n.append(len(clusters))
                 tracks_n.append(len(state.tracks))
     best = times.min(axis=0) * 1e3
-    for name, col in (("clusters", 0), ("tracker", 1)):
-        print(f"{name}: median {np.median(best[:, col]):.3f} ms, 90th percentile "
-              f"{np.percentile(best[:, col], 90):.3f} ms per frame")
-    total = best.sum(axis=1)
-    print(f"both: median {np.median(total):.3f} ms; {len(frames)} frames, "
-          f"{np.mean(clusters_n):.1f} clusters and {np.mean(tracks_n):.1f} tracks a frame")
+    rows = [{"stage": name, "median ms": float(np.median(v)),
+             "p90 ms": float(np.percentile(v, 90))}
+            for name, v in (("clusters", best[:, 0]), ("tracker", best[:, 1]),
+                            ("both", best.sum(axis=1)))]
+    rows[-1]["frames"] = len(frames)
+    rows[-1]["clusters a frame"] = float(np.mean(clusters_n))
+    rows[-1]["tracks a frame"] = float(np.mean(tracks_n))
+    return rows
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    from run import print_table
+
+    print_table(f"objects ({sys.argv[1]})", measure(sys.argv[1]))
