@@ -87,6 +87,13 @@ STAGES = [("read", "read + decode: wait for the decode thread"),
           ("writer_thread", "write: deflate + file (writer thread)")]
 
 
+def open_gate(shape: tuple[int, int], params) -> np.ndarray | None:
+    """A motion-gate layer open everywhere when the options have the gate on (the fused
+    kernel's work is the gated rule's; which cells the gate opens does not change its cost;
+    the runner computes the real one with evperc.fusion.gate, timed in the runs)."""
+    return np.ones(shape, np.uint8) if params.gated else None
+
+
 # --- inputs ------------------------------------------------------------------------------
 
 def simulate(name: str, profile: str, seconds: float, seed: int = 7) -> Path:
@@ -290,7 +297,8 @@ def in_process(sim: Path, config_path: Path, stored: Path) -> dict:
         """the next frame, the window moved by one cell (as when driving)"""
         offset[1] = (offset[1] + 1) % window.cols
         fused_step(pg, zeta, free, occ, labels, betas, 0.1, params, out=out, flags=flags,
-                   focal=focal, offset=tuple(offset), shift=(0, 1))
+                   focal=focal, offset=tuple(offset), shift=(0, 1),
+                   gate=open_gate(window.shape, params))
 
     ours_fusion, median_fusion = best_and_median(lambda: step(floats), FUSION_FRAMES)
     ours_stored, median_stored = best_and_median(lambda: step(out), FUSION_FRAMES)
@@ -305,7 +313,7 @@ def in_process(sim: Path, config_path: Path, stored: Path) -> dict:
     # the stored kind once more from the state of the naive comparison
     pg[...], zeta[...], flags[...], focal[...] = state.pg, state.zeta, state.flags, state.focal
     fused_step(pg, zeta, free, occ, labels, betas, 0.1, params, out=floats, flags=flags,
-               focal=focal, offset=state.offset)
+               focal=focal, offset=state.offset, gate=open_gate(window.shape, params))
     after = np.moveaxis(window_order(pg, state.offset), 0, -1).reshape(-1, 32)
     copy_s = best_of(lambda: np.copyto(pg, state.pg), 5)
     n_cells = window.rows * window.cols
@@ -353,7 +361,8 @@ def replay(sim: Path, config_path: Path) -> dict:
                 fused_step(state.pg, state.zeta, frame.free, frame.occupied, frame.labels,
                            pipeline.betas, 0.1, pipeline.params, out=out, flags=state.flags,
                            focal=state.focal, offset=state.offset, shift=shift,
-                           threads=threads)
+                           threads=threads,
+                           gate=open_gate(frame.window.shape, pipeline.params))
                 times.append(time.perf_counter() - t0)
             late = np.array(times[REPLAY_FROM:])
             result[f"{name}_median_s_{threads}"] = float(np.median(late))
