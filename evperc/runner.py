@@ -31,15 +31,10 @@ from evperc.logs.transforms import extrinsic_matrix
 from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
 from evperc.objects.stage import ObjectStage, fill_moving, fills_decision, objects_enabled
 from evperc.objects.tracking import TrackerState
-from evperc.objects.unmapped import (
-    UnmappedCue,
-    UnmappedParams,
-    UnmappedState,
-    moving_object_cells,
-    unmapped_enabled,
-)
+from evperc.objects.unmapped import UnmappedCue, UnmappedParams, UnmappedState, unmapped_enabled
 from evperc.output.manifest import read_manifest
 from evperc.output.npz import write_npz
+from evperc.output.objects import moving_object_cells
 from evperc.output.quantise import dequantise, dequantise_planar
 from evperc.output.writer import RunWriter, check_output_dir
 from evperc.plumbing import fusion_threads, keep_freed_memory, kernels_cached, prefetched
@@ -516,16 +511,17 @@ class Pipeline:
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
                 inputs.stamp_ns, occupied_now=inputs.occupied > 0)
+            moving_cells = moving_object_cells(frame["objects"], frame["object_cells"])
             if self.fill_moving:  # the moving objects' cells decided moving (method.md §8)
-                fill_moving(out.decision, frame["objects"], frame["object_cells"])
+                fill_moving(out.decision, moving_cells)
             clock.lap("objects")
+        else:
+            moving_cells = None
         if self.unmapped is not None:  # decision-level pass (evperc.objects.unmapped)
             if state.unmapped is None:
                 state.unmapped = UnmappedState.fresh(window.shape)
             self.unmapped.step(state.unmapped, out.decision, inputs.labels, dt_s,
-                               moving_cells=moving_object_cells(frame.get("objects"),
-                                                                frame.get("object_cells")),
-                               offset=state.offset, shift=shift)
+                               moving_cells=moving_cells, offset=state.offset, shift=shift)
             clock.lap("unmapped")
         # counted after every pass that changes the decision: the counts match the stored one
         frame["decision_counts"] = counts = count_codes(out.decision, len(state.decision_counts))

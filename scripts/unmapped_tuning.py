@@ -36,8 +36,8 @@ from evperc.objects.unmapped import (
     UnmappedCue,
     UnmappedParams,
     UnmappedState,
-    moving_object_cells,
 )
+from evperc.output.objects import moving_object_cells
 from evperc.sim.truth import load_truth
 
 WIDTHS_M = (0.55, 0.65, 1.0)

@@ -18,7 +18,6 @@ from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
 from evperc.objects.clusters import Clusterer, ClusterParams
 from evperc.objects.tracking import TrackerState, TrackingParams, footprint_seeds, track_step
-from evperc.output.objects import OBJECT_STATES
 
 MOVING = DECISION_CODES["moving"]
 
@@ -57,17 +56,13 @@ class ObjectStage:
         return self.tracking_params.history_frames
 
 
-def fill_moving(decision: np.ndarray, objects: np.ndarray, cells: np.ndarray) -> int:
-    """Decide ``moving`` every cell of the frame's ``moving`` objects (``decision``, a
-    frame's uint8 codes, changed in place; ``objects`` and ``cells`` as :func:`track_step`
-    returns them); returns the cells changed. The masses are not changed (docs/method.md,
-    "Objects": why the object decision is a decision, not evidence)."""
-    if len(objects) == 0:
-        return 0
-    moving = objects["state"] == OBJECT_STATES["moving"]
-    of_object = np.repeat(moving, objects["cell_count"].astype(np.int64))
+def fill_moving(decision: np.ndarray, moving_cells: np.ndarray) -> int:
+    """Decide ``moving`` the cells of the frame's moving objects (``decision``, a frame's
+    uint8 codes, changed in place; ``moving_cells``: their flat window indices,
+    :func:`evperc.output.objects.moving_object_cells`); returns the cells changed. The masses
+    are not changed (docs/method.md §8: why the object decision is a decision, not
+    evidence)."""
     flat = decision.reshape(-1)
-    target = cells[of_object].astype(np.int64)
-    changed = int(np.count_nonzero(flat[target] != MOVING))
-    flat[target] = MOVING
+    changed = int(np.count_nonzero(flat[moving_cells] != MOVING))
+    flat[moving_cells] = MOVING
     return changed

@@ -52,7 +52,6 @@ import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.prior import CONTEXT_BUILDING, CONTEXT_OTHER, CONTEXT_ROAD
-from evperc.output.objects import OBJECT_STATES
 
 #: orientations of the shape test (every 180° / ANGLES; even, so that each has its normal)
 ANGLES = 16
@@ -125,18 +124,6 @@ class UnmappedState:
                              np.array(arrays[f"{prefix}moved"], np.uint8))
 
 
-def moving_object_cells(objects: np.ndarray | None, cells: np.ndarray | None
-                        ) -> np.ndarray | None:
-    """The flat window cells of the frame's moving objects (records of
-    :data:`evperc.output.objects.OBJECT_DTYPE` and their cells, as the object stage returns
-    them), None without an object list."""
-    if objects is None or cells is None:
-        return None
-    counts = objects["cell_count"].astype(np.int64)
-    moving = np.repeat(objects["state"] == OBJECT_STATES["moving"], counts)
-    return np.asarray(cells, np.int64)[moving]
-
-
 class UnmappedCue:
     """Scratch buffers for :meth:`step` over windows of one shape."""
 
@@ -165,9 +152,10 @@ class UnmappedCue:
 
         ``labels``: the window's map context (:mod:`evperc.geo.prior`), None without a map
         (nothing is relabelled). ``moving_cells``: flat window indices of the cells seen
-        moving this frame (:func:`moving_object_cells`); None: the cells decided
-        ``moving``. ``offset``, ``shift``: as :func:`evperc.fusion.fused.fused_step` (the
-        state shares the fusion state's circular buffer)."""
+        moving this frame (:func:`evperc.output.objects.moving_object_cells`); None: the
+        cells decided ``moving``. ``offset``, ``shift``: as
+        :func:`evperc.fusion.fused.fused_step` (the state shares the fusion state's circular
+        buffer)."""
         rows, cols = self.shape
         if decision.shape != self.shape or state.age_s.shape != self.shape:
             raise ValueError(f"decision {decision.shape} / state {state.age_s.shape}, the "

@@ -43,3 +43,15 @@ def object_labels(objects: np.ndarray, cells: np.ndarray, shape: tuple[int, int]
         raise ValueError(f"{cells.size} object cells, the records list {int(counts.sum())}")
     labels[cells.astype(np.int64)] = np.repeat(objects["track_id"], counts)
     return labels.reshape(shape)
+
+
+def moving_object_cells(objects: np.ndarray | None, cells: np.ndarray | None
+                        ) -> np.ndarray | None:
+    """The flat window cells of the frame's moving objects (records of
+    :data:`evperc.output.objects.OBJECT_DTYPE` and their cells, as the object stage returns
+    them), None without an object list."""
+    if objects is None or cells is None:
+        return None
+    counts = objects["cell_count"].astype(np.int64)
+    moving = np.repeat(objects["state"] == OBJECT_STATES["moving"], counts)
+    return np.asarray(cells, np.int64)[moving]

@@ -11,7 +11,7 @@ from evperc.geo.window import Window
 from evperc.objects.clusters import Clusterer, ClusterParams
 from evperc.objects.stage import fill_moving
 from evperc.objects.tracking import TrackerState, TrackingParams, footprint_seeds, track_step
-from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
+from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES, moving_object_cells
 
 RES = 0.5
 T0 = 1_700_000_000_000_000_000
@@ -158,8 +158,8 @@ def test_fill_moving_decides_only_the_moving_objects_cells() -> None:
     objects["state"] = [OBJECT_STATES["moving"], OBJECT_STATES["stopped"]]
     objects["cell_count"] = [3, 2]
     cells = np.array([0, 1, 6, 18, 19], np.uint32)  # object 1: (0,0) (0,1) (1,1); 2: (3,3) (3,4)
-    assert fill_moving(dec, objects, cells) == 2   # (0,0) was moving already
+    assert fill_moving(dec, moving_object_cells(objects, cells)) == 2   # (0,0) was moving already
     expected = np.full((4, 5), D["static"], np.uint8)
     expected[0, 0] = expected[0, 1] = expected[1, 1] = D["moving"]
     np.testing.assert_array_equal(dec, expected)
-    assert fill_moving(dec, objects[:0], cells[:0]) == 0
+    assert fill_moving(dec, moving_object_cells(objects[:0], cells[:0])) == 0

@@ -21,10 +21,9 @@ from evperc.objects.unmapped import (
     UnmappedCue,
     UnmappedParams,
     UnmappedState,
-    moving_object_cells,
     unmapped_enabled,
 )
-from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
+from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES, moving_object_cells
 
 RES = 0.5
 SHAPE = (14, 20)
