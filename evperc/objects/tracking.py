@@ -116,8 +116,8 @@ class Track:
     moving: bool = False         # the motion test passed at the last association
     #: global lattice (iy, ix) of the cells of the last associated cluster (int64 (m, 2))
     footprint: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
-    conflict_frames: int = 0     # frames with conflict evidence (module docstring)
-    vacated_frames: int = 0      # frames with vacated evidence
+    conflict_evidence: int = 0   # frames with conflict evidence (module docstring)
+    vacated_evidence: int = 0    # frames with vacated evidence
     #: the footprints of the previous associations, oldest first (at most vacated_frames)
     past: list[np.ndarray] = field(default_factory=list)
 
@@ -206,7 +206,7 @@ class TrackerState:
         other.next_id, other.prev_ns = self.next_id, self.prev_ns
         other.tracks = [Track(t.track_id, t.hits, t.missed, t.ever_moving, list(t.t_ns),
                               list(t.xy), t.velocity, t.sigma, t.moving, t.footprint.copy(),
-                              t.conflict_frames, t.vacated_frames,
+                              t.conflict_evidence, t.vacated_evidence,
                               [f.copy() for f in t.past])
                         for t in self.tracks]
         return other
@@ -245,7 +245,7 @@ class TrackerState:
                 f"{prefix}sigma": np.array([t.sigma for t in self.tracks], np.float64),
                 f"{prefix}fp_n": np.array([len(f) for f in fps], np.int64),
                 f"{prefix}fp": (np.concatenate(fps) if fps else np.zeros((0, 2), np.int64)),
-                f"{prefix}evidence": np.array([(t.conflict_frames, t.vacated_frames)
+                f"{prefix}evidence": np.array([(t.conflict_evidence, t.vacated_evidence)
                                                for t in self.tracks], np.int64).reshape(n, 2),
                 f"{prefix}past_n": past_n,
                 f"{prefix}past": (np.concatenate(pasts) if pasts
@@ -278,7 +278,7 @@ class TrackerState:
                 np.array(fp[ends[i] - arrays[f"{prefix}fp_n"][i]:ends[i]], np.int64)))
             if has_past:
                 t = state.tracks[-1]
-                t.conflict_frames, t.vacated_frames = (
+                t.conflict_evidence, t.vacated_evidence = (
                     int(v) for v in arrays[f"{prefix}evidence"][i])
                 for m in past_n[i]:
                     if m < 0:
@@ -294,9 +294,14 @@ def footprint_seeds(state: TrackerState, window: Window) -> np.ndarray:
     parts = [t.footprint for t in state.tracks if t.ever_moving and len(t.footprint)]
     if not parts:
         return np.zeros(0, np.int64)
-    g = np.concatenate(parts)
-    r = g[:, 0] - window.row0
-    c = g[:, 1] - window.col0
+    return window_indices(np.concatenate(parts), window)
+
+
+def window_indices(lattice: np.ndarray, window: Window) -> np.ndarray:
+    """Flat window indices (row · cols + col) of the global lattice cells (iy, ix) that lie
+    in ``window``; the others are left out."""
+    r = lattice[:, 0] - window.row0
+    c = lattice[:, 1] - window.col0
     inside = (r >= 0) & (r < window.rows) & (c >= 0) & (c < window.cols)
     return r[inside] * window.cols + c[inside]
 
@@ -328,10 +333,8 @@ def vacated_share(footprint: np.ndarray, decision: np.ndarray, window: Window) -
     outside the window count as not free."""
     if len(footprint) == 0:
         return 0.0
-    r = footprint[:, 0] - window.row0
-    c = footprint[:, 1] - window.col0
-    inside = (r >= 0) & (r < window.rows) & (c >= 0) & (c < window.cols)
-    free = int(np.count_nonzero(decision[r[inside], c[inside]] == _FREE))
+    cells = window_indices(footprint, window)
+    free = int(np.count_nonzero(decision.reshape(-1)[cells] == _FREE))
     return free / len(footprint)
 
 
@@ -396,12 +399,12 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
             del t.past[:-params.vacated_frames]
         fast = is_moving(v, sigma, params)
         if fast:  # evidence counts in the frames whose velocity passes the test
-            t.conflict_frames += int(clusters.seeds[c] >= params.conflict_cells)
-            t.vacated_frames += int(
+            t.conflict_evidence += int(clusters.seeds[c] >= params.conflict_cells)
+            t.vacated_evidence += int(
                 decision is not None and len(t.past) == params.vacated_frames
                 and vacated_share(t.past[0], decision, window) >= params.vacated_share)
         need = params.motion_evidence_frames
-        t.moving = fast and max(t.conflict_frames, t.vacated_frames) >= need
+        t.moving = fast and max(t.conflict_evidence, t.vacated_evidence) >= need
         if t.moving and t.hits >= params.confirm_frames:
             t.ever_moving = True
         t.footprint = lattice[clusters.offsets[c]:clusters.offsets[c + 1]]  # a view

@@ -144,7 +144,7 @@ def test_checkpoint_keeps_the_evidence_and_the_past_footprints() -> None:
         b.step(dec)
     b.state = TrackerState.from_arrays(b.state.to_arrays())
     t = b.state.tracks[0]
-    assert (t.conflict_frames, t.vacated_frames, len(t.past)) == (0, 1, 3)
+    assert (t.conflict_evidence, t.vacated_evidence, len(t.past)) == (0, 1, 3)
     for dec in frames[4:]:
         ra, rb = a.step(dec), b.step(dec)
         assert ra.tobytes() == rb.tobytes()
