@@ -80,9 +80,12 @@ def main() -> int:
         ds = [d for d in drives if d.profile == profile]
         return study.load_metrics(args.work, tags[name], ds, cells)
 
-    def scores(ms: list) -> str:
-        """SCORE_KEYS (mean ± sd over the seeds), as table cells"""
-        return " | ".join(ms_(_get(m, *key) for m in ms) for key in SCORE_KEYS)
+    def scores(ms: list, with_map: str) -> str:
+        """SCORE_KEYS and infrastructure precision (with the map only; mean ± sd over the
+        seeds), as table cells"""
+        infra = (ms_(_get(m, "per_class", "infrastructure", "precision") for m in ms)
+                 if with_map == "with" else "–")
+        return " | ".join([*(ms_(_get(m, *key) for m in ms) for key in SCORE_KEYS), infra])
 
     print("### Headline\n")
     heads = " | ".join(SCORE_HEADS)
@@ -95,10 +98,9 @@ def main() -> int:
                 for cells in ("visible", "observed"):
                     ms = runs(profile, name, cells)[k]
                     obs = runs(profile, name, "observed")[k]
-                    infra = ms_(_get(m, "per_class", "infrastructure", "precision") for m in ms) \
-                        if with_map == "with" else "–"
-                    print(f"| {profile} | {label} | {with_map} | {cells} | {scores(ms)}"
-                          f" | {infra} | {_missed(obs) if cells == 'observed' else '–'} |")
+                    print(f"| {profile} | {label} | {with_map} | {cells} | "
+                          f"{scores(ms, with_map)} | "
+                          f"{_missed(obs) if cells == 'observed' else '–'} |")
 
     print("\n### Ablation (visible cells; missed episodes on observed cells)\n")
     print(f"| profile | config | map | {heads} | infrastructure P | missed moving episodes |")
@@ -108,9 +110,7 @@ def main() -> int:
             for label, name in ABLATIONS:
                 ms = runs(profile, name, "visible")[k]
                 obs = runs(profile, name, "observed")[k]
-                infra = ms_(_get(m, "per_class", "infrastructure", "precision") for m in ms) \
-                    if with_map == "with" else "–"
-                print(f"| {profile} | {label} | {with_map} | {scores(ms)} | {infra} | "
+                print(f"| {profile} | {label} | {with_map} | {scores(ms, with_map)} | "
                       f"{_missed(obs)} |")
 
     print("\n### Objects (defaults, visible cells, pooled over the seeds)\n")
