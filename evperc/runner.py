@@ -407,6 +407,10 @@ class Pipeline:
         start_ns = None if r.start_s is None else start + int(r.start_s * 1e9)
         end_ns = None if r.end_s is None else start + int(r.end_s * 1e9)
         for index, scan in enumerate(self.reader.scans(start_ns=start_ns, end_ns=end_ns)):
+            if not plausible_pose(scan.T_world_sensor):  # a damaged pose in a readable log
+                stats = self.reader.stats
+                stats["pose_out_of_range"] = stats.get("pose_out_of_range", 0) + 1
+                continue
             if index > after_index and index % r.every == 0:
                 yield index, scan
 
@@ -541,6 +545,18 @@ class Pipeline:
         if layer is None or layer.shape != shape:
             layer = self._gate_buffer = np.empty(shape, np.uint8)
         return layer
+
+
+#: a sensor position farther than this from the log's world origin (m) is a damaged pose:
+#: more than twice the Earth's circumference, beyond any geo-referenced or local frame
+MAX_POSE_M = 1e8
+
+
+def plausible_pose(T_world_sensor: np.ndarray) -> bool:
+    """Whether a scan's pose is finite and its position within :data:`MAX_POSE_M` (a damaged
+    pose message can decode to 1e300 m, whose window lies beyond the integer lattice)."""
+    T = np.asarray(T_world_sensor)
+    return bool(np.isfinite(T).all() and np.abs(T[:3, 3]).max() <= MAX_POSE_M)
 
 
 def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:

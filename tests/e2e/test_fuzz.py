@@ -8,10 +8,11 @@ from __future__ import annotations
 import signal
 import tomllib
 
+import numpy as np
 import pytest
 import tomli_w
 from click.testing import CliRunner
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from evperc.cli import cli
@@ -76,6 +77,9 @@ def mangle(data: bytes, ops: list[tuple[str, float, bytes]]) -> bytes:
 @settings(max_examples=40, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(ops=mutations)
+# found by this test in CI: a pose decoded to ~1e300 m put the window beyond the integer
+# lattice (OverflowError in the sensor grid, exit 1); such scans are now skipped
+@example(ops=[("insert", 0.46875, b"\n")])
 def test_mangled_logs_never_crash(good_log: bytes, ops, tmp_path_factory) -> None:
     tmp = tmp_path_factory.mktemp("m")
     log = tmp / "mangled.mcap"
@@ -158,3 +162,15 @@ def test_random_configs_through_the_cli(good_log: bytes, picked, tmp_path_factor
                                 "--out", str(tmp / "out")])
     assert code in (0, 2), output
     assert "Traceback" not in output
+
+
+def test_plausible_pose_refuses_non_finite_and_far_poses() -> None:
+    from evperc.runner import MAX_POSE_M, plausible_pose
+
+    T = np.eye(4)
+    T[:3, 3] = (3.5e5, 6.7e6, 10.0)  # a UTM position
+    assert plausible_pose(T)
+    far, nan = T.copy(), T.copy()
+    far[1, 3] = 2 * MAX_POSE_M
+    nan[0, 0] = np.nan
+    assert not plausible_pose(far) and not plausible_pose(nan)
