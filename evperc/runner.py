@@ -34,7 +34,7 @@ from evperc.objects.tracking import TrackerState
 from evperc.objects.unmapped import UnmappedCue, UnmappedParams, UnmappedState, unmapped_enabled
 from evperc.output.manifest import read_manifest
 from evperc.output.npz import write_npz
-from evperc.output.objects import moving_object_cells
+from evperc.output.objects import OBJECT_STATES, moving_object_cells
 from evperc.output.quantise import dequantise, dequantise_planar
 from evperc.output.writer import RunWriter, check_output_dir
 from evperc.plumbing import fusion_threads, keep_freed_memory, kernels_cached, prefetched
@@ -533,11 +533,28 @@ class Pipeline:
         if inputs.labelling is not None:  # a separate pass over the points, after the step
             scan, t_crs, kinds = inputs.labelling
             labels = point_labels(scan.points, kinds, t_crs, window, out.decision,
-                                  scan.source_count, scan.source_index)
+                                  scan.source_count, scan.source_index,
+                                  **self._object_reach(frame))
             number = scan.number if scan.number is not None else state.frames - 1
             frame["point_labels"] = (number, labels)
             clock.lap("point_labels")
         return frame
+
+    def _object_reach(self, frame: dict[str, Any]) -> dict[str, Any]:
+        """The object-reach arguments of :func:`point_labels` for ``frame`` (its moving
+        objects' cells, ``objects.point_reach_cells`` and ``point_height_margin_m``); none
+        without an object list or with the reach off."""
+        objects = frame.get("objects")
+        reach = int(self.request.config.get("objects", {}).get("point_reach_cells", 0))
+        if objects is None or reach <= 0 or not self.fill_moving:
+            return {}
+        ends = np.cumsum(objects["cell_count"].astype(np.int64))
+        cells = np.asarray(frame["object_cells"], np.int64)
+        moving = [cells[e - n:e] for e, n, st in zip(
+            ends, objects["cell_count"].astype(np.int64), objects["state"], strict=True)
+            if st == OBJECT_STATES["moving"]]
+        return {"moving_objects": moving, "reach_cells": reach,
+                "height_margin_m": float(self.request.config["objects"]["point_height_margin_m"])}
 
     def _gate_layer(self, shape: tuple[int, int]) -> np.ndarray:
         """The gate layer's buffer (one per run, reused every frame)."""
