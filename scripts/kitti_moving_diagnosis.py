@@ -10,7 +10,8 @@ and the per-point kinds and labels. Then, for every point SemanticKITTI labels m
     dropped-height    ... higher than max_obstacle_height_m above the local ground
     outside           its cell lies outside the window
     ground            the ground split calls it ground (labelled static)
-    moving            labelled moving (a true positive)
+    moving            its cell is decided moving (a true positive)
+    moving-reach      labelled moving by a moving object's reach (objects.point_reach_cells)
     reported-static   its cell is in a reported object that is not moving (stopped)
     track-unconfirmed in a cluster whose track has fewer than confirm_frames associations
     track-slow        ... confirmed, but the velocity test fails (speed or vᵀΣ⁻¹v)
@@ -189,6 +190,8 @@ def diagnose(rec: Recorder, seq: Path, config: dict[str, Any], warmup: int) -> d
         kinds = f["kinds"][mov]
         row, col, inside = point_cells(pts, f["t_crs"], w)
         hrange = np.hypot(pts[:, 0], pts[:, 1])
+        all_labels = f["labels"][idx] if f["source_index"] is not None else f["labels"]
+        point_said = all_labels[mov] == MOVING
         cells = np.where(inside, row * w.cols + col, -1)
         before = f.get("decision_before", f["decision"]).reshape(-1)
         after = f["decision"].reshape(-1)
@@ -229,15 +232,19 @@ def diagnose(rec: Recorder, seq: Path, config: dict[str, Any], warmup: int) -> d
             gate_open += int(f["gate"].reshape(-1)[cell] > 0)
             free_cells += int(before[cell] == DECISION_CODES["free"])
             not_now += int(not occ_now[cell])
+            t = track_of_cell.get(cell)
+            if cell in cluster_of and t is not None:
+                tracks_seen[t["id"]] = t
             if after[cell] == moving_code:
                 reasons["moving"] += 1
+                continue
+            if point_said[p]:
+                reasons["moving-reach"] += 1
                 continue
             if cell in reported:
                 reasons["reported-static"] += 1
                 continue
-            t = track_of_cell.get(cell)
             if cell in cluster_of and t is not None:
-                tracks_seen[t["id"]] = t
                 if t["hits"] < params.confirm_frames:
                     reasons["track-unconfirmed"] += 1
                 elif not is_moving(t["velocity"], t["sigma"], params):
