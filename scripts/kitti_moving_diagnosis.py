@@ -62,6 +62,7 @@ class Recorder:
 
     def __init__(self) -> None:
         self.frames: list[dict[str, Any]] = []
+        self.numbers: list[int] = []  # each frame's scan file number (after the run)
         self._cur: dict[str, Any] = {}
 
     def install(self) -> list[tuple[Any, str, Any]]:
@@ -146,6 +147,8 @@ def run_recorded(seq: Path, config: dict[str, Any], out_dir: Path) -> Recorder:
                                      overwrite=True, point_labels=True), progress=False)
     finally:
         Recorder.uninstall(saved)
+    # the scans' own file numbers, frame by frame (a folder may skip numbers)
+    rec.numbers = [int(f.stem) for f in sorted((out_dir / "labels").glob("*.label"))]
     return rec
 
 
@@ -180,7 +183,7 @@ def diagnose(rec: Recorder, seq: Path, config: dict[str, Any], warmup: int) -> d
     scans = []
     pooled = collections.Counter()
     for i, f in enumerate(rec.frames):
-        number = i  # the slices' scans are numbered from 0, one frame a scan
+        number = rec.numbers[i]
         truth = truth_of(seq, number)
         idx = f["source_index"] if f["source_index"] is not None else np.arange(len(f["points"]))
         gt = truth[idx]
