@@ -94,26 +94,49 @@ def object_reach(cells: np.ndarray, z: np.ndarray, decision: np.ndarray, cols: i
     ``free`` or ``unknown``, and the points there within ``height_margin_m`` of the height
     range of the object's own points (an object holding no obstacle point reaches none)."""
     rows = decision.size // cols
-    claimable = CLAIMABLE[decision.reshape(-1)[cells]]
+    n_cells = decision.size
+    # owner[cell]: the index of the object holding the cell, -1 (objects are disjoint
+    # clusters; were they not, the later one would own a shared cell)
+    owner = np.full(n_cells, -1, np.int64)
+    for k, own in enumerate(moving_objects):
+        owner[np.asarray(own, np.int64)] = k
+    lo = np.full(len(moving_objects), np.inf)
+    hi = np.full(len(moving_objects), -np.inf)
+    of_point = owner[cells]
+    held = of_point >= 0
+    np.minimum.at(lo, of_point[held], z[held])
+    np.maximum.at(hi, of_point[held], z[held])
+    # the bounds in the heights' own float32 (a height at the bound exactly is inside)
+    lo = (lo - height_margin_m).astype(z.dtype)
+    hi = (hi + height_margin_m).astype(z.dtype)
     out = np.zeros(len(cells), bool)
     k = int(reach_cells)
-    for own in moving_objects:
-        own = np.asarray(own, np.int64)
-        if own.size == 0:
-            continue
-        mine = np.isin(cells, own)
-        if not mine.any():
-            continue
-        lo = float(z[mine].min()) - height_margin_m
-        hi = float(z[mine].max()) + height_margin_m
-        r, c = np.divmod(own, cols)
-        near = np.zeros((rows, cols), bool)
-        for dr in range(-k, k + 1):
-            for dc in range(-k, k + 1):
-                rr, cc = r + dr, c + dc
-                ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
-                near[rr[ok], cc[ok]] = True
-        out |= claimable & near.reshape(-1)[cells] & (z >= lo) & (z <= hi)
+    # the cells within reach of some object: the objects' cells dilated (few cells), so
+    # that only the points there are looked at below
+    near = np.zeros(n_cells, bool)
+    held_cells = np.flatnonzero(owner >= 0)
+    hr, hc = np.divmod(held_cells, cols)
+    for dr in range(-k, k + 1):
+        for dc in range(-k, k + 1):
+            rr, cc = hr + dr, hc + dc
+            ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+            near[rr[ok] * cols + cc[ok]] = True
+    near &= CLAIMABLE[decision.reshape(-1)]
+    cand = np.flatnonzero(near[cells])
+    if cand.size == 0:
+        return out
+    r, c = np.divmod(cells[cand], cols)
+    zc = z[cand]
+    hit = np.zeros(cand.size, bool)
+    for dr in range(-k, k + 1):  # each neighbour offset, vectorised over the candidates
+        for dc in range(-k, k + 1):
+            rr, cc = r + dr, c + dc
+            ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+            o = np.where(ok, owner[np.where(ok, rr * cols + cc, 0)], -1)
+            fits = o >= 0
+            oi = np.where(fits, o, 0)
+            hit |= fits & (zc >= lo[oi]) & (zc <= hi[oi])
+    out[cand] = hit
     return out
 
 
@@ -136,12 +159,14 @@ def point_labels(points: np.ndarray, kinds: np.ndarray, T_crs_sensor: np.ndarray
     labels[kinds[:n] == GROUND] = STATIC
     obstacle = np.flatnonzero(kinds[:n] == OBSTACLE)
     if obstacle.size:
-        row, col, inside, z = point_cells(np.asarray(points)[obstacle], T_crs_sensor, window,
-                                          with_height=True)
-        obstacle, row, col, z = obstacle[inside], row[inside], col[inside], z[inside]
+        reaching = reach_cells > 0 and len(moving_objects) > 0
+        row, col, inside, *height = point_cells(np.asarray(points)[obstacle], T_crs_sensor,
+                                                window, with_height=reaching)
+        obstacle, row, col = obstacle[inside], row[inside], col[inside]
         labels[obstacle] = DECISION_LABEL[decision[row, col]]
-        if reach_cells > 0 and len(moving_objects):
-            reach = object_reach(row * window.cols + col, z, decision, window.cols,
+        if reaching:
+            reach = object_reach(row * window.cols + col, height[0][inside], decision,
+                                 window.cols,
                                  moving_objects, reach_cells, height_margin_m)
             labels[obstacle[reach]] = MOVING
     if source_index is None and (source_count is None or source_count == n):

@@ -92,8 +92,10 @@ def test_object_reach_matches_a_brute_force_count_on_random_scenes() -> None:
         row, col, inside, z = point_cells(points, IDENTITY, window, with_height=True)
         cells = (row * window.cols + col)[inside]
         z = z[inside]
-        objects = [rng.choice(window.rows * window.cols, size=rng.integers(0, 6),
-                              replace=False) for _ in range(3)]
+        # disjoint, as the clusters of a frame are
+        drawn = rng.permutation(window.rows * window.cols)
+        sizes = rng.integers(0, 6, size=3)
+        objects = [drawn[sizes[:i].sum():sizes[:i + 1].sum()] for i in range(3)]
         k, margin = int(rng.integers(1, 3)), float(rng.uniform(0, 0.5))
         got = object_reach(cells, z, decision, window.cols, objects, k, margin)
         want = np.zeros(len(cells), bool)
