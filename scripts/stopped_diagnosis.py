@@ -9,10 +9,11 @@ truth, over the cells the truth scores (``--cells visible|observed``, as
 - **recall side**: every truth-S cell (class ``stopped``: an agent at ≤ 0.1 m/s,
   evperc/sim/traffic.py) is counted by the run's decision, split by *what the agent did*
   (``parked``: a parked car that has not moved yet in the drive; ``standing``: a pedestrian
-  that has not moved yet; ``paused``: any agent seen in class M at an earlier frame of the
-  drive, i.e. stopped after moving) and by the cell's *map context* (road / other /
-  building, the map's prior labels; all ``none`` for a ``--no-map`` run), plus whether the
-  cell is in a `stopped` object of the frame's object list;
+  that has not moved yet; ``paused``: any agent seen in class M at this or an earlier
+  frame of the drive, within the truth's window, i.e. stopped after moving) and by the
+  cell's *map context* (road / other / building, the map's prior labels; all ``none`` for
+  a ``--no-map`` run), plus whether the cell is in a `stopped` object of the frame's
+  object list;
 - **precision side**: every cell decided `stopped` is counted by its truth class; a truth-free
   one is further split by the first kind of truth cell 8-next to it, in the order S (the
   footprint's blur), M, I (a façade's return outside the building's outline), U, or none.
@@ -36,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyproj
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -85,7 +87,6 @@ def diagnose(run_dir: Path, drive_dir: Path, cells: str = "visible") -> dict[str
     if map_path:
         cfg = run.manifest["config"]
         data = load_map(map_path, run.manifest.get("roads"), config_map=cfg["map"])
-        import pyproj
         data = data.to_crs(pyproj.CRS.from_user_input(run.manifest["crs"]))
         rast = PriorRasteriser(data, truth.resolution_m, cfg["map"]["tile_size_cells"])
     moved: set[int] = set()   # agents seen in class M so far
