@@ -33,6 +33,17 @@ Per frame, with ``dt`` the time since the previous frame:
    moving. Its cells of context other whose ``age_s`` is at least ``min_age_s`` become
    ``unmapped``.
 
+4. ``stopped`` needs the road or motion (``stopped_needs_road``, the same components): a
+   component with no cell on the road and none ever seen moving keeps no cell ``stopped``:
+   its ``stopped`` cells (those left after step 3) become ``static``. Off the road the prior
+   allows U and S alike ({F, U, S, M}), and what tips such a cell to S is not the map but
+   the fusion's moving mass: a cell seen free fades through {F, M} (α_M), an occupied return
+   there intersects it to {M} (no conflict, so the motion gate does not see it), and ζ then
+   moves that {M} to {S}. On the simulated tuning drives that is a façade's returns just
+   outside the building's outline (94 % of the off-road cells decided ``stopped``, truth
+   free, 8-next to a building cell); a parked car at the kerb has cells on the road and
+   stays ``stopped``, a car that drove off the road and stopped was seen moving.
+
 Without a map the pass changes nothing (the state is still kept): the road's edge is what
 tells a kerb-side car's face — a strip one cell thick, as thin as a fence — from the
 pavement's furniture, and without it every thin static strip would be called unmapped.
@@ -61,7 +72,7 @@ NOT_OCCUPIED = np.float32(-1.0)
 SLACK = np.float32(1e-3)
 #: columns of :attr:`UnmappedCue.stats`
 STAT_CELLS, STAT_ROAD, STAT_NEAR_BUILDING, STAT_MOVED, STAT_WIDTH_M, STAT_LENGTH_M, \
-    STAT_RELABELLED = range(7)
+    STAT_RELABELLED, STAT_UNSTOPPED = range(8)
 
 _FREE = DECISION_CODES["free"]
 _MOVING = DECISION_CODES["moving"]
@@ -71,9 +82,11 @@ _UNMAPPED = DECISION_CODES["unmapped"]
 
 
 def unmapped_enabled(config: dict[str, Any]) -> bool:
-    """Whether a run with ``config`` runs the pass (a config written before the key existed,
-    e.g. an old run's manifest on resume: no)."""
-    return bool(config.get("objects", {}).get("unmapped_cue", False))
+    """Whether a run with ``config`` runs the pass: the unmapped cue or the stopped-needs-road
+    rule on (a config written before the keys existed, e.g. an old run's manifest on
+    resume: no)."""
+    o = config.get("objects", {})
+    return bool(o.get("unmapped_cue", False)) or bool(o.get("stopped_needs_road", False))
 
 
 @dataclass(frozen=True)
@@ -88,12 +101,19 @@ class UnmappedParams:
     #: objects.unmapped_min_age_s: a cell is relabelled once decided occupied this long
     #: (0.1 s: in two decisions at 10 Hz)
     min_age_s: float = 0.1
+    #: objects.unmapped_cue: relabel the unmapped-like components (steps 1-3)
+    unmapped: bool = True
+    #: objects.stopped_needs_road: step 4 (off here, the fusion's decision; on in
+    #: configs/default.toml)
+    stopped_needs_road: bool = False
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> UnmappedParams:
         o = config["objects"]
         return UnmappedParams(max_width_m=float(o["unmapped_max_width_m"]),
-                              min_age_s=float(o["unmapped_min_age_s"]))
+                              min_age_s=float(o["unmapped_min_age_s"]),
+                              unmapped=bool(o.get("unmapped_cue", False)),
+                              stopped_needs_road=bool(o.get("stopped_needs_road", False)))
 
 
 @dataclass
@@ -135,7 +155,7 @@ class UnmappedCue:
         n = shape[0] * shape[1]
         self._mark = np.zeros(n, np.uint8)
         self._cells = np.empty(n, np.int64)
-        self._stats = np.empty((n, 7), np.float64)
+        self._stats = np.empty((n, 8), np.float64)
         theta = np.arange(ANGLES) * (math.pi / ANGLES)
         self._cos = np.cos(theta)
         self._sin = np.sin(theta)
@@ -148,7 +168,9 @@ class UnmappedCue:
              offset: tuple[int, int] = (0, 0), shift: tuple[int, int] = (0, 0)) -> int:
         """Update ``state`` with the frame's ``decision`` (uint8 codes, window order,
         :data:`evperc.fusion.twin.DECISION_CODES`) and relabel its unmapped-like cells
-        ``unmapped`` in place (module docstring); returns the number of cells relabelled.
+        ``unmapped`` in place (module docstring), and, with ``stopped_needs_road``, the
+        ``stopped`` cells of off-road components never seen moving ``static``; returns the
+        number of cells relabelled ``unmapped`` (:attr:`stats` counts both per component).
 
         ``labels``: the window's map context (:mod:`evperc.geo.prior`), None without a map
         (nothing is relabelled). ``moving_cells``: flat window indices of the cells seen
@@ -178,23 +200,25 @@ class UnmappedCue:
             state.age_s, state.moved, int(offset[0]) % rows if rows else 0,
             int(offset[1]) % cols if cols else 0, int(shift[0]), int(shift[1]),
             np.float32(max(dt_s, 0.0)), p.max_width_m / res, np.float32(p.min_age_s),
-            self._cos, self._sin, self._mark, self._cells, self._stats)
+            p.unmapped, p.stopped_needs_road, self._cos, self._sin, self._mark, self._cells,
+            self._stats)
         self.components = n
         self._stats[:n, STAT_WIDTH_M:STAT_LENGTH_M + 1] *= res
         return relabelled
 
     @property
     def stats(self) -> np.ndarray:
-        """``(components, 7)`` float64 of the last step, one row a component in the order
+        """``(components, 8)`` float64 of the last step, one row a component in the order
         found (row-major scan; columns ``STAT_*``): cells, road cells, in or next to a
-        building (0/1), seen moving (0/1), width and length (m), cells relabelled."""
+        building (0/1), seen moving (0/1), width and length (m), cells relabelled
+        ``unmapped``, cells turned from ``stopped`` to ``static`` (step 4)."""
         return self._stats[:self.components]
 
 
 @numba.njit(cache=True, nogil=True)
 def _unmapped_pass(decision, labels, has_labels, seen_moving, age_s, moved, off_r, off_c,
-                   dr, dc, dt, max_width, min_age, cos, sin, mark, cells, stats
-                   ):  # pragma: no cover - compiled
+                   dr, dc, dt, max_width, min_age, relabel_unmapped, stopped_needs_road,
+                   cos, sin, mark, cells, stats):  # pragma: no cover - compiled
     """The state update, then the components (module docstring). ``max_width`` in cells.
     Returns (components, cells relabelled)."""
     rows, cols = decision.shape
@@ -290,8 +314,8 @@ def _unmapped_pass(decision, labels, has_labels, seen_moving, age_s, moved, off_
         along = (thinnest + n_angles // 2) % n_angles
         length = hi_p[along] - lo_p[along] + 1.0
         width = count / length
-        eligible = (has_labels and width <= max_width + 1e-9 and road == 0
-                    and not near_building and not any_moved)
+        eligible = (relabel_unmapped and has_labels and width <= max_width + 1e-9
+                    and road == 0 and not near_building and not any_moved)
         changed = 0
         if eligible:
             for q in range(first, n_cells):
@@ -313,7 +337,15 @@ def _unmapped_pass(decision, labels, has_labels, seen_moving, age_s, moved, off_
         stats[n_comp, 3] = 1.0 if any_moved else 0.0
         stats[n_comp, 4] = width
         stats[n_comp, 5] = length
+        unstopped = 0
+        if stopped_needs_road and has_labels and road == 0 and not any_moved:
+            for q in range(first, n_cells):  # step 4: what step 3 left stopped
+                i = cells[q]
+                if flat[i] == _STOPPED:
+                    flat[i] = _STATIC
+                    unstopped += 1
         stats[n_comp, 6] = changed
+        stats[n_comp, 7] = unstopped
         relabelled += changed
         n_comp += 1
     for q in range(n_cells):

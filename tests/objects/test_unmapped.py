@@ -238,12 +238,19 @@ def _reference(seq, params, res):
                     if (labels[r, c] == CONTEXT_OTHER
                             and age[(win.row0 + r, win.col0 + c)] >= params.min_age_s - 1e-3):
                         out[r, c] = D["unmapped"]
+            # step 4: stopped needs the road or motion
+            if (params.stopped_needs_road and not (labels[rr, cc] == CONTEXT_ROAD).any()
+                    and not any(key in moved for key in keys)):
+                left = out[rr, cc] == D["stopped"]
+                out[rr[left], cc[left]] = D["static"]
         outs.append(out)
     return outs
 
 
+@pytest.mark.parametrize("stopped_needs_road", [False, True])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_random_shifting_windows_match_the_reference(seed: int) -> None:
+def test_random_shifting_windows_match_the_reference(seed: int, stopped_needs_road: bool
+                                                     ) -> None:
     rng = np.random.default_rng(seed)
     shape = (12, 15)
     codes = np.array([D["free"], D["unknown"], D["static"], D["stopped"], D["moving"],
@@ -254,7 +261,8 @@ def test_random_shifting_windows_match_the_reference(seed: int) -> None:
     world = rng.choice(np.array([CONTEXT_OTHER, CONTEXT_ROAD, CONTEXT_BUILDING], np.uint8),
                        size=(200, 200), p=[0.8, 0.15, 0.05])
     world_dec = rng.choice(codes, size=(200, 200), p=p).astype(np.uint8)
-    params = UnmappedParams(max_width_m=0.8, min_age_s=0.2)
+    params = UnmappedParams(max_width_m=0.8, min_age_s=0.2,
+                            stopped_needs_road=stopped_needs_road)
     cue = UnmappedCue(params, shape, RES)
     state = UnmappedState.fresh(shape)
     win = Window(RES, *shape, 80, 80)
@@ -275,11 +283,14 @@ def test_random_shifting_windows_match_the_reference(seed: int) -> None:
         cue.step(state, dec, labels, DT, offset=offset, shift=shift)
         got.append(dec)
     want = _reference(seq, params, RES)
-    relabelled = 0
-    for k, (g, w) in enumerate(zip(got, want, strict=True)):
+    relabelled = unstopped = 0
+    for k, ((_, dec, _, _), g, w) in enumerate(zip(seq, got, want, strict=True)):
         np.testing.assert_array_equal(g, w, err_msg=f"frame {k}")
         relabelled += int((w == D["unmapped"]).sum())
+        unstopped += int(((dec == D["stopped"]) & (w == D["static"])).sum())
     assert relabelled > 50  # the test exercises the relabelling (97-167 cells on seeds 0-2)
+    # ... and step 4 when on (it turns stopped cells static), never when off
+    assert (unstopped > 50) if stopped_needs_road else unstopped == 0
 
 
 def test_moving_object_cells_takes_the_moving_records_only() -> None:
@@ -330,7 +341,8 @@ def _write(tmp_path: Path, text: str) -> Path:
 def test_defaults_turn_the_cue_on_and_read_its_keys() -> None:
     config = load_config()
     assert unmapped_enabled(config)
-    assert UnmappedParams.from_config(config) == UnmappedParams(0.55, 0.1)
+    assert UnmappedParams.from_config(config) == UnmappedParams(
+        0.55, 0.1, unmapped=True, stopped_needs_road=True)
 
 
 @pytest.mark.parametrize(("text", "message"), [
