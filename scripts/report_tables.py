@@ -33,17 +33,19 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("no motion gate", "configs/ablation/no_gate.toml"),
              ("no building margin", "configs/ablation/no_building_margin.toml"),
              ("no object stage (no fill, no object list)", "configs/ablation/no_objects.toml"),
-             ("no unmapped cue", "configs/ablation/no_unmapped_cue.toml"))
+             ("no unmapped cue", "configs/ablation/no_unmapped_cue.toml"),
+             ("stopped without the road rule", "configs/ablation/no_stopped_needs_road.toml"))
 
 
 #: the scores of the headline and ablation rows, in column order
 SCORE_KEYS = (("per_class", "moving", "precision"), ("per_class", "moving", "recall"),
               ("per_class", "moving", "f1"), ("coarse", "free", "precision"),
               ("per_class", "stopped", "f1"), ("per_class", "unmapped", "f1"),
-              ("moving_within_one_cell", "precision"), ("moving_within_one_cell", "recall"))
+              ("moving_within_one_cell", "precision"), ("moving_within_one_cell", "recall"),
+              ("stopped_within_one_cell", "f1"))
 #: their column headers
 SCORE_HEADS = ("moving P", "moving R", "moving F1", "free P", "stopped F1", "unmapped F1",
-               "moving P ±1 cell", "moving R ±1 cell")
+               "moving P ±1 cell", "moving R ±1 cell", "stopped F1 ±1 cell")
 
 
 def _get(m: dict[str, Any], *path: str) -> float | None:

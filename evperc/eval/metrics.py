@@ -24,6 +24,8 @@ cell (8-neighbourhood, centres at most 0.71 m apart at 0.5 m cells): a cell deci
 is correct if it or one of its 8 neighbours is truth M (the neighbour need not be evaluated
 itself); a truth M cell is found if it or one of its 8 neighbours is decided ``moving``.
 Precision = correct / decided moving, recall = found / truth M, over the evaluated cells.
+The stopped class is scored the same way (``stopped_within_one_cell``): a parked car's
+returns fall as often just outside its footprint as a moving car's.
 
 Detection latency, per moving episode of a simulated agent: an episode is a maximal run of
 consecutive matched frames in which the agent has at least one evaluated cell of truth
@@ -47,6 +49,8 @@ from evperc.output.objects import OBJECT_STATES
 
 FINE = ("free", "infrastructure", "unmapped", "stopped", "moving")
 COARSE = ("free", "static", "moving")
+#: the classes also scored within one cell (8-neighbourhood)
+TOLERANT_CLASSES = ("moving", "stopped")
 TRUTH_CODES = {"free": 1, "moving": 2, "stopped": 4, "infrastructure": 5, "unmapped": 6}
 _COARSE_OF_FINE = {"free": "free", "infrastructure": "static", "unmapped": "static",
                    "stopped": "static", "moving": "moving"}
@@ -114,7 +118,8 @@ def evaluate(run: Any, truth: Any, cells: str = "observed") -> dict[str, Any]:
     n_agents = len(getattr(truth, "agents", [])) or 0
     moving_code = codes.get("moving", -1)
     confusion = np.zeros((len(FINE), len(decisions)), dtype=np.int64)
-    tolerant = np.zeros(4, dtype=np.int64)  # correct, decided moving, found, truth M
+    #: per class scored within one cell: correct, decided, found, truth
+    tolerant = {name: np.zeros(4, dtype=np.int64) for name in TOLERANT_CLASSES}
     objects = ObjectScore()
     rows: list[tuple[np.ndarray, ...]] = []
     stamps, matched, run_frames = [], 0, 0
@@ -142,13 +147,9 @@ def evaluate(run: Any, truth: Any, cells: str = "observed") -> dict[str, Any]:
         ok = np.asarray(scored[tr, tc], dtype=bool) & (tc_ >= 0) & (d >= 0)
         confusion += np.bincount(tc_[ok] * len(decisions) + d[ok],
                                  minlength=confusion.size).reshape(confusion.shape)
-        decided_m = dec == moving_code
-        truth_m = t.classes == tcodes["moving"]
-        near_truth_m = dilate_one_cell(truth_m)[tr, tc]
-        near_decided_m = dilate_one_cell(decided_m)[rr, rc]
-        dm, tm = decided_m[rr, rc] & ok, truth_m[tr, tc] & ok
-        tolerant += (int((dm & near_truth_m).sum()), int(dm.sum()),
-                     int((tm & near_decided_m).sum()), int(tm.sum()))
+        for name, counts in tolerant.items():
+            counts += _tolerant_counts(dec == codes.get(name, -1), t.classes == tcodes[name],
+                                       ok, (rr, rc), (tr, tc))
         agent = np.where(ok, t.agent[tr, tc], 0)
         n = max(n_agents, int(agent.max(initial=0))) + 1
         if n > n_agents + 1:
@@ -167,7 +168,8 @@ def evaluate(run: Any, truth: Any, cells: str = "observed") -> dict[str, Any]:
                          f"{run_frames} frames: not the run's drive; give the truth of the "
                          "drive the run was made from")
     metrics = _summarise(confusion, decisions)
-    metrics["moving_within_one_cell"] = _tolerant_scores(tolerant)
+    for name, counts in tolerant.items():
+        metrics[f"{name}_within_one_cell"] = _tolerant_scores(counts)
     metrics["objects"] = objects.summary()
     metrics["cell_set"] = cells
     metrics["frames_span_ns"] = [stamps[0], stamps[-1]] if stamps else None
@@ -187,6 +189,17 @@ def dilate_one_cell(mask: np.ndarray) -> np.ndarray:
         for dc in range(3):
             out |= padded[dr:dr + rows, dc:dc + cols]
     return out
+
+
+def _tolerant_counts(decided: np.ndarray, truth: np.ndarray, ok: np.ndarray,
+                     run_cells: tuple[Any, Any], truth_cells: tuple[Any, Any]) -> np.ndarray:
+    """(correct, decided, found, truth) of one class within one cell, over the evaluated
+    cells ``ok`` of the overlap (``run_cells`` / ``truth_cells`` index it in each grid)."""
+    near_truth = dilate_one_cell(truth)[truth_cells]
+    near_decided = dilate_one_cell(decided)[run_cells]
+    d, t = decided[run_cells] & ok, truth[truth_cells] & ok
+    return np.array([(d & near_truth).sum(), d.sum(), (t & near_decided).sum(), t.sum()],
+                    dtype=np.int64)
 
 
 def _tolerant_scores(counts: np.ndarray) -> dict[str, Any]:
@@ -358,11 +371,13 @@ def format_report(metrics: dict[str, Any], other: dict[str, Any] | None = None,
         for t, counts in zip(conf["truth"], conf["counts"], strict=True):
             lines.append(f"{t:<15}" + "".join(f"{c:>10}" for c in counts))
         lat = m["latency_frames"]
-        tol = m.get("moving_within_one_cell")
-        if tol is not None:
-            lines.append(f"moving within one cell ({n}): P {num(tol['precision']).strip()} "
-                         f"({tol['correct']}/{tol['decided']}), R {num(tol['recall']).strip()} "
-                         f"({tol['found']}/{tol['support']}), F1 {num(tol['f1']).strip()}")
+        for name in TOLERANT_CLASSES:
+            tol = m.get(f"{name}_within_one_cell")
+            if tol is not None:
+                lines.append(f"{name} within one cell ({n}): P "
+                             f"{num(tol['precision']).strip()} ({tol['correct']}/"
+                             f"{tol['decided']}), R {num(tol['recall']).strip()} "
+                             f"({tol['found']}/{tol['support']}), F1 {num(tol['f1']).strip()}")
         obj = m.get("objects")
         if obj is not None:
             lines.append(f"objects ({n}): moving P {num(obj['precision']).strip()} "

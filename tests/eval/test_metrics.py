@@ -107,6 +107,27 @@ def test_moving_within_one_cell_by_hand(tmp_path: Path) -> None:
     assert (tol3["decided"], tol3["correct"], tol3["found"]) == (1, 1, 1)
 
 
+def test_stopped_within_one_cell_by_hand(tmp_path: Path) -> None:
+    # truth: a parked car of 2 cells (row 1, columns 1-2) beside a moving one (row 3, col 4)
+    truth = load_truth(write_truth(tmp_path, [{
+        "stamp": 7,
+        "classes": [[F, F, F, F, F], [F, S, S, F, F], [F, F, F, F, F], [F, F, F, F, M]]}]))
+    run = fake_run([{"stamp": 7, "decision": [
+        [FREE, STO, FREE, FREE, FREE],   # (0,1): above truth (1,1): correct
+        [FREE, FREE, FREE, FREE, STO],   # (1,4): two columns off (1,2): wrong
+        [FREE, FREE, FREE, FREE, FREE],
+        [FREE, FREE, FREE, FREE, MOV]]}])
+    m = evaluate(run, truth, cells="visible")
+    tol = m["stopped_within_one_cell"]
+    # decided stopped 2, correct 1; truth S 2, both next to (0,1): (1,1) below, (1,2) diagonal
+    assert (tol["decided"], tol["correct"], tol["support"], tol["found"]) == (2, 1, 2, 2)
+    assert tol["precision"] == pytest.approx(0.5) and tol["recall"] == pytest.approx(1.0)
+    assert m["per_class"]["stopped"]["precision"] == 0.0  # strict: none of them is truth S
+    # the moving class is scored apart: its one decided cell is on its one truth cell
+    mov = m["moving_within_one_cell"]
+    assert (mov["decided"], mov["correct"], mov["support"], mov["found"]) == (1, 1, 1, 1)
+
+
 def test_windows_compared_where_both_cover(tmp_path: Path) -> None:
     truth = load_truth(write_truth(tmp_path, [{"stamp": 5, "classes": [[F, I, I], [F, F, M]]}]))
     # run window shifted one column east: its columns 0, 1 are the truth's columns 1, 2
