@@ -7,7 +7,9 @@ of the frame — the decision before the fill, betP(M), ∅_FO, the cells holdin
 writes nothing back into the fusion state, so those inputs, recorded once per drive by a run
 with a hook (:func:`record`), replay the stage exactly under any ``[objects]`` values
 (:func:`replay`). The replayed frames are scored by :func:`evperc.eval.metrics.evaluate` as a
-run would be. The unmapped cue, which never touches a moving cell, is not replayed: the
+run would be. The footprint completion (:mod:`evperc.objects.footprint`) is replayed too (the scan's
+cells seen free or holding a return are recorded). The unmapped cue, which never touches a
+moving cell, is not replayed: the
 cells it relabelled in the recorded run keep that label unless the replay decides them
 moving (moving scores, latency and object scores are exact; stopped / unmapped approximate).
 
@@ -33,10 +35,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from evperc import runner as runner_mod  # noqa: E402
 from evperc.eval.metrics import evaluate  # noqa: E402
 from evperc.fusion.twin import DECISION_CODES  # noqa: E402
 from evperc.geo.window import Window  # noqa: E402
 from evperc.objects import stage as stage_mod  # noqa: E402
+from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints  # noqa: E402,E501
 from evperc.objects.stage import ObjectStage, fill_moving  # noqa: E402
 from evperc.objects.tracking import TrackerState  # noqa: E402
 from evperc.output.objects import moving_object_cells, object_labels  # noqa: E402
@@ -67,6 +71,14 @@ def record(drive: Path, out: Path, config: Path | None = None) -> Path:
     from evperc.cli import cli
     frames: list[tuple[Any, ...]] = []
     original = stage_mod.ObjectStage.step
+    original_pipeline = runner_mod.Pipeline.sensor_grid
+    speaks: dict[int, np.ndarray] = {}  # per stamp, the cells seen free or holding a return
+
+    def pipeline_hooked(self: Any, inputs: Any) -> Any:
+        done = original_pipeline(self, inputs)  # in the decode thread or the step's
+        if done.free is not None:
+            speaks[int(done.stamp_ns)] = (done.free > 0) | (done.occupied > 0)
+        return done
 
     def hooked(self: Any, state: Any, decision: np.ndarray, betp_moving: np.ndarray,
                conflict_fo: np.ndarray, window: Window, stamp_ns: int,
@@ -74,11 +86,13 @@ def record(drive: Path, out: Path, config: Path | None = None) -> Path:
         if decision.shape[0] >= 20:  # not the runner's warm-up on a tiny window
             frames.append((int(stamp_ns), window.row0, window.col0, decision.copy(),
                            betp_moving.copy(), conflict_fo.copy(),
-                           np.packbits(np.asarray(occupied_now, bool).reshape(-1))))
+                           np.packbits(np.asarray(occupied_now, bool).reshape(-1)),
+                           np.packbits(speaks.pop(int(stamp_ns)).reshape(-1))))
         return original(self, state, decision, betp_moving, conflict_fo, window, stamp_ns,
                         occupied_now)
 
     stage_mod.ObjectStage.step = hooked  # type: ignore[method-assign]
+    runner_mod.Pipeline.sensor_grid = pipeline_hooked  # type: ignore[method-assign]
     try:
         args = ["-q", "run", str(drive / "drive.mcap"), "--map", str(drive / "map.geojson"),
                 "--out", str(out), "--overwrite"]
@@ -87,13 +101,14 @@ def record(drive: Path, out: Path, config: Path | None = None) -> Path:
         cli(args, standalone_mode=False)
     finally:
         stage_mod.ObjectStage.step = original  # type: ignore[method-assign]
+        runner_mod.Pipeline.sensor_grid = original_pipeline  # type: ignore[method-assign]
     path = out / INPUTS
     np.savez_compressed(
         path, stamp_ns=np.array([f[0] for f in frames], np.int64),
         origin=np.array([(f[1], f[2]) for f in frames], np.int64),
         decision=np.stack([f[3] for f in frames]), betp_moving=np.stack([f[4] for f in frames]),
         conflict_fo=np.stack([f[5] for f in frames]),
-        occupied=np.stack([f[6] for f in frames]))
+        occupied=np.stack([f[6] for f in frames]), speaks=np.stack([f[7] for f in frames]))
     return path
 
 
@@ -134,12 +149,15 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
     run = load(out)
     data = np.load(out / INPUTS)
     stamps, origins = data["stamp_ns"], data["origin"]
+    if "speaks" not in data.files:
+        raise SystemExit(f"{out / INPUTS}: recorded before the scan's cells; delete it")
     decisions, betps, conflicts, occs = (data["decision"], data["betp_moving"],
                                          data["conflict_fo"], data["occupied"])
     shape = decisions.shape[1:]
     res = run.resolution_m
     stage = ObjectStage(config, shape)
     state = TrackerState()
+    fp_params, fp_state = FootprintParams.from_config(config), FootprintState()
     stored = {f.stamp_ns: f for f in run.frames}
     frames = []
     fill = stage_mod.fills_decision(config)
@@ -149,6 +167,10 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
         occ = np.unpackbits(occs[k])[:shape[0] * shape[1]].reshape(shape).astype(bool)
         args = (state, decision, betps[k], conflicts[k], window, int(stamps[k]), occ)
         objects, cells = step(stage, *args) if step is not None else stage.step(*args)
+        if fp_params.frames > 0:
+            speaks = np.unpackbits(data["speaks"][k])[:occ.size].reshape(shape).astype(bool)
+            objects, cells = complete_footprints(fp_state, objects, cells, window,
+                                                 int(stamps[k]), speaks, fp_params)
         moving = moving_object_cells(objects, cells)
         if fill:
             fill_moving(decision, moving)
