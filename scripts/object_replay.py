@@ -208,6 +208,8 @@ def scores(run: Any, truth: Any) -> dict[str, Any]:
             "tc": (tol["correct"], tol["decided"], tol["found"], tol["support"]),
             "sc": _strict_counts(v),
             "episodes": lat["episodes"], "missed": lat["missed"],
+            "obs_episodes": o["latency_frames"]["episodes"],
+            "obs_missed": o["latency_frames"]["missed"],
             "oP": obj.get("precision"), "oR": obj.get("recall"),
             "oc": (obj.get("moving_matched", 0), obj.get("moving_reported", 0),
                    obj.get("moving_found", 0), obj.get("moving_truth", 0)),
@@ -250,6 +252,20 @@ def main() -> None:
                     replay(out, with_objects(base, parse_set(s))), truth)
                 log.info("%s %s-s%s %s", s or "(defaults)", profile, seed, r)
     print_table(table)
+    print_means(table)
+
+
+def print_means(table: dict[str, dict[str, dict[str, Any]]]) -> None:
+    """docs/evaluation.md's convention: ±1-cell P / R as the mean over the seeds, missed
+    episodes pooled on the observed cells."""
+    print("\n| set | profile | P ±1 cell (mean of seeds) | R ±1 cell (mean) | missed episodes "
+          "(observed cells, pooled) | (visible cells, pooled) |")
+    print("|---|---|---|---|---|---|")
+    for s, runs in table.items():
+        for profile in sorted({n.split("-")[0] for n in runs}):
+            p = pooled([r for n, r in runs.items() if n.startswith(profile)])
+            print(f"| {s or 'defaults'} | {profile} | {p['tP_mean']:.3f} | {p['tR_mean']:.3f} | "
+                  f"{p['obs_missed']} / {p['obs_episodes']} | {p['missed']} / {p['episodes']} |")
 
 
 def pooled(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -261,6 +277,10 @@ def pooled(rows: list[dict[str, Any]]) -> dict[str, Any]:
         return float(a / b) if b else None
     sc = np.sum([r["sc"] for r in rows], axis=0)
     return {"tP": ratio(tc[0], tc[1]), "tR": ratio(tc[2], tc[3]),
+            "tP_mean": float(np.mean([r["tP"] for r in rows if r["tP"] is not None])),
+            "tR_mean": float(np.mean([r["tR"] for r in rows if r["tR"] is not None])),
+            "obs_missed": sum(r["obs_missed"] for r in rows),
+            "obs_episodes": sum(r["obs_episodes"] for r in rows),
             "P": ratio(sc[0], sc[1]), "R": ratio(sc[0], sc[2]),
             "missed": sum(r["missed"] for r in rows), "episodes": sum(r["episodes"] for r in rows),
             "oP": ratio(oc[0], oc[1]), "oR": ratio(oc[2], oc[3])}

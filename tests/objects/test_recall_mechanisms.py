@@ -22,7 +22,10 @@ EVIDENCE = dict(motion_evidence_frames=3, conflict_cells=2, vacated_frames=3,
                 vacated_share=0.3)
 
 
-def _states(frames, params, cluster_params=ClusterParams(seeds="occupied")):
+OCCUPIED = ClusterParams(seeds="occupied")
+
+
+def _states(frames, params, cluster_params=OCCUPIED):
     """Per frame, the reported objects' states (list of OBJECT_STATES codes)."""
     state, clusterer, out = TrackerState(), Clusterer(cluster_params, SHAPE), []
     for k, dec in enumerate(frames):
