@@ -28,6 +28,7 @@ from evperc.geo.window import Window
 from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
+from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints
 from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
 from evperc.objects.stage import ObjectStage, fill_moving, fills_decision, objects_enabled
 from evperc.objects.tracking import TrackerState
@@ -181,6 +182,8 @@ class FusionState:
     tracks: TrackerState | None = None
     #: the unmapped cue's per-cell state, in the circular buffer (None: cue off, or no frame)
     unmapped: UnmappedState | None = None
+    #: the footprint completion's per-track history (None: off, or no frame yet)
+    footprints: FootprintState | None = None
 
     @staticmethod
     def fresh(window: Window) -> FusionState:
@@ -235,6 +238,7 @@ class FusionState:
         into.decision_counts = self.decision_counts.copy()
         into.tracks = self.tracks.copy() if self.tracks is not None else None
         into.unmapped = self.unmapped.copy() if self.unmapped is not None else None
+        into.footprints = self.footprints.copy() if self.footprints is not None else None
         return into
 
     def save(self, path: Path) -> None:
@@ -252,6 +256,8 @@ class FusionState:
             arrays.update(self.tracks.to_arrays())
         if self.unmapped is not None:
             arrays.update(self.unmapped.to_arrays())
+        if self.footprints is not None:
+            arrays.update(self.footprints.to_arrays())
         write_npz(path, arrays, compress=False)
 
     @staticmethod
@@ -277,7 +283,8 @@ class FusionState:
                     scan_index=int(npz["scan_index"]), frames=int(npz["frames"]),
                     decision_counts=npz["decision_counts"],
                     tracks=TrackerState.from_arrays(npz),
-                    unmapped=UnmappedState.from_arrays(npz))
+                    unmapped=UnmappedState.from_arrays(npz),
+                    footprints=FootprintState.from_arrays(npz))
         except (OSError, ValueError, KeyError) as err:
             raise OutputError(f"{path}: missing or unreadable checkpoint ({err}); rerun "
                               "without --resume and with --overwrite") from err
@@ -329,6 +336,7 @@ class Pipeline:
         probe = Window.centred_on(0.0, 0.0, self.window_size, self.resolution)
         self.objects = (ObjectStage(config, probe.shape) if objects_enabled(config) else None)
         self.fill_moving = fills_decision(config)
+        self.footprint = FootprintParams.from_config(config)
         self.unmapped = (UnmappedCue(UnmappedParams.from_config(config), probe.shape,
                                      self.resolution) if unmapped_enabled(config) else None)
         self._warm_up()
@@ -515,6 +523,12 @@ class Pipeline:
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
                 inputs.stamp_ns, occupied_now=inputs.occupied > 0)
+            if self.footprint.frames > 0:  # motion-compensated footprints (objects/footprint.py)
+                if state.footprints is None:
+                    state.footprints = FootprintState()
+                frame["objects"], frame["object_cells"] = complete_footprints(
+                    state.footprints, frame["objects"], frame["object_cells"], window,
+                    inputs.stamp_ns, (inputs.free > 0) | (inputs.occupied > 0), self.footprint)
             moving_cells = moving_object_cells(frame["objects"], frame["object_cells"])
             if self.fill_moving:  # the moving objects' cells decided moving (method.md §8)
                 fill_moving(out.decision, moving_cells)

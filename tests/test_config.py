@@ -165,5 +165,9 @@ def test_object_evidence_keys_are_validated(tmp_path: Path) -> None:
         load_config(write(tmp_path, "[objects]\nvacated_share = 0.0\n"))
     with pytest.raises(ConfigError, match=r"objects.motion_evidence_frames = -1 is outside"):
         load_config(write(tmp_path, "[objects]\nmotion_evidence_frames = -1\n"))
+    with pytest.raises(ConfigError, match=r"objects.footprint_frames = -1 is outside"):
+        load_config(write(tmp_path, "[objects]\nfootprint_frames = -1\n"))
+    with pytest.raises(ConfigError, match=r"objects.arrival_share = 1.5 is outside"):
+        load_config(write(tmp_path, "[objects]\narrival_share = 1.5\n"))
     config = load_config(write(tmp_path, '[objects]\nseeds = "moving"\nfill_moving = false\n'))
     assert config["objects"]["seeds"] == "moving" and config["objects"]["fill_moving"] is False

@@ -21,7 +21,9 @@ current scan). ``infrastructure`` cells do not take part: the map says
 a building stands there, it cannot move, and a car at a façade would otherwise grow into
 the whole building. A cluster is kept if it has at least ``min_cells`` cells and its
 bounding box is at most ``max_extent_m`` on each side (a false seed at a wall grows along
-the wall, far beyond any vehicle).
+the wall, far beyond any vehicle); with ``keep_tracked_small``, a cluster grown from a cell
+that a track which has moved held in the previous frame is kept whatever its size (the
+track has shown it is an object: a car seen through a gap, a pedestrian of one cell).
 
 The growth is one compiled pass (numba): a scan of the window for seeds, then a flood fill
 from each seed not yet in a cluster, touching only the clusters' cells and their
@@ -58,6 +60,9 @@ class ClusterParams:
     #: objects.seeds: "moving" (decided-moving cells seed, growth through every occupied
     #: decision) or "occupied" (every cell seen occupied now seeds; module docstring)
     seeds: str = "moving"  # configs/default.toml: "occupied"
+    #: objects.keep_tracked_small: a cluster grown from an extra seed (a cell a track that
+    #: has moved held in the previous frame) is kept whatever its size
+    keep_tracked_small: bool = False
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> ClusterParams:
@@ -65,7 +70,8 @@ class ClusterParams:
         return ClusterParams(min_cells=int(o["min_cluster_cells"]),
                              max_extent_m=float(o["max_cluster_extent_m"]),
                              seed_conflict_fo=float(o["seed_conflict_fo"]),
-                             seeds=str(o["seeds"]))
+                             seeds=str(o["seeds"]),
+                             keep_tracked_small=bool(o.get("keep_tracked_small", False)))
 
 
 @dataclass(frozen=True)
@@ -185,6 +191,12 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_
     return n_clusters, n_cells
 
 
+def tracked_clusters(first_cells: np.ndarray, extra_seeds: np.ndarray) -> np.ndarray:
+    """(n,) bool: the clusters grown from an extra seed. The extra seeds are grown first, so
+    a cluster holds a (growable) extra seed exactly when its first cell is one."""
+    return np.isin(first_cells, extra_seeds)
+
+
 class Clusterer:
     """Reusable scratch buffers for :meth:`clusters` over windows of one shape."""
 
@@ -229,7 +241,10 @@ class Clusterer:
         res = window.resolution_m
         span_r = (stats[:, 5] - stats[:, 4] + 1) * res
         span_c = (stats[:, 7] - stats[:, 6] + 1) * res
-        keep = ((count >= self.params.min_cells) & (span_r <= self.params.max_extent_m + 1e-9)
+        big_enough = count >= self.params.min_cells
+        if self.params.keep_tracked_small and len(extra):
+            big_enough |= tracked_clusters(self._cells[offsets[:-1]], extra)
+        keep = (big_enough & (span_r <= self.params.max_extent_m + 1e-9)
                 & (span_c <= self.params.max_extent_m + 1e-9))
         kept = np.flatnonzero(keep)
         all_cells = self._cells[:used]

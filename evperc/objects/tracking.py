@@ -85,6 +85,12 @@ class TrackingParams:
     vacated_frames: int = 3
     #: objects.vacated_share: share of that footprint decided free now for vacated evidence
     vacated_share: float = 0.3
+    #: objects.evidence_every_frame: count the evidence of every associated frame, not only
+    #: of the frames whose velocity passed (:func:`frame_evidence`)
+    evidence_every_frame: bool = False
+    #: objects.arrival_share: a frame in which at least this share of the cluster's cells is
+    #: decided moving is the whole evidence at once (0: off; :func:`frame_evidence`)
+    arrival_share: float = 0.0
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> TrackingParams:
@@ -98,7 +104,9 @@ class TrackingParams:
             centroid_sigma_m=float(o["centroid_sigma_m"]),
             motion_evidence_frames=int(o["motion_evidence_frames"]),
             conflict_cells=int(o["conflict_cells"]), vacated_frames=int(o["vacated_frames"]),
-            vacated_share=float(o["vacated_share"]))
+            vacated_share=float(o["vacated_share"]),
+            evidence_every_frame=bool(o.get("evidence_every_frame", False)),
+            arrival_share=float(o.get("arrival_share", 0.0)))
 
 
 @dataclass
@@ -338,6 +346,25 @@ def vacated_share(footprint: np.ndarray, decision: np.ndarray, window: Window) -
     return free / len(footprint)
 
 
+def frame_evidence(t: Track, clusters: Clusters, c: int, decision: np.ndarray | None,
+                   window: Window, params: TrackingParams) -> tuple[int, int]:
+    """The motion evidence (conflict, vacated) that track ``t``'s association with cluster
+    ``c`` adds this frame (module docstring), counted in the frames whose velocity passes
+    the test (or, with ``evidence_every_frame``, in every associated frame). Arrival: with
+    ``arrival_share`` > 0, a cluster of which at least that share of the cells is decided
+    moving (free before, occupied now: the object arrived in cells seen free) counts
+    ``motion_evidence_frames`` frames of conflict evidence at once."""
+    seeds = int(clusters.seeds[c])
+    conflict = int(seeds >= params.conflict_cells)
+    if conflict and params.arrival_share > 0:
+        size = int(clusters.offsets[c + 1] - clusters.offsets[c])
+        if seeds >= params.arrival_share * size:
+            conflict = max(1, params.motion_evidence_frames)
+    vacated = int(decision is not None and len(t.past) == params.vacated_frames
+                  and vacated_share(t.past[0], decision, window) >= params.vacated_share)
+    return conflict, vacated
+
+
 def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns: int,
                params: TrackingParams, decision: np.ndarray | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -398,11 +425,10 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
             t.past.append(t.footprint)
             del t.past[:-params.vacated_frames]
         fast = is_moving(v, sigma, params)
-        if fast:  # evidence counts in the frames whose velocity passes the test
-            t.conflict_evidence += int(clusters.seeds[c] >= params.conflict_cells)
-            t.vacated_evidence += int(
-                decision is not None and len(t.past) == params.vacated_frames
-                and vacated_share(t.past[0], decision, window) >= params.vacated_share)
+        if fast or params.evidence_every_frame:
+            conflict, vacated = frame_evidence(t, clusters, c, decision, window, params)
+            t.conflict_evidence += conflict
+            t.vacated_evidence += vacated
         need = params.motion_evidence_frames
         t.moving = fast and max(t.conflict_evidence, t.vacated_evidence) >= need
         if t.moving and t.hits >= params.confirm_frames:

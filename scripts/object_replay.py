@@ -1,0 +1,308 @@
+#!/usr/bin/env python3
+"""Replay the object stage on recorded fusion outputs, to compare ``[objects]`` settings on
+simulated drives in seconds (issue 21).
+
+The object stage (clusters, tracks, fill; docs/method.md §8) reads only the fusion's outputs
+of the frame — the decision before the fill, betP(M), ∅_FO, the cells holding a return — and
+writes nothing back into the fusion state, so those inputs, recorded once per drive by a run
+with a hook (:func:`record`), replay the stage exactly under any ``[objects]`` values
+(:func:`replay`). The replayed frames are scored by :func:`evperc.eval.metrics.evaluate` as a
+run would be. The footprint completion (:mod:`evperc.objects.footprint`) is replayed too (the scan's
+cells seen free or holding a return are recorded). The unmapped cue, which never touches a
+moving cell, is not replayed: the
+cells it relabelled in the recorded run keep that label unless the replay decides them
+moving (moving scores, latency and object scores are exact; stopped / unmapped approximate).
+
+    PYTHONPATH=$PWD .venv/bin/python scripts/object_replay.py --work /tmp/objstudy \\
+        --seeds 1,2 --set "" --set "confirm_frames=2" --set "min_cluster_cells=2"
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import logging
+import subprocess
+import sys
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from evperc import runner as runner_mod  # noqa: E402
+from evperc.eval.metrics import evaluate  # noqa: E402
+from evperc.fusion.twin import DECISION_CODES  # noqa: E402
+from evperc.geo.window import Window  # noqa: E402
+from evperc.objects import stage as stage_mod  # noqa: E402
+from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints  # noqa: E402,E501
+from evperc.objects.stage import ObjectStage, fill_moving  # noqa: E402
+from evperc.objects.tracking import TrackerState  # noqa: E402
+from evperc.output.objects import moving_object_cells, object_labels  # noqa: E402
+
+log = logging.getLogger("object_replay")
+OSM = REPO / "tests" / "data" / "osm"
+SECONDS = {"ibeo4": 20, "hdl64": 10}
+INPUTS = "object_inputs.npz"
+_UNMAPPED = DECISION_CODES["unmapped"]
+_MOVING = DECISION_CODES["moving"]
+
+
+def simulated_drive(work: Path, profile: str, seed: str) -> Path:
+    """WORK/drives/PROFILE-sSEED, simulated as scripts/object_study.py does if absent."""
+    drive = work / "drives" / f"{profile}-s{seed}"
+    if not (drive / "truth" / "manifest.json").exists():
+        subprocess.run([sys.executable, "-m", "evperc", "-q", "simulate", "--map",
+                        str(OSM / "helsinki_buildings.geojson"), "--roads",
+                        str(OSM / "helsinki_roads.geojson"), "--profile", profile,
+                        "--seconds", str(SECONDS[profile]), "--seed", seed, "--out",
+                        str(drive), "--overwrite"], check=True, cwd=REPO)
+    return drive
+
+
+def record(drive: Path, out: Path, config: Path | None = None) -> Path:
+    """``evperc run`` of ``drive`` (with its map) into ``out``, in this process, saving the
+    object stage's inputs of every frame to ``out/object_inputs.npz``."""
+    from evperc.cli import cli
+    frames: list[tuple[Any, ...]] = []
+    original = stage_mod.ObjectStage.step
+    original_pipeline = runner_mod.Pipeline.sensor_grid
+    speaks: dict[int, np.ndarray] = {}  # per stamp, the cells seen free or holding a return
+
+    def pipeline_hooked(self: Any, inputs: Any) -> Any:
+        done = original_pipeline(self, inputs)  # in the decode thread or the step's
+        if done.free is not None:
+            speaks[int(done.stamp_ns)] = (done.free > 0) | (done.occupied > 0)
+        return done
+
+    def hooked(self: Any, state: Any, decision: np.ndarray, betp_moving: np.ndarray,
+               conflict_fo: np.ndarray, window: Window, stamp_ns: int,
+               occupied_now: np.ndarray | None = None) -> Any:
+        if decision.shape[0] >= 20:  # not the runner's warm-up on a tiny window
+            frames.append((int(stamp_ns), window.row0, window.col0, decision.copy(),
+                           betp_moving.copy(), conflict_fo.copy(),
+                           np.packbits(np.asarray(occupied_now, bool).reshape(-1)),
+                           np.packbits(speaks.pop(int(stamp_ns)).reshape(-1))))
+        return original(self, state, decision, betp_moving, conflict_fo, window, stamp_ns,
+                        occupied_now)
+
+    stage_mod.ObjectStage.step = hooked  # type: ignore[method-assign]
+    runner_mod.Pipeline.sensor_grid = pipeline_hooked  # type: ignore[method-assign]
+    try:
+        args = ["-q", "run", str(drive / "drive.mcap"), "--map", str(drive / "map.geojson"),
+                "--out", str(out), "--overwrite"]
+        if config is not None:
+            args += ["--config", str(config)]
+        cli(args, standalone_mode=False)
+    finally:
+        stage_mod.ObjectStage.step = original  # type: ignore[method-assign]
+        runner_mod.Pipeline.sensor_grid = original_pipeline  # type: ignore[method-assign]
+    path = out / INPUTS
+    np.savez_compressed(
+        path, stamp_ns=np.array([f[0] for f in frames], np.int64),
+        origin=np.array([(f[1], f[2]) for f in frames], np.int64),
+        decision=np.stack([f[3] for f in frames]), betp_moving=np.stack([f[4] for f in frames]),
+        conflict_fo=np.stack([f[5] for f in frames]),
+        occupied=np.stack([f[6] for f in frames]), speaks=np.stack([f[7] for f in frames]))
+    return path
+
+
+@dataclass
+class ReplayFrame:
+    """The parts of :class:`evperc.output.reader.Frame` that evaluate reads."""
+
+    index: int
+    stamp_ns: int
+    pose: Any
+    origin: tuple[int, int]
+    decision: np.ndarray
+    objects: np.ndarray
+    object_cells: np.ndarray
+
+    def object_labels(self) -> np.ndarray:
+        return object_labels(self.objects, self.object_cells, self.decision.shape)
+
+
+class ReplayRun:
+    """A run's frames with the replayed decisions and objects (for evaluate)."""
+
+    def __init__(self, run: Any, frames: list[ReplayFrame]) -> None:
+        self.decision_codes = run.decision_codes
+        self.resolution_m = run.resolution_m
+        self.crs = getattr(run, "crs", None)
+        self.frames = frames
+
+
+StepFn = Callable[[ObjectStage, TrackerState, np.ndarray, np.ndarray, np.ndarray, Window, int,
+                   np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> ReplayRun:
+    """The recorded run ``out`` with its object stage replayed under ``config``. ``step``:
+    replaces :meth:`ObjectStage.step` (same signature), e.g. to trace it."""
+    from evperc import load
+    run = load(out)
+    data = np.load(out / INPUTS)
+    stamps, origins = data["stamp_ns"], data["origin"]
+    if "speaks" not in data.files:
+        raise SystemExit(f"{out / INPUTS}: recorded before the scan's cells; delete it")
+    decisions, betps, conflicts, occs = (data["decision"], data["betp_moving"],
+                                         data["conflict_fo"], data["occupied"])
+    shape = decisions.shape[1:]
+    res = run.resolution_m
+    stage = ObjectStage(config, shape)
+    state = TrackerState()
+    fp_params, fp_state = FootprintParams.from_config(config), FootprintState()
+    stored = {f.stamp_ns: f for f in run.frames}
+    frames = []
+    fill = stage_mod.fills_decision(config)
+    for k in range(len(stamps)):
+        window = Window(res, shape[0], shape[1], int(origins[k, 0]), int(origins[k, 1]))
+        decision = decisions[k].copy()
+        occ = np.unpackbits(occs[k])[:shape[0] * shape[1]].reshape(shape).astype(bool)
+        args = (state, decision, betps[k], conflicts[k], window, int(stamps[k]), occ)
+        objects, cells = step(stage, *args) if step is not None else stage.step(*args)
+        if fp_params.frames > 0:
+            speaks = np.unpackbits(data["speaks"][k])[:occ.size].reshape(shape).astype(bool)
+            objects, cells = complete_footprints(fp_state, objects, cells, window,
+                                                 int(stamps[k]), speaks, fp_params)
+        moving = moving_object_cells(objects, cells)
+        if fill:
+            fill_moving(decision, moving)
+        f = stored.get(int(stamps[k]))
+        if f is not None:  # the unmapped cue's cells, where the replay did not decide moving
+            relabel = (np.asarray(f.decision) == _UNMAPPED) & (decision != _MOVING)
+            decision[relabel] = _UNMAPPED
+        frames.append(ReplayFrame(k, int(stamps[k]), None if f is None else f.pose,
+                                  (int(origins[k, 0]), int(origins[k, 1])), decision, objects,
+                                  cells))
+    return ReplayRun(run, frames)
+
+
+def parse_set(text: str) -> dict[str, Any]:
+    """``"a=1,b=x"`` → overrides of ``[objects]`` (TOML values)."""
+    if not text.strip():
+        return {}
+    return tomllib.loads("\n".join(p.strip() for p in text.split(";") if p.strip()))
+
+
+def with_objects(config: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    c = copy.deepcopy(config)
+    c["objects"].update(overrides)
+    return c
+
+
+def scores(run: Any, truth: Any) -> dict[str, Any]:
+    """The issue-21 scores of one run: moving P/R strict and within one cell, missed
+    episodes, object P/R (visible cells), moving F1 (observed cells)."""
+    v = evaluate(run, truth, cells="visible")
+    o = evaluate(run, truth, cells="observed")
+    mv, tol, lat, obj = (v["per_class"]["moving"], v["moving_within_one_cell"],
+                         v["latency_frames"], v["objects"] or {})
+    return {"P": mv["precision"], "R": mv["recall"], "tP": tol["precision"], "tR": tol["recall"],
+            "tc": (tol["correct"], tol["decided"], tol["found"], tol["support"]),
+            "sc": _strict_counts(v),
+            "episodes": lat["episodes"], "missed": lat["missed"],
+            "obs_episodes": o["latency_frames"]["episodes"],
+            "obs_missed": o["latency_frames"]["missed"],
+            "oP": obj.get("precision"), "oR": obj.get("recall"),
+            "oc": (obj.get("moving_matched", 0), obj.get("moving_reported", 0),
+                   obj.get("moving_found", 0), obj.get("moving_truth", 0)),
+            "obsF1": o["per_class"]["moving"]["f1"],
+            "stoppedF1": v["per_class"].get("stopped", {}).get("f1")}
+
+
+def _strict_counts(metrics: dict[str, Any]) -> tuple[int, int, int]:
+    """(TP, decided moving, truth moving) of the confusion matrix."""
+    conf = metrics["confusion"]
+    counts = np.array(conf["counts"])
+    i, j = conf["truth"].index("moving"), conf["decision"].index("moving")
+    return int(counts[i, j]), int(counts[:, j].sum()), int(counts[i].sum())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--work", type=Path, required=True)
+    parser.add_argument("--seeds", default="1,2")
+    parser.add_argument("--profiles", default="ibeo4,hdl64")
+    parser.add_argument("--config", type=Path, help="the runs' --config (and the base)")
+    parser.add_argument("--set", action="append", default=None,
+                        help="[objects] overrides, 'key=value;key=value' (repeatable)")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    from evperc.config import load_config
+    from evperc.sim.truth import load_truth
+    sets = args.set or [""]
+    base = load_config(args.config)
+    table: dict[str, dict[str, dict[str, Any]]] = {s: {} for s in sets}
+    for profile in args.profiles.split(","):
+        for seed in args.seeds.split(","):
+            drive = simulated_drive(args.work, profile, seed)
+            out = args.work / "replay_runs" / f"{profile}-s{seed}"
+            if not (out / INPUTS).exists():
+                record(drive, out, args.config)
+            truth = load_truth(drive / "truth")
+            for s in sets:
+                table[s][f"{profile}-s{seed}"] = r = scores(
+                    replay(out, with_objects(base, parse_set(s))), truth)
+                log.info("%s %s-s%s %s", s or "(defaults)", profile, seed, r)
+    print_table(table)
+    print_means(table)
+
+
+def print_means(table: dict[str, dict[str, dict[str, Any]]]) -> None:
+    """docs/evaluation.md's convention: ±1-cell P / R as the mean over the seeds, missed
+    episodes pooled on the observed cells."""
+    print("\n| set | profile | P ±1 cell (mean of seeds) | R ±1 cell (mean) | missed episodes "
+          "(observed cells, pooled) | (visible cells, pooled) |")
+    print("|---|---|---|---|---|---|")
+    for s, runs in table.items():
+        for profile in sorted({n.split("-")[0] for n in runs}):
+            p = pooled([r for n, r in runs.items() if n.startswith(profile)])
+            print(f"| {s or 'defaults'} | {profile} | {p['tP_mean']:.3f} | {p['tR_mean']:.3f} | "
+                  f"{p['obs_missed']} / {p['obs_episodes']} | {p['missed']} / {p['episodes']} |")
+
+
+def pooled(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Pooled counts of several runs' scores."""
+    tc = np.sum([r["tc"] for r in rows], axis=0)
+    oc = np.sum([r["oc"] for r in rows], axis=0)
+
+    def ratio(a: float, b: float) -> float | None:
+        return float(a / b) if b else None
+    sc = np.sum([r["sc"] for r in rows], axis=0)
+    return {"tP": ratio(tc[0], tc[1]), "tR": ratio(tc[2], tc[3]),
+            "tP_mean": float(np.mean([r["tP"] for r in rows if r["tP"] is not None])),
+            "tR_mean": float(np.mean([r["tR"] for r in rows if r["tR"] is not None])),
+            "obs_missed": sum(r["obs_missed"] for r in rows),
+            "obs_episodes": sum(r["obs_episodes"] for r in rows),
+            "P": ratio(sc[0], sc[1]), "R": ratio(sc[0], sc[2]),
+            "missed": sum(r["missed"] for r in rows), "episodes": sum(r["episodes"] for r in rows),
+            "oP": ratio(oc[0], oc[1]), "oR": ratio(oc[2], oc[3])}
+
+
+def print_table(table: dict[str, dict[str, dict[str, Any]]]) -> None:
+    def f(v: Any) -> str:
+        return "–" if v is None else f"{v:.3f}"
+    print("\n| set | run | moving P | R | P (±1 cell) | R (±1 cell) | missed / episodes | "
+          "object P | object R | observed moving F1 |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for s, runs in table.items():
+        for name, r in runs.items():
+            print(f"| {s or 'defaults'} | {name} | {f(r['P'])} | {f(r['R'])} | {f(r['tP'])} | "
+                  f"{f(r['tR'])} | {r['missed']} / {r['episodes']} | {f(r['oP'])} | "
+                  f"{f(r['oR'])} | {f(r['obsF1'])} |")
+        for profile in sorted({n.split("-")[0] for n in runs}):
+            p = pooled([r for n, r in runs.items() if n.startswith(profile)])
+            print(f"| {s or 'defaults'} | **{profile} pooled** | {f(p['P'])} | {f(p['R'])} | "
+                  f"{f(p['tP'])} | {f(p['tR'])} | {p['missed']} / {p['episodes']} | "
+                  f"{f(p['oP'])} | {f(p['oR'])} | |")
+
+
+if __name__ == "__main__":
+    main()

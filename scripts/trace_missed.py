@@ -1,0 +1,361 @@
+#!/usr/bin/env python3
+"""Why moving agents are missed (issue 21): runs ``evperc run`` in process with a hook on the
+object stage, then attributes every missed moving agent-frame of the simulator's truth to a
+cause, and summarises the moving episodes never detected.
+
+An agent-frame is an agent with a cell of truth class M that is ``visible`` in the frame (the
+true moving objects of :class:`evperc.eval.metrics.ObjectScore`). It is *found* if a reported
+``moving`` object holds a majority of agent cells of that agent (the same rule). A missed one
+gets the first cause that applies, in the order of the pipeline:
+
+- ``no_return``: no cell of the agent (dilated by one cell: returns spill) holds a return of
+  this scan and none is decided moving: nothing to cluster;
+- ``small_cluster``: the agent's returns form groups (the clustering with no size limit)
+  all smaller than ``min_cluster_cells``;
+- ``too_large``: the group is longer than ``max_cluster_extent_m`` (merged with a wall);
+- ``young_track``: its cluster's track has fewer than ``confirm_frames`` associations;
+- ``velocity_test``: the track is confirmed but its fitted velocity fails the speed or
+  Mahalanobis test;
+- ``no_evidence``: the velocity passes but the grid's motion evidence is still short of
+  ``motion_evidence_frames``;
+- ``merged``: a moving object is reported there, but most of its cells are another agent's;
+- ``adjacent``: a moving object is reported on the agent's returns, but they lie in the
+  cells next to its truth-M cells (the match counts M cells only);
+- ``other``: none of the above (the agent's returns are in no kept cluster or no track).
+
+Cell level: the visible truth-M cells not decided ``moving`` are split by what they are
+decided and by whether their agent was found (a found agent's undecided cells are what a
+footprint completion could fill).
+
+    PYTHONPATH=$PWD .venv/bin/python scripts/trace_missed.py --work /tmp/objstudy --seeds 1,2
+    (the drives of scripts/object_study.py: WORK/drives/PROFILE-sSEED, simulated if absent;
+    the object stage replayed on the fusion outputs recorded by scripts/object_replay.py)
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import logging
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "scripts"))
+
+import object_replay  # noqa: E402
+
+from evperc.eval.metrics import dilate_one_cell  # noqa: E402
+from evperc.fusion.twin import DECISION_CODES  # noqa: E402
+from evperc.objects.clusters import Clusterer, ClusterParams  # noqa: E402
+from evperc.objects.tracking import footprint_seeds, is_moving, track_step  # noqa: E402
+from evperc.output.objects import OBJECT_STATES  # noqa: E402
+from evperc.sim.truth import load_truth  # noqa: E402
+
+log = logging.getLogger("trace_missed")
+
+CAUSES = ("no_return", "small_cluster", "too_large", "young_track", "velocity_test",
+          "no_evidence", "merged", "adjacent", "other")
+_NAMES = {v: k for k, v in DECISION_CODES.items()}
+
+
+@dataclass
+class FrameRecord:
+    """What the object stage saw and did in one frame (global lattice = window + origin)."""
+
+    stamp_ns: int
+    row0: int
+    col0: int
+    shape: tuple[int, int]
+    occupied: np.ndarray          # flat window indices holding a return
+    relaxed_cells: np.ndarray     # clusters without size limits, flat, cluster by cluster
+    relaxed_offsets: np.ndarray
+    relaxed_extent: np.ndarray    # (n,) largest bbox side, m
+    kept_label: dict[int, int]    # flat window cell -> kept cluster index
+    cluster_track: list[dict[str, Any] | None]  # per kept cluster: its track after the step
+    moving_objects: list[np.ndarray]  # flat cells of each reported moving object
+
+
+RECORDS: list[FrameRecord] = []
+
+
+def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.ndarray,
+                conflict_fo: np.ndarray, window: Any, stamp_ns: int,
+                occupied_now: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`ObjectStage.step` (the same calls, the same results) that appends a
+    :class:`FrameRecord` to :data:`RECORDS`."""
+    seeds = footprint_seeds(state, window)
+    clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds,
+                                       occupied_now)
+    relaxed = getattr(self, "_trace_relaxed", None)
+    if relaxed is None:
+        p = self.cluster_params
+        rp = ClusterParams(min_cells=1, max_extent_m=1e9, seed_conflict_fo=p.seed_conflict_fo,
+                           seeds=p.seeds)
+        relaxed = self._trace_relaxed = Clusterer(rp, decision.shape)
+    rc = relaxed.clusters(decision, betp_moving, conflict_fo, window, seeds, occupied_now)
+    records, cells = track_step(state, clusters, window, stamp_ns, self.tracking_params,
+                                decision)
+    extent = np.maximum(rc.bbox_m[:, 2] - rc.bbox_m[:, 0], rc.bbox_m[:, 3] - rc.bbox_m[:, 1]) \
+        if len(rc) else np.zeros(0)
+    kept_label: dict[int, int] = {}
+    first_of: dict[tuple[int, int], int] = {}
+    for k in range(len(clusters)):
+        ck = clusters.cells_of(k)
+        for c in ck.tolist():
+            kept_label[c] = k
+        r, c = divmod(int(ck[0]), window.cols)
+        first_of[(r + window.row0, c + window.col0)] = k
+    cluster_track: list[dict[str, Any] | None] = [None] * len(clusters)
+    tp = self.tracking_params
+    for t in state.tracks:
+        if t.missed or not len(t.footprint):
+            continue
+        k = first_of.get((int(t.footprint[0, 0]), int(t.footprint[0, 1])))
+        if k is None:
+            continue
+        cluster_track[k] = {"id": t.track_id, "hits": t.hits,
+                            "fast": is_moving(t.velocity, t.sigma, tp), "moving": t.moving,
+                            "ever_moving": t.ever_moving, "speed": math.hypot(*t.velocity),
+                            "sigma": t.sigma,
+                            "evidence": (t.conflict_evidence, t.vacated_evidence)}
+    moving_objects = []
+    at = 0
+    for rec in records:
+        n = int(rec["cell_count"])
+        if rec["state"] == OBJECT_STATES["moving"]:
+            moving_objects.append(np.asarray(cells[at:at + n], np.int64))
+        at += n
+    occ = (np.flatnonzero(occupied_now.reshape(-1)) if occupied_now is not None
+           else np.zeros(0, np.int64))
+    RECORDS.append(FrameRecord(int(stamp_ns), window.row0, window.col0, decision.shape, occ,
+                               rc.cells.copy(), rc.offsets.copy(), extent, kept_label,
+                               cluster_track, moving_objects))
+    return records, cells
+
+
+def _to_window(lattice_rc: np.ndarray, rec: FrameRecord) -> np.ndarray:
+    r = lattice_rc[:, 0] - rec.row0
+    c = lattice_rc[:, 1] - rec.col0
+    ok = (r >= 0) & (r < rec.shape[0]) & (c >= 0) & (c < rec.shape[1])
+    return r[ok] * rec.shape[1] + c[ok]
+
+
+def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str, Any]
+              ) -> dict[str, Any]:
+    """Causes per missed agent-frame, the missed episodes and the cell-level split."""
+    by_stamp = {r.stamp_ns: r for r in records}
+    run_by_stamp = {f.stamp_ns: f for f in run.frames}
+    min_cells = int(params["min_cluster_cells"])
+    max_extent = float(params["max_cluster_extent_m"])
+    confirm = int(params["confirm_frames"])
+    roles = {a["id"]: a for a in truth.agents}
+    causes: collections.Counter[str] = collections.Counter()
+    by_role: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
+    found_n = total_n = 0
+    cells_split: collections.Counter[str] = collections.Counter()
+    per_agent: dict[int, list[dict[str, Any]]] = collections.defaultdict(list)
+    centroids: dict[int, list[tuple[int, float, float]]] = collections.defaultdict(list)
+    for t in truth.frames:
+        rec = by_stamp.get(t.stamp_ns)
+        f = run_by_stamp.get(t.stamp_ns)
+        if rec is None or f is None:
+            continue
+        tw = t.window
+        res = tw.resolution_m
+        agent_ids = np.unique(t.agent[t.agent > 0])
+        for a in agent_ids.tolist():  # centroids of every agent, for its speed
+            rr, cc = np.nonzero(t.agent == a)
+            centroids[a].append((t.stamp_ns, (cc.mean() + tw.col0 + 0.5) * res,
+                                 (rr.mean() + tw.row0 + 0.5) * res))
+        is_m = (t.classes == truth.class_codes["moving"]) & (t.agent > 0)
+        vis_m = is_m & t.visible
+        visible_agents = np.unique(t.agent[vis_m]).tolist()
+        # run window rasters of this frame
+        shape = rec.shape
+        occ = np.zeros(shape[0] * shape[1], bool)
+        occ[rec.occupied] = True
+        relaxed_label = np.full(shape[0] * shape[1], -1, np.int64)
+        for k in range(len(rec.relaxed_offsets) - 1):
+            relaxed_label[rec.relaxed_cells[rec.relaxed_offsets[k]:rec.relaxed_offsets[k + 1]]] = k
+        sizes = np.diff(rec.relaxed_offsets)
+        # truth agent ids on the run window (for the object match)
+        agent_run = np.zeros(shape[0] * shape[1], np.int64)
+        tr, tc = np.nonzero(is_m)
+        flat_run = _to_window(np.stack([tr + tw.row0, tc + tw.col0], 1), rec)
+        inside = ((tr + tw.row0 - rec.row0 >= 0) & (tr + tw.row0 - rec.row0 < shape[0])
+                  & (tc + tw.col0 - rec.col0 >= 0) & (tc + tw.col0 - rec.col0 < shape[1]))
+        agent_run[flat_run] = t.agent[tr[inside], tc[inside]]
+        found: set[int] = set()
+        merged_over: set[int] = set()
+        for cells in rec.moving_objects:
+            hits = agent_run[cells]
+            hits = hits[hits > 0]
+            if hits.size:
+                best = int(np.bincount(hits).argmax())
+                found.add(best)
+                merged_over.update(set(np.unique(hits).tolist()) - {best})
+        final = np.asarray(f.decision).reshape(-1)
+        for a in visible_agents:
+            total_n += 1
+            role = str(roles.get(a, {}).get("role", "?"))
+            ar, ac = np.nonzero(t.agent == a)
+            mask = np.zeros(t.agent.shape, bool)
+            mask[ar, ac] = True
+            dil = dilate_one_cell(mask)
+            dr, dc = np.nonzero(dil)
+            near = _to_window(np.stack([dr + tw.row0, dc + tw.col0], 1), rec)
+            vr, vc = np.nonzero(vis_m & (t.agent == a))
+            vis_cells = _to_window(np.stack([vr + tw.row0, vc + tw.col0], 1), rec)
+            is_found = a in found
+            for code in final[vis_cells].tolist():
+                name = _NAMES.get(int(code), "?")
+                cells_split[("found " if is_found else "missed ") + name] += 1
+            info = {"stamp": t.stamp_ns, "found": is_found, "cells": int(mask.sum()),
+                    "visible": int(len(vis_cells)), "detected_cells": int(np.count_nonzero(
+                        final[vis_cells] == DECISION_CODES["moving"]))}
+            if is_found:
+                found_n += 1
+                info["cause"] = None
+                per_agent[a].append(info)
+                continue
+            labels = relaxed_label[near]
+            has_ret = occ[near]
+            if not has_ret.any() and not (final[near] == DECISION_CODES["moving"]).any():
+                cause = "no_return"
+            else:
+                lab = labels[labels >= 0]
+                if lab.size == 0:
+                    cause = "other"
+                else:
+                    best = int(np.bincount(lab).argmax())
+                    info["group_cells"] = int(sizes[best])
+                    if sizes[lab].max() < min_cells:
+                        cause = "small_cluster"
+                    elif rec.relaxed_extent[best] > max_extent + 1e-9:
+                        cause = "too_large"
+                    else:
+                        kept = [rec.kept_label.get(int(c)) for c in near.tolist()]
+                        kept = [k for k in kept if k is not None]
+                        if not kept:
+                            cause = "other"  # returns in no kept cluster
+                        else:
+                            k = collections.Counter(kept).most_common(1)[0][0]
+                            tr_ = rec.cluster_track[k]
+                            if tr_ is None:
+                                cause = "other"
+                                info["other"] = "no_track"
+                            else:
+                                info["track"] = tr_
+                                if tr_["hits"] < confirm:
+                                    cause = "young_track"
+                                elif not tr_["fast"]:
+                                    cause = "velocity_test"
+                                elif not tr_["moving"]:
+                                    cause = "no_evidence"
+                                elif a in merged_over:
+                                    cause = "merged"
+                                else:  # reported moving, on the cells next to the agent's
+                                    cause = "adjacent"
+            info["cause"] = cause
+            causes[cause] += 1
+            by_role[role][cause] += 1
+            per_agent[a].append(info)
+    speeds = {}
+    for a, cs in centroids.items():
+        arr = np.array(cs)
+        if len(arr) >= 2:
+            d = np.hypot(np.diff(arr[:, 1]), np.diff(arr[:, 2]))
+            dt = np.diff(arr[:, 0]) * 1e-9
+            # path over duration: a one-cell pedestrian's centroid moves by whole cells
+            speeds[a] = float(d.sum() / max(dt.sum(), 1e-9))
+    episodes = []
+    for a, infos in per_agent.items():  # episodes: consecutive visible frames of an agent
+        infos.sort(key=lambda i: i["stamp"])
+        groups: list[list[dict[str, Any]]] = []
+        for i in infos:
+            if groups and i["stamp"] - groups[-1][-1]["stamp"] <= 150_000_000:
+                groups[-1].append(i)
+            else:
+                groups.append([i])
+        for g in groups:
+            detected = any(i["detected_cells"] for i in g)
+            ag = roles.get(a, {})
+            episodes.append({
+                "agent": a, "role": ag.get("role"), "length_m": ag.get("length_m"),
+                "width_m": ag.get("width_m"), "speed_m_per_s": speeds.get(a),
+                "frames": len(g), "found_frames": sum(i["found"] for i in g),
+                "cell_detected": detected, "max_visible_cells": max(i["visible"] for i in g),
+                "causes": dict(collections.Counter(i["cause"] for i in g if i["cause"])),
+                "group_cells": sorted({i.get("group_cells") for i in g
+                                       if i.get("group_cells") is not None})})
+    return {"agent_frames": total_n, "found": found_n, "causes": dict(causes),
+            "by_role": {k: dict(v) for k, v in by_role.items()},
+            "cells": dict(cells_split), "episodes": episodes}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--work", type=Path, required=True)
+    parser.add_argument("--seeds", default="1,2")
+    parser.add_argument("--profiles", default="ibeo4,hdl64")
+    parser.add_argument("--config", type=Path, help="a --config file for the runs")
+    parser.add_argument("--set", default="", help="[objects] overrides of the replay, "
+                        "'key=value;key=value' (scripts/object_replay.py)")
+    parser.add_argument("--json", type=Path, help="write every result here")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    from evperc.config import load_config
+    config = object_replay.with_objects(load_config(args.config),
+                                        object_replay.parse_set(args.set))
+    results = {}
+    for profile in args.profiles.split(","):
+        for seed in args.seeds.split(","):
+            drive = object_replay.simulated_drive(args.work, profile, seed)
+            out = args.work / "replay_runs" / f"{profile}-s{seed}"
+            if not (out / object_replay.INPUTS).exists():
+                object_replay.record(drive, out, args.config)
+            RECORDS.clear()
+            run = object_replay.replay(out, config, step=traced_step)
+            results[f"{profile}-s{seed}"] = attribute(list(RECORDS), load_truth(
+                drive / "truth"), run, config["objects"])
+    print_report(results)
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1, default=str))
+
+
+def print_report(results: dict[str, Any]) -> None:
+    print("\n| run | agent-frames | found | " + " | ".join(CAUSES) + " |")
+    print("|---|---|---|" + "---|" * len(CAUSES))
+    for name, r in results.items():
+        print(f"| {name} | {r['agent_frames']} | {r['found']} | "
+              + " | ".join(str(r["causes"].get(c, 0)) for c in CAUSES) + " |")
+    print("\nBy role (missed agent-frames):")
+    for name, r in results.items():
+        for role, c in sorted(r["by_role"].items()):
+            print(f"  {name} {role}: {dict(sorted(c.items(), key=lambda kv: -kv[1]))}")
+    print("\nVisible truth-M cells by final decision (found / missed agent):")
+    for name, r in results.items():
+        print(f"  {name}: {dict(sorted(r['cells'].items(), key=lambda kv: -kv[1]))}")
+    print("\nEpisodes never decided moving (cell level):")
+    for name, r in results.items():
+        eps = r["episodes"]
+        missed = [e for e in eps if not e["cell_detected"]]
+        print(f"  {name}: {len(missed)} of {len(eps)}")
+        for e in missed:
+            sp = e["speed_m_per_s"]
+            print(f"    agent {e['agent']} {e['role']} {e['length_m']:.1f}x{e['width_m']:.1f} m "
+                  f"{'?' if sp is None else f'{sp:.1f}'} m/s, {e['frames']} frames, "
+                  f"<= {e['max_visible_cells']} visible cells, groups {e['group_cells']}, "
+                  f"causes {e['causes']}")
+
+
+if __name__ == "__main__":
+    main()
