@@ -45,6 +45,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
@@ -53,6 +54,8 @@ from evperc.objects.clusters import Clusters
 from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
 
 _FREE = DECISION_CODES["free"]
+_STATE_MOVING = OBJECT_STATES["moving"]
+_STATE_STOPPED = OBJECT_STATES["stopped"]
 
 
 @dataclass(frozen=True)
@@ -86,10 +89,10 @@ class TrackingParams:
     #: objects.vacated_share: share of that footprint decided free now for vacated evidence
     vacated_share: float = 0.3
     #: objects.evidence_every_frame: count the evidence of every associated frame, not only
-    #: of the frames whose velocity passed (:func:`frame_evidence`)
+    #: of the frames whose velocity passed (:func:`track_step`)
     evidence_every_frame: bool = False
     #: objects.arrival_share: a frame in which at least this share of the cluster's cells is
-    #: decided moving is the whole evidence at once (0: off; :func:`frame_evidence`)
+    #: decided moving is the whole evidence at once (0: off; :func:`track_step`)
     arrival_share: float = 0.0
 
     @staticmethod
@@ -202,62 +205,86 @@ def is_moving(v: Sequence[float], sigma: float, params: TrackingParams) -> bool:
 
 
 class TrackerState:
-    """The tracks and the next id; part of the run's checkpointed state."""
+    """The tracks and the next id; part of the run's checkpointed state.
+
+    Struct of arrays, one row a track (in id order), laid out as the checkpoint stores them
+    (:meth:`to_arrays`): ``id``, ``hits``, ``missed`` (n,) int64; ``flags`` (n, 2) uint8
+    (ever moving, moving); ``hist_n`` (n,) int64 and ``hist_t`` (n, W) int64 / ``hist_xy``
+    (n, W, 2) float64, the recent associated stamps and centroids, oldest first in the first
+    ``hist_n`` columns, 0 after; ``velocity`` (n, 2), ``sigma`` (n,) float64; ``fp_n`` (n,)
+    int64 and ``fp`` (Σ fp_n, 2) int64, the global lattice (iy, ix) of each track's cells of
+    its last association, track by track; ``evidence`` (n, 2) int64 (conflict, vacated);
+    ``past_n`` (n, D) int64, the cells of each previous footprint, oldest first, −1 after,
+    and ``past`` their cells, track by track. W and D may exceed what the tracks use."""
 
     def __init__(self) -> None:
         self.next_id = 1
-        self.tracks: list[Track] = []
         self.prev_ns: int | None = None
+        self.id = np.zeros(0, np.int64)
+        self.hits = np.zeros(0, np.int64)
+        self.missed = np.zeros(0, np.int64)
+        self.flags = np.zeros((0, 2), np.uint8)
+        self.hist_n = np.zeros(0, np.int64)
+        self.hist_t = np.zeros((0, 0), np.int64)
+        self.hist_xy = np.zeros((0, 0, 2), np.float64)
+        self.velocity = np.zeros((0, 2), np.float64)
+        self.sigma = np.zeros(0, np.float64)
+        self.fp_n = np.zeros(0, np.int64)
+        self.fp = np.zeros((0, 2), np.int64)
+        self.evidence = np.zeros((0, 2), np.int64)
+        self.past_n = np.zeros((0, 0), np.int64)
+        self.past = np.zeros((0, 2), np.int64)
+
+    _ARRAYS = ("id", "hits", "missed", "flags", "hist_n", "hist_t", "hist_xy", "velocity",
+               "sigma", "fp_n", "fp", "evidence", "past_n", "past")
+
+    def __len__(self) -> int:
+        return len(self.id)
 
     def copy(self) -> TrackerState:
         other = TrackerState()
         other.next_id, other.prev_ns = self.next_id, self.prev_ns
-        other.tracks = [Track(t.track_id, t.hits, t.missed, t.ever_moving, list(t.t_ns),
-                              list(t.xy), t.velocity, t.sigma, t.moving, t.footprint.copy(),
-                              t.conflict_evidence, t.vacated_evidence,
-                              [f.copy() for f in t.past])
-                        for t in self.tracks]
+        for name in self._ARRAYS:
+            setattr(other, name, getattr(self, name).copy())
         return other
 
+    @property
+    def tracks(self) -> list[Track]:
+        """The tracks as :class:`Track` objects (a copy, for inspection)."""
+        fp_end = np.cumsum(self.fp_n)
+        past_at = 0
+        out = []
+        for i in range(len(self.id)):
+            k = int(self.hist_n[i])
+            past = []
+            for m in self.past_n[i]:
+                if m < 0:
+                    break
+                past.append(self.past[past_at:past_at + m].copy())
+                past_at += int(m)
+            out.append(Track(
+                int(self.id[i]), int(self.hits[i]), int(self.missed[i]), bool(self.flags[i, 0]),
+                [int(v) for v in self.hist_t[i, :k]],
+                [(float(x), float(y)) for x, y in self.hist_xy[i, :k]],
+                (float(self.velocity[i, 0]), float(self.velocity[i, 1])), float(self.sigma[i]),
+                bool(self.flags[i, 1]), self.fp[fp_end[i] - self.fp_n[i]:fp_end[i]].copy(),
+                int(self.evidence[i, 0]), int(self.evidence[i, 1]), past))
+        return out
+
     def to_arrays(self, prefix: str = "objects_") -> dict[str, np.ndarray]:
-        """Flat arrays for the checkpoint (:meth:`from_arrays` reads them back exactly)."""
-        n = len(self.tracks)
-        history = max([len(t.t_ns) for t in self.tracks], default=0)
-        hist_t = np.zeros((n, history), np.int64)
-        hist_xy = np.zeros((n, history, 2), np.float64)
-        hist_n = np.zeros(n, np.int64)
-        for i, t in enumerate(self.tracks):
-            k = len(t.t_ns)
-            hist_n[i] = k
-            hist_t[i, :k] = t.t_ns
-            hist_xy[i, :k] = t.xy
-        fps = [t.footprint for t in self.tracks]
-        depth = max([len(t.past) for t in self.tracks], default=0)
-        past_n = np.full((n, depth), -1, np.int64)  # cells of each past footprint, -1: none
-        pasts = []
-        for i, t in enumerate(self.tracks):
-            for k, f in enumerate(t.past):
-                past_n[i, k] = len(f)
-                pasts.append(f)
-        return {f"{prefix}next_id": np.int64(self.next_id),
-                f"{prefix}prev_ns": np.int64(-1 if self.prev_ns is None else self.prev_ns),
-                f"{prefix}id": np.array([t.track_id for t in self.tracks], np.int64),
-                f"{prefix}hits": np.array([t.hits for t in self.tracks], np.int64),
-                f"{prefix}missed": np.array([t.missed for t in self.tracks], np.int64),
-                f"{prefix}flags": np.array([[t.ever_moving, t.moving] for t in self.tracks],
-                                           np.uint8).reshape(n, 2),
-                f"{prefix}hist_n": hist_n, f"{prefix}hist_t": hist_t,
-                f"{prefix}hist_xy": hist_xy,
-                f"{prefix}velocity": np.array([t.velocity for t in self.tracks],
-                                              np.float64).reshape(n, 2),
-                f"{prefix}sigma": np.array([t.sigma for t in self.tracks], np.float64),
-                f"{prefix}fp_n": np.array([len(f) for f in fps], np.int64),
-                f"{prefix}fp": (np.concatenate(fps) if fps else np.zeros((0, 2), np.int64)),
-                f"{prefix}evidence": np.array([(t.conflict_evidence, t.vacated_evidence)
-                                               for t in self.tracks], np.int64).reshape(n, 2),
-                f"{prefix}past_n": past_n,
-                f"{prefix}past": (np.concatenate(pasts) if pasts
-                                  else np.zeros((0, 2), np.int64))}
+        """Flat arrays for the checkpoint (:meth:`from_arrays` reads them back exactly);
+        the history and the past footprints as wide as the tracks use."""
+        n = len(self.id)
+        history = int(self.hist_n.max()) if n else 0
+        depth = int((self.past_n >= 0).sum(axis=1).max()) if n and self.past_n.size else 0
+        arrays = {name: getattr(self, name).copy() for name in self._ARRAYS}
+        arrays["hist_t"] = np.ascontiguousarray(self.hist_t[:, :history])
+        arrays["hist_xy"] = np.ascontiguousarray(self.hist_xy[:, :history])
+        arrays["past_n"] = np.ascontiguousarray(self.past_n[:, :depth])
+        out = {f"{prefix}next_id": np.int64(self.next_id),
+               f"{prefix}prev_ns": np.int64(-1 if self.prev_ns is None else self.prev_ns)}
+        out.update({f"{prefix}{name}": arrays[name] for name in self._ARRAYS})
+        return out
 
     @staticmethod
     def from_arrays(arrays: Any, prefix: str = "objects_") -> TrackerState | None:
@@ -268,41 +295,39 @@ class TrackerState:
         state.next_id = int(arrays[f"{prefix}next_id"])
         prev = int(arrays[f"{prefix}prev_ns"])
         state.prev_ns = None if prev < 0 else prev
-        fp = arrays[f"{prefix}fp"]
-        ends = np.cumsum(arrays[f"{prefix}fp_n"])
-        has_past = f"{prefix}past_n" in arrays  # checkpoints written before motion evidence
-        past_n = arrays[f"{prefix}past_n"] if has_past else None
-        past = arrays[f"{prefix}past"] if has_past else None
-        past_at = 0
-        for i, tid in enumerate(arrays[f"{prefix}id"]):
-            k = int(arrays[f"{prefix}hist_n"][i])
-            ever, moving = (bool(v) for v in arrays[f"{prefix}flags"][i])
-            vx, vy = (float(v) for v in arrays[f"{prefix}velocity"][i])
-            state.tracks.append(Track(
-                int(tid), int(arrays[f"{prefix}hits"][i]), int(arrays[f"{prefix}missed"][i]),
-                ever, [int(v) for v in arrays[f"{prefix}hist_t"][i, :k]],
-                [(float(x), float(y)) for x, y in arrays[f"{prefix}hist_xy"][i, :k]],
-                (vx, vy), float(arrays[f"{prefix}sigma"][i]), moving,
-                np.array(fp[ends[i] - arrays[f"{prefix}fp_n"][i]:ends[i]], np.int64)))
-            if has_past:
-                t = state.tracks[-1]
-                t.conflict_evidence, t.vacated_evidence = (
-                    int(v) for v in arrays[f"{prefix}evidence"][i])
-                for m in past_n[i]:
-                    if m < 0:
-                        break
-                    t.past.append(np.array(past[past_at:past_at + m], np.int64))
-                    past_at += int(m)
+        dtypes = {"flags": np.uint8, "hist_xy": np.float64, "velocity": np.float64,
+                  "sigma": np.float64}
+        n = len(arrays[f"{prefix}id"])
+        for name in state._ARRAYS:
+            key = f"{prefix}{name}"
+            if key in arrays:
+                value = np.array(arrays[key], dtypes.get(name, np.int64))
+            elif name == "evidence":  # checkpoints written before motion evidence
+                value = np.zeros((n, 2), np.int64)
+            elif name == "past_n":
+                value = np.zeros((n, 0), np.int64)
+            elif name == "past":
+                value = np.zeros((0, 2), np.int64)
+            else:
+                raise KeyError(key)
+            setattr(state, name, value)
+        state.flags = state.flags.reshape(n, 2)
+        state.velocity = state.velocity.reshape(n, 2)
+        state.evidence = state.evidence.reshape(n, 2)
+        state.hist_t = state.hist_t.reshape(n, -1) if n else np.zeros((0, 0), np.int64)
+        state.hist_xy = state.hist_xy.reshape(n, state.hist_t.shape[1], 2)
+        state.past_n = state.past_n.reshape(n, -1) if n else np.zeros((0, 0), np.int64)
+        state.fp = state.fp.reshape(-1, 2)
+        state.past = state.past.reshape(-1, 2)
         return state
 
 
 def footprint_seeds(state: TrackerState, window: Window) -> np.ndarray:
     """Flat window indices of the cells held in their last frame by the tracks that have
-    moved (extra seeds for :meth:`evperc.objects.clusters.Clusterer.clusters`)."""
-    parts = [t.footprint for t in state.tracks if t.ever_moving and len(t.footprint)]
-    if not parts:
-        return np.zeros(0, np.int64)
-    return window_indices(np.concatenate(parts), window)
+    moved (extra seeds for :meth:`evperc.objects.clusters.Clusterer.clusters`), track by
+    track."""
+    return _seed_cells(state.fp, state.fp_n, state.flags, window.row0, window.col0,
+                       window.rows, window.cols)
 
 
 def window_indices(lattice: np.ndarray, window: Window) -> np.ndarray:
@@ -314,55 +339,458 @@ def window_indices(lattice: np.ndarray, window: Window) -> np.ndarray:
     return r[inside] * window.cols + c[inside]
 
 
-def _associate(predicted: np.ndarray, centroids: np.ndarray, gate_m: float
-               ) -> list[tuple[int, int]]:
-    """Greedy nearest-first pairs (track, cluster) within the gate."""
-    if len(predicted) == 0 or len(centroids) == 0:
-        return []
-    d = np.hypot(predicted[:, None, 0] - centroids[None, :, 0],
-                 predicted[:, None, 1] - centroids[None, :, 1])
-    ti, ci = np.nonzero(d <= gate_m)
-    order = np.lexsort((ci, ti, d[ti, ci]))
-    used_t: set[int] = set()
-    used_c: set[int] = set()
-    pairs = []
-    for k in order:
-        t, c = int(ti[k]), int(ci[k])
-        if t in used_t or c in used_c:
+@numba.njit(cache=True, nogil=True)
+def _seed_cells(fp, fp_n, flags, row0, col0, rows, cols):  # pragma: no cover - compiled
+    """:func:`footprint_seeds`: the window cells of the footprints of tracks that moved."""
+    out = np.empty(fp.shape[0], np.int64)
+    m = 0
+    at = 0
+    for i in range(fp_n.shape[0]):
+        end = at + fp_n[i]
+        if flags[i, 0]:
+            for q in range(at, end):
+                r = fp[q, 0] - row0
+                c = fp[q, 1] - col0
+                if 0 <= r < rows and 0 <= c < cols:
+                    out[m] = r * cols + c
+                    m += 1
+        at = end
+    return out[:m].copy()
+
+
+@numba.njit(cache=True, nogil=True)
+def _block_sum(a, start, n):  # pragma: no cover - compiled
+    """numpy's pairwise summation of ``a[start:start + n]``, n ≤ 128 (one block: 8
+    accumulators, then the rest in order; below 8 terms in order)."""
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[start + i]
+        return res
+    r0 = a[start]
+    r1 = a[start + 1]
+    r2 = a[start + 2]
+    r3 = a[start + 3]
+    r4 = a[start + 4]
+    r5 = a[start + 5]
+    r6 = a[start + 6]
+    r7 = a[start + 7]
+    i = 8
+    while i < n - n % 8:
+        r0 += a[start + i]
+        r1 += a[start + i + 1]
+        r2 += a[start + i + 2]
+        r3 += a[start + i + 3]
+        r4 += a[start + i + 4]
+        r5 += a[start + i + 5]
+        r6 += a[start + i + 6]
+        r7 += a[start + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[start + i]
+        i += 1
+    return res
+
+
+@numba.njit(cache=True, nogil=True)
+def _pairwise_sum(a, start, n):  # pragma: no cover - compiled
+    """numpy's pairwise summation of ``a[start:start + n]`` (float64; the order of
+    ``np.add.reduce`` along a contiguous axis: blocks of up to 128 terms, above that the
+    sum of the halves, the first half's length a multiple of 8), so that the compiled fit
+    equals :func:`velocity_fits` to the bit. numpy recurses; this walks the same tree with
+    a stack (a recursive function loaded from numba's cache crashes)."""
+    if n <= 128:
+        return _block_sum(a, start, n)
+    st_start = np.empty(64, np.int64)
+    st_n = np.empty(64, np.int64)
+    st_stage = np.empty(64, np.int64)
+    vals = np.empty(64)
+    top = 1
+    st_start[0] = start
+    st_n[0] = n
+    st_stage[0] = 0
+    nv = 0
+    while top > 0:
+        s = st_start[top - 1]
+        m = st_n[top - 1]
+        if m <= 128:
+            vals[nv] = _block_sum(a, s, m)
+            nv += 1
+            top -= 1
             continue
-        used_t.add(t)
-        used_c.add(c)
-        pairs.append((t, c))
-    return pairs
+        n2 = m // 2
+        n2 -= n2 % 8
+        stage = st_stage[top - 1]
+        if stage == 0:  # the first half
+            st_stage[top - 1] = 1
+            st_start[top] = s
+            st_n[top] = n2
+            st_stage[top] = 0
+            top += 1
+        elif stage == 1:  # the second half
+            st_stage[top - 1] = 2
+            st_start[top] = s + n2
+            st_n[top] = m - n2
+            st_stage[top] = 0
+            top += 1
+        else:  # both done: their sum
+            vals[nv - 2] = vals[nv - 2] + vals[nv - 1]
+            nv -= 1
+            top -= 1
+    return vals[0]
 
 
-def vacated_share(footprint: np.ndarray, decision: np.ndarray, window: Window) -> float:
-    """Share of ``footprint``'s cells (global lattice (iy, ix)) decided ``free`` now; cells
-    outside the window count as not free."""
-    if len(footprint) == 0:
-        return 0.0
-    cells = window_indices(footprint, window)
-    free = int(np.count_nonzero(decision.reshape(-1)[cells] == _FREE))
-    return free / len(footprint)
+@numba.njit(cache=True, nogil=True)
+def _row_sum(a):  # pragma: no cover - compiled
+    """``a.sum()`` of a 1-d float64 row as numpy reduces it (identity 0, then pairwise)."""
+    return 0.0 + _pairwise_sum(a, 0, a.shape[0])
 
 
-def frame_evidence(t: Track, clusters: Clusters, c: int, decision: np.ndarray | None,
-                   window: Window, params: TrackingParams) -> tuple[int, int]:
-    """The motion evidence (conflict, vacated) that track ``t``'s association with cluster
-    ``c`` adds this frame (module docstring), counted in the frames whose velocity passes
-    the test (or, with ``evidence_every_frame``, in every associated frame). Arrival: with
-    ``arrival_share`` > 0, a cluster of which at least that share of the cells is decided
-    moving (free before, occupied now: the object arrived in cells seen free) counts
-    ``motion_evidence_frames`` frames of conflict evidence at once."""
-    seeds = int(clusters.seeds[c])
-    conflict = int(seeds >= params.conflict_cells)
-    if conflict and params.arrival_share > 0:
-        size = int(clusters.offsets[c + 1] - clusters.offsets[c])
-        if seeds >= params.arrival_share * size:
-            conflict = max(1, params.motion_evidence_frames)
-    vacated = int(decision is not None and len(t.past) == params.vacated_frames
-                  and vacated_share(t.past[0], decision, window) >= params.vacated_share)
-    return conflict, vacated
+@numba.njit(cache=True, nogil=True)
+def _fit(t, x, y, m, sigma0, scratch):  # pragma: no cover - compiled
+    """One row of :func:`velocity_fits` (``t``, ``x``, ``y``: the row's H columns, the first
+    ``m`` the track's, zeros after), op for op; returns (vx, vy, sigma)."""
+    h = t.shape[0]
+    k = float(max(m, 1))
+    dt = scratch[0]
+    dx = scratch[1]
+    dy = scratch[2]
+    w = scratch[3]
+    tm = _row_sum(t) / k
+    xm = _row_sum(x) / k
+    ym = _row_sum(y) / k
+    for j in range(h):
+        if j < m:
+            dt[j] = t[j] - tm
+            dx[j] = x[j] - xm
+            dy[j] = y[j] - ym
+        else:
+            dt[j] = 0.0
+            dx[j] = 0.0
+            dy[j] = 0.0
+    for j in range(h):
+        w[j] = dt[j] * dt[j]
+    s = _row_sum(w)
+    ok = m >= 2 and s > 0.0
+    s_safe = s if ok else 1.0
+    vx = 0.0
+    vy = 0.0
+    if ok:
+        for j in range(h):
+            w[j] = dt[j] * dx[j]
+        vx = _row_sum(w) / s_safe
+        for j in range(h):
+            w[j] = dt[j] * dy[j]
+        vy = _row_sum(w) / s_safe
+    for j in range(h):
+        if j < m:
+            ex = dx[j] - vx * dt[j]
+            ey = dy[j] - vy * dt[j]
+            w[j] = ex * ex + ey * ey
+        else:
+            w[j] = 0.0
+    rss = _row_sum(w)
+    var0 = sigma0 * sigma0
+    var = var0
+    if m > 2:
+        q = rss / max(2 * (m - 2), 1)
+        var = q if q > var0 else var0
+    sigma = math.sqrt(var / s_safe) if ok else np.inf
+    return vx, vy, sigma
+
+
+@numba.njit(cache=True, nogil=True)
+def _fits(t_s, xy, count, sigma0):  # pragma: no cover - compiled
+    """:func:`velocity_fits` compiled, row by row (the tracker's fit; tested equal)."""
+    n, h = t_s.shape
+    v = np.zeros((n, 2))
+    sigma = np.empty(n)
+    scratch = np.empty((4, h))
+    t = np.empty(h)
+    x = np.empty(h)
+    y = np.empty(h)
+    for i in range(n):
+        m = count[i]
+        for j in range(h):
+            valid = j < m
+            t[j] = t_s[i, j] if valid else 0.0
+            x[j] = xy[i, j, 0] if valid else 0.0
+            y[j] = xy[i, j, 1] if valid else 0.0
+        v[i, 0], v[i, 1], sigma[i] = _fit(t, x, y, m, sigma0, scratch)
+    return v, sigma
+
+
+@numba.njit(cache=True, nogil=True)
+def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, sigma, fp_n,
+                  fp, evidence, past_n, past, dist, cells, offsets, centroid, seeds, row0,
+                  col0, rows, cols, decision, has_decision, stamp_ns, next_id, gate,
+                  history, confirm, max_missed, speed2_min, motion_test, sigma0, need,
+                  conflict_cells, vacated_frames, share_min, every_frame, arrival_share
+                  ):  # pragma: no cover - compiled
+    """One frame of the tracker (:func:`track_step`, the module docstring) on the state's
+    arrays; returns the new arrays, the next id, and the reported (track row, cluster)."""
+    n_old = ids.shape[0]
+    n_cl = offsets.shape[0] - 1
+    # association: pairs within the gate, nearest first (ties: track, then cluster)
+    of_track = np.full(n_old + n_cl, -1, np.int64)
+    taken = np.zeros(n_cl, np.bool_)
+    if n_old > 0 and n_cl > 0:
+        n_pairs = 0
+        for t in range(n_old):
+            for c in range(n_cl):
+                if dist[t, c] <= gate:
+                    n_pairs += 1
+        pt = np.empty(n_pairs, np.int64)
+        pc = np.empty(n_pairs, np.int64)
+        pd = np.empty(n_pairs, np.float64)
+        k = 0
+        for t in range(n_old):  # row-major, as np.nonzero
+            for c in range(n_cl):
+                if dist[t, c] <= gate:
+                    pt[k] = t
+                    pc[k] = c
+                    pd[k] = dist[t, c]
+                    k += 1
+        used = np.zeros(n_old, np.bool_)
+        for k in np.argsort(pd, kind="mergesort"):  # stable: ties keep (track, cluster)
+            t = pt[k]
+            c = pc[k]
+            if used[t] or taken[c]:
+                continue
+            used[t] = True
+            taken[c] = True
+            of_track[t] = c
+    n_all = n_old
+    for c in range(n_cl):  # clusters left over start tracks
+        if not taken[c]:
+            of_track[n_all] = c
+            n_all += 1
+    # the old pools' offsets per track
+    fp_at = np.zeros(n_old + 1, np.int64)
+    past_at = np.zeros(n_old + 1, np.int64)
+    depth_old = past_n.shape[1]
+    for i in range(n_old):
+        fp_at[i + 1] = fp_at[i] + fp_n[i]
+        m = 0
+        for q in range(depth_old):
+            if past_n[i, q] < 0:
+                break
+            m += past_n[i, q]
+        past_at[i + 1] = past_at[i] + m
+    width = max(hist_t.shape[1], history)
+    depth = max(depth_old, vacated_frames)
+    n_cells = offsets[n_cl]
+    # the new state (rows: survivors in order), pools at their largest
+    o_ids = np.empty(n_all, np.int64)
+    o_hits = np.empty(n_all, np.int64)
+    o_missed = np.empty(n_all, np.int64)
+    o_flags = np.zeros((n_all, 2), np.uint8)
+    o_hist_n = np.zeros(n_all, np.int64)
+    o_hist_t = np.zeros((n_all, width), np.int64)
+    o_hist_xy = np.zeros((n_all, width, 2), np.float64)
+    o_velocity = np.zeros((n_all, 2), np.float64)
+    o_sigma = np.empty(n_all, np.float64)
+    o_fp_n = np.zeros(n_all, np.int64)
+    o_fp = np.empty((fp.shape[0] + n_cells, 2), np.int64)
+    o_evidence = np.zeros((n_all, 2), np.int64)
+    o_past_n = np.full((n_all, depth), -1, np.int64)
+    o_past = np.empty((past.shape[0] + fp.shape[0], 2), np.int64)
+    rep_row = np.empty(n_all, np.int64)
+    rep_cl = np.empty(n_all, np.int64)
+    n_rep = 0
+    t_row = np.zeros(history)
+    x_row = np.zeros(history)
+    y_row = np.zeros(history)
+    scratch = np.empty((4, history))
+    lens = np.empty(depth + 1, np.int64)  # cells of the kept past footprints
+    starts = np.empty(depth + 1, np.int64)
+    from_new = np.empty(depth + 1, np.bool_)  # that footprint is the old fp (else old past)
+    n_out = 0
+    fp_out = 0
+    past_out = 0
+    for i in range(n_all):
+        c = of_track[i]
+        old = i < n_old
+        if c < 0:  # not associated (an old track): kept as it is while it may come back
+            if missed[i] + 1 > max_missed:
+                continue
+        j = n_out
+        n_out += 1
+        if old:
+            o_ids[j] = ids[i]
+            o_hits[j] = hits[i]
+            o_missed[j] = missed[i]
+            o_flags[j, 0] = flags[i, 0]
+            o_flags[j, 1] = flags[i, 1]
+            o_velocity[j, 0] = velocity[i, 0]
+            o_velocity[j, 1] = velocity[i, 1]
+            o_sigma[j] = sigma[i]
+            o_evidence[j, 0] = evidence[i, 0]
+            o_evidence[j, 1] = evidence[i, 1]
+            kh = hist_n[i]
+        else:
+            o_ids[j] = next_id
+            next_id += 1
+            o_hits[j] = 0
+            o_missed[j] = 0
+            o_sigma[j] = np.inf
+            kh = 0
+        # the past footprints it keeps (before this frame's change): old past entries
+        n_past = 0
+        if old:
+            at = past_at[i]
+            for q in range(depth_old):
+                m = past_n[i, q]
+                if m < 0:
+                    break
+                lens[n_past] = m
+                starts[n_past] = at
+                from_new[n_past] = False
+                n_past += 1
+                at += m
+        cur_fp_start = fp_at[i] if old else 0
+        cur_fp_n = fp_n[i] if old else 0
+        if c < 0:
+            o_missed[j] += 1
+            o_hist_n[j] = kh
+            for q in range(kh):
+                o_hist_t[j, q] = hist_t[i, q]
+                o_hist_xy[j, q, 0] = hist_xy[i, q, 0]
+                o_hist_xy[j, q, 1] = hist_xy[i, q, 1]
+            o_fp_n[j] = cur_fp_n
+            for q in range(cur_fp_n):
+                o_fp[fp_out + q, 0] = fp[cur_fp_start + q, 0]
+                o_fp[fp_out + q, 1] = fp[cur_fp_start + q, 1]
+            fp_out += cur_fp_n
+        else:
+            o_missed[j] = 0
+            o_hits[j] += 1
+            # the history: the old one and this frame's centroid, the last `history` kept
+            drop = max(kh + 1 - history, 0)
+            m_new = kh + 1 - drop
+            for q in range(drop, kh):
+                o_hist_t[j, q - drop] = hist_t[i, q]
+                o_hist_xy[j, q - drop, 0] = hist_xy[i, q, 0]
+                o_hist_xy[j, q - drop, 1] = hist_xy[i, q, 1]
+            o_hist_t[j, m_new - 1] = stamp_ns
+            o_hist_xy[j, m_new - 1, 0] = centroid[c, 0]
+            o_hist_xy[j, m_new - 1, 1] = centroid[c, 1]
+            o_hist_n[j] = m_new
+            for q in range(history):
+                if q < m_new:
+                    t_row[q] = (o_hist_t[j, q] - stamp_ns) * 1e-9
+                    x_row[q] = o_hist_xy[j, q, 0]
+                    y_row[q] = o_hist_xy[j, q, 1]
+                else:
+                    t_row[q] = 0.0
+                    x_row[q] = 0.0
+                    y_row[q] = 0.0
+            vx, vy, sg = _fit(t_row, x_row, y_row, m_new, sigma0, scratch)
+            o_velocity[j, 0] = vx
+            o_velocity[j, 1] = vy
+            o_sigma[j] = sg
+            if cur_fp_n > 0:  # the previous association's cells join the past
+                lens[n_past] = cur_fp_n
+                starts[n_past] = cur_fp_start
+                from_new[n_past] = True
+                n_past += 1
+                if n_past > vacated_frames:  # the oldest beyond vacated_frames are dropped
+                    cut = n_past - vacated_frames
+                    for q in range(vacated_frames):
+                        lens[q] = lens[q + cut]
+                        starts[q] = starts[q + cut]
+                        from_new[q] = from_new[q + cut]
+                    n_past = vacated_frames
+            speed2 = vx * vx + vy * vy
+            fast = False
+            if math.isfinite(sg) and not speed2 < speed2_min:
+                fast = sg == 0.0 or speed2 / (sg * sg) >= motion_test
+            if fast or every_frame:  # the frame's evidence (reference: frame_evidence)
+                conflict = 1 if seeds[c] >= conflict_cells else 0
+                if conflict and arrival_share > 0:  # arrival: the whole evidence at once
+                    if seeds[c] >= arrival_share * (offsets[c + 1] - offsets[c]):
+                        conflict = max(1, need)
+                o_evidence[j, 0] += conflict
+                if has_decision and n_past == vacated_frames:
+                    free = 0
+                    src = fp if from_new[0] else past
+                    for q in range(starts[0], starts[0] + lens[0]):
+                        r = src[q, 0] - row0
+                        cc = src[q, 1] - col0
+                        if (0 <= r < rows and 0 <= cc < cols
+                                and decision[r * cols + cc] == _FREE):
+                            free += 1
+                    if free / lens[0] >= share_min:
+                        o_evidence[j, 1] += 1
+            moving = fast and max(o_evidence[j, 0], o_evidence[j, 1]) >= need
+            o_flags[j, 1] = 1 if moving else 0
+            if moving and o_hits[j] >= confirm:
+                o_flags[j, 0] = 1
+            a = offsets[c]
+            b = offsets[c + 1]
+            o_fp_n[j] = b - a
+            for q in range(a, b):
+                rr = cells[q] // cols
+                o_fp[fp_out, 0] = rr + row0
+                o_fp[fp_out, 1] = cells[q] - rr * cols + col0
+                fp_out += 1
+            if o_hits[j] >= confirm and (moving or o_flags[j, 0]):
+                rep_row[n_rep] = j
+                rep_cl[n_rep] = c
+                n_rep += 1
+        for q in range(n_past):
+            src = fp if from_new[q] else past
+            o_past_n[j, q] = lens[q]
+            for e in range(starts[q], starts[q] + lens[q]):
+                o_past[past_out, 0] = src[e, 0]
+                o_past[past_out, 1] = src[e, 1]
+                past_out += 1
+    return (o_ids[:n_out].copy(), o_hits[:n_out].copy(), o_missed[:n_out].copy(),
+            o_flags[:n_out].copy(), o_hist_n[:n_out].copy(), o_hist_t[:n_out].copy(),
+            o_hist_xy[:n_out].copy(), o_velocity[:n_out].copy(), o_sigma[:n_out].copy(),
+            o_fp_n[:n_out].copy(), o_fp[:fp_out].copy(), o_evidence[:n_out].copy(),
+            o_past_n[:n_out].copy(), o_past[:past_out].copy(), next_id,
+            rep_row[:n_rep].copy(), rep_cl[:n_rep].copy())
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_records(track_id, state_code, cell_count, age, centroid_out, bbox_out, extent,
+                  velocity_out, sigma_out, mean_out, rows, cl, ids, flags, hits, velocity,
+                  sigma, cells, offsets, centroid, bbox, mean_m):  # pragma: no cover
+    """The reported objects' fields (the record arrays' field views, filled in place) in
+    track id order, and their cells (uint32, in record order)."""
+    order = np.argsort(ids[rows], kind="mergesort")  # by id (rows are in id order already)
+    total = 0
+    for k in range(rows.shape[0]):
+        c = cl[k]
+        total += offsets[c + 1] - offsets[c]
+    out = np.empty(total, np.uint32)
+    at = 0
+    for k in range(order.shape[0]):
+        i = rows[order[k]]
+        c = cl[order[k]]
+        a = offsets[c]
+        b = offsets[c + 1]
+        track_id[k] = ids[i]
+        state_code[k] = _STATE_MOVING if flags[i, 1] != 0 else _STATE_STOPPED
+        cell_count[k] = b - a
+        age[k] = hits[i]
+        for q in range(2):
+            centroid_out[k, q] = centroid[c, q]
+            extent[k, q] = bbox[c, 2 + q] - bbox[c, q]
+            velocity_out[k, q] = velocity[i, q]
+        for q in range(4):
+            bbox_out[k, q] = bbox[c, q]
+        sigma_out[k] = sigma[i]
+        mean_out[k] = mean_m[c]
+        for q in range(a, b):
+            out[at] = cells[q]
+            at += 1
+    return out
+
+
+_NO_DECISION = np.zeros(0, np.uint8)
 
 
 def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns: int,
@@ -372,90 +800,53 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
     returns the frame's reported objects (records of
     :data:`evperc.output.objects.OBJECT_DTYPE`, by track id) and their cells (flat window
     indices, concatenated in record order). ``decision``: the frame's decided cells, for
-    the vacated evidence (None: no vacated evidence)."""
+    the vacated evidence (None: no vacated evidence).
+
+    The evidence a track's association with cluster ``c`` adds (module docstring) is
+    counted in the frames whose velocity passes the test (or, with
+    ``evidence_every_frame``, in every associated frame). Arrival: with ``arrival_share``
+    > 0, a cluster of which at least that share of the cells is decided moving (free
+    before, occupied now: the object arrived in cells seen free) counts
+    ``motion_evidence_frames`` frames of conflict evidence at once.
+
+    One compiled pass over the tracks (``_track_kernel``); the predicted centroids and
+    their distances to the clusters are numpy's (``np.hypot``), so the association is the
+    per-track tracker's (tests/objects/reference_tracking.py) to the bit."""
     dt_s = 0.0 if state.prev_ns is None else (stamp_ns - state.prev_ns) * 1e-9
     state.prev_ns = stamp_ns
-    tracks = state.tracks
-    predicted = np.array([(t.xy[-1][0] + t.velocity[0] * dt_s,
-                           t.xy[-1][1] + t.velocity[1] * dt_s) for t in tracks],
-                         np.float64).reshape(len(tracks), 2)
-    pairs = _associate(predicted, clusters.centroid_m, params.gate_m)
-    of_track = dict(pairs)
-    taken = {c for _, c in pairs}
-    for c in range(len(clusters)):
-        if c not in taken:
-            tracks.append(Track(state.next_id))
-            state.next_id += 1
-            of_track[len(tracks) - 1] = c
-    # global lattice (iy, ix) of every cluster cell, once for the frame
-    r, col = np.divmod(clusters.cells, window.cols)
-    lattice = np.stack([r + window.row0, col + window.col0], axis=1)
-    reported: list[tuple[int, int]] = []  # (track index, cluster index)
-    survivors: list[Track] = []
-    associated = [(i, t, c) for i, t in enumerate(tracks)
-                  if (c := of_track.get(i)) is not None]
-    history = params.history_frames
-    hist_t = np.zeros((len(associated), history))
-    hist_xy = np.zeros((len(associated), history, 2))
-    count = np.zeros(len(associated), np.int64)
-    for k, (_, t, c) in enumerate(associated):
-        t.t_ns.append(int(stamp_ns))
-        t.xy.append((float(clusters.centroid_m[c, 0]), float(clusters.centroid_m[c, 1])))
-        del t.t_ns[:-history], t.xy[:-history]
-        m = count[k] = len(t.t_ns)
-        hist_t[k, :m] = [(ns - stamp_ns) * 1e-9 for ns in t.t_ns]
-        hist_xy[k, :m] = t.xy
-    # one vectorised fit for the frame's tracks (velocity_fit is its per-track reference)
-    fit_v, fit_sigma = velocity_fits(hist_t, hist_xy, count, params.centroid_sigma_m)
-    fit_of = {i: k for k, (i, _, _) in enumerate(associated)}
-    for i, t in enumerate(tracks):
-        c = of_track.get(i)
-        if c is None:
-            t.missed += 1
-            if t.missed <= params.max_missed_frames:
-                survivors.append(t)
-            continue
-        t.missed = 0
-        t.hits += 1
-        k = fit_of[i]
-        v = (float(fit_v[k, 0]), float(fit_v[k, 1]))
-        sigma = float(fit_sigma[k])
-        t.velocity, t.sigma = v, sigma
-        if len(t.footprint):  # the previous association's cells join the past
-            t.past.append(t.footprint)
-            del t.past[:-params.vacated_frames]
-        fast = is_moving(v, sigma, params)
-        if fast or params.evidence_every_frame:
-            conflict, vacated = frame_evidence(t, clusters, c, decision, window, params)
-            t.conflict_evidence += conflict
-            t.vacated_evidence += vacated
-        need = params.motion_evidence_frames
-        t.moving = fast and max(t.conflict_evidence, t.vacated_evidence) >= need
-        if t.moving and t.hits >= params.confirm_frames:
-            t.ever_moving = True
-        t.footprint = lattice[clusters.offsets[c]:clusters.offsets[c + 1]]  # a view
-        if t.hits >= params.confirm_frames and (t.moving or t.ever_moving):
-            reported.append((len(survivors), c))
-        survivors.append(t)
-    state.tracks = survivors
-    reported.sort(key=lambda p: survivors[p[0]].track_id)
-    records = np.zeros(len(reported), OBJECT_DTYPE)
-    pieces = []
-    for k, (i, c) in enumerate(reported):
-        t = survivors[i]
-        cells = clusters.cells_of(c)
-        pieces.append(cells)
-        rec = records[k]
-        rec["track_id"] = t.track_id
-        rec["state"] = OBJECT_STATES["moving" if t.moving else "stopped"]
-        rec["cell_count"] = len(cells)
-        rec["age_frames"] = t.hits
-        rec["centroid_m"] = clusters.centroid_m[c]
-        rec["bbox_m"] = clusters.bbox_m[c]
-        rec["extent_m"] = clusters.bbox_m[c, 2:] - clusters.bbox_m[c, :2]
-        rec["velocity_m_per_s"] = t.velocity
-        rec["speed_sigma_m_per_s"] = t.sigma
-        rec["mean_betp_moving"] = clusters.mean_betp_moving[c]
-    cells_out = (np.concatenate(pieces).astype(np.uint32) if pieces
-                 else np.zeros(0, np.uint32))
+    n = len(state.id)
+    centroids = clusters.centroid_m
+    if n and len(centroids):
+        last = state.hist_xy[np.arange(n), state.hist_n - 1]
+        px = last[:, 0] + state.velocity[:, 0] * dt_s
+        py = last[:, 1] + state.velocity[:, 1] * dt_s
+        dist = np.hypot(px[:, None] - centroids[None, :, 0], py[:, None] - centroids[None, :, 1])
+    else:
+        dist = np.zeros((n, len(centroids)))
+    has_decision = decision is not None
+    flat = (np.ascontiguousarray(decision).reshape(-1) if has_decision else _NO_DECISION)
+    out = _track_kernel(
+        state.id, state.hits, state.missed, state.flags, state.hist_n, state.hist_t,
+        state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
+        state.past_n, state.past, dist, clusters.cells, clusters.offsets,
+        np.ascontiguousarray(centroids, np.float64), clusters.seeds, window.row0, window.col0,
+        window.rows, window.cols, flat, has_decision, int(stamp_ns), state.next_id,
+        float(params.gate_m), int(params.history_frames), int(params.confirm_frames),
+        int(params.max_missed_frames), float(params.moving_speed_m_per_s ** 2),
+        float(params.motion_test), float(params.centroid_sigma_m),
+        int(params.motion_evidence_frames), int(params.conflict_cells),
+        int(params.vacated_frames), float(params.vacated_share),
+        bool(params.evidence_every_frame), float(params.arrival_share))
+    (state.id, state.hits, state.missed, state.flags, state.hist_n, state.hist_t,
+     state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
+     state.past_n, state.past, state.next_id, rows, cl) = out
+    state.next_id = int(state.next_id)
+    records = np.zeros(len(rows), OBJECT_DTYPE)
+    cells_out = _fill_records(
+        records["track_id"], records["state"], records["cell_count"], records["age_frames"],
+        records["centroid_m"], records["bbox_m"], records["extent_m"],
+        records["velocity_m_per_s"], records["speed_sigma_m_per_s"],
+        records["mean_betp_moving"], rows, cl, state.id, state.flags, state.hits,
+        state.velocity, state.sigma, clusters.cells, clusters.offsets, clusters.centroid_m,
+        clusters.bbox_m, clusters.mean_betp_moving)
     return records, cells_out
