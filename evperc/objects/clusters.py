@@ -103,27 +103,120 @@ _GROWS = _grow_lut()
 _MOVING = DECISION_CODES["moving"]
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _grow(start, k, n_cells, decision, conflict_fo, now, cols, rows, fo_q, moving, grows,
+          mark, cells, stats):  # pragma: no cover - compiled
+    """Flood fill of cluster ``k`` from ``start`` (not yet marked); its cells are appended
+    to ``cells`` from ``n_cells`` on; returns the new ``n_cells``."""
+    first = n_cells
+    mark[start] = 1
+    cells[n_cells] = start
+    n_cells += 1
+    head = first
+    count = 0
+    seeds = 0
+    sr = 0
+    sc = 0
+    r0 = rows
+    r1 = -1
+    c0 = cols
+    c1 = -1
+    while head < n_cells:  # the cluster's cells double as the queue (breadth first)
+        i = cells[head]
+        head += 1
+        r = i // cols
+        c = i - r * cols
+        count += 1
+        if decision[i] == moving or (fo_q > 0 and conflict_fo[i] >= fo_q):
+            seeds += 1
+        sr += r
+        sc += c
+        r0 = min(r0, r)
+        r1 = max(r1, r)
+        c0 = min(c0, c)
+        c1 = max(c1, c)
+        for dr in range(-1, 2):
+            rr = r + dr
+            if rr < 0 or rr >= rows:
+                continue
+            for dc in range(-1, 2):
+                cc = c + dc
+                if cc < 0 or cc >= cols or (dr == 0 and dc == 0):
+                    continue
+                j = rr * cols + cc
+                if mark[j]:
+                    continue
+                dj = decision[j]
+                if ((grows[dj] and (now[j] or dj == moving))
+                        or (fo_q > 0 and conflict_fo[j] >= fo_q)):
+                    mark[j] = 1
+                    cells[n_cells] = j
+                    n_cells += 1
+    stats[k, 0] = count
+    stats[k, 1] = seeds
+    stats[k, 2] = sr
+    stats[k, 3] = sc
+    stats[k, 4] = r0
+    stats[k, 5] = r1
+    stats[k, 6] = c0
+    stats[k, 7] = c1
+    return n_cells
+
+
+#: bytes of a word with a 1 in each, and with the high bit of each (the zero-byte test)
+_ONES = np.uint64(0x0101010101010101)
+_HIGHS = np.uint64(0x8080808080808080)
+
+
 @numba.njit(cache=True, nogil=True)
 def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_all: bool,
            cols: int, fo_q: int, moving: int, grows: np.ndarray, extra: np.ndarray,
-           mark: np.ndarray, cells: np.ndarray, stats: np.ndarray) -> tuple[int, int]:
+           mark: np.ndarray, cells: np.ndarray, stats: np.ndarray, dec_words: np.ndarray,
+           now_words: np.ndarray) -> tuple[int, int]:  # pragma: no cover - compiled
     """Flood fill from every seed; returns (clusters, cells). ``stats[k]``: count, seeds,
     Σrow, Σcol, min row, max row, min col, max col. ``decision``, ``conflict_fo``, ``now``
     (1: a cell a cluster may hold unless decided moving): the window's cells, flat
-    (row-major, ``cols`` a row). ``seed_all``: every cell a cluster may hold seeds."""
+    (row-major, ``cols`` a row). ``seed_all``: every cell a cluster may hold seeds.
+    ``dec_words``, ``now_words``: the first cells of ``decision`` and ``now`` as uint64
+    words (8 cells each; empty: no skipping): the scan skips the 8 cells of a word
+    in which no cell is decided moving (and, with ``seed_all``, none occupied now) — they
+    hold no seed — and tests the others one by one as before."""
     total = decision.shape[0]
     rows = total // cols
     n_clusters = 0
     n_cells = 0
-    n_extra = extra.shape[0]
-    for s in range(n_extra + total):
-        if s < n_extra:
-            start = extra[s]
-            if (start < 0 or start >= total or mark[start] or not grows[decision[start]]
-                    or not (now[start] or decision[start] == moving)):
+    for s in range(extra.shape[0]):
+        start = extra[s]
+        if (start < 0 or start >= total or mark[start] or not grows[decision[start]]
+                or not (now[start] or decision[start] == moving)):
+            continue
+        n_cells = _grow(start, n_clusters, n_cells, decision, conflict_fo, now, cols, rows,
+                        fo_q, moving, grows, mark, cells, stats)
+        n_clusters += 1
+    w_end = 8 * dec_words.shape[0]
+    moving_bytes = np.uint64(moving) * _ONES
+    n_words = dec_words.shape[0]
+    w = 0
+    while w <= n_words:
+        if w < n_words:  # 8 cells at once: the words in which none may seed are skipped
+            while w < n_words:
+                x = dec_words[w] ^ moving_bytes  # a zero byte where decided moving
+                hit = (x - _ONES) & ~x & _HIGHS  # non-zero iff x has a zero byte
+                if seed_all:
+                    hit |= now_words[w]
+                if hit != 0:
+                    break
+                w += 1
+            if w == n_words:
                 continue
-        else:
-            start = s - n_extra
+            at = 8 * w
+            stop = at + 8
+            w += 1
+        else:  # the cells after the last whole word
+            at = w_end
+            stop = total
+            w += 1
+        for start in range(at, stop):
             if mark[start]:
                 continue
             d = decision[start]
@@ -132,63 +225,63 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_
                     continue
             elif d != moving and not (fo_q > 0 and conflict_fo[start] >= fo_q):
                 continue
-        k = n_clusters
-        n_clusters += 1
-        first = n_cells
-        mark[start] = 1
-        cells[n_cells] = start
-        n_cells += 1
-        head = first
-        count = 0
-        seeds = 0
-        sr = 0
-        sc = 0
-        r0 = rows
-        r1 = -1
-        c0 = cols
-        c1 = -1
-        while head < n_cells:  # the cluster's cells double as the queue (breadth first)
-            i = cells[head]
-            head += 1
-            r = i // cols
-            c = i - r * cols
-            count += 1
-            if decision[i] == moving or (fo_q > 0 and conflict_fo[i] >= fo_q):
-                seeds += 1
-            sr += r
-            sc += c
-            r0 = min(r0, r)
-            r1 = max(r1, r)
-            c0 = min(c0, c)
-            c1 = max(c1, c)
-            for dr in range(-1, 2):
-                rr = r + dr
-                if rr < 0 or rr >= rows:
-                    continue
-                for dc in range(-1, 2):
-                    cc = c + dc
-                    if cc < 0 or cc >= cols or (dr == 0 and dc == 0):
-                        continue
-                    j = rr * cols + cc
-                    if mark[j]:
-                        continue
-                    dj = decision[j]
-                    if ((grows[dj] and (now[j] or dj == moving))
-                            or (fo_q > 0 and conflict_fo[j] >= fo_q)):
-                        mark[j] = 1
-                        cells[n_cells] = j
-                        n_cells += 1
-        stats[k, 0] = count
-        stats[k, 1] = seeds
-        stats[k, 2] = sr
-        stats[k, 3] = sc
-        stats[k, 4] = r0
-        stats[k, 5] = r1
-        stats[k, 6] = c0
-        stats[k, 7] = c1
+            n_cells = _grow(start, n_clusters, n_cells, decision, conflict_fo, now, cols,
+                            rows, fo_q, moving, grows, mark, cells, stats)
+            n_clusters += 1
     for m in range(n_cells):
         mark[cells[m]] = 0
     return n_clusters, n_cells
+
+
+@numba.njit(cache=True, nogil=True)
+def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_extent,
+               tracked):  # pragma: no cover - compiled
+    """The kept clusters of :func:`_flood`'s ``n`` (:class:`Clusters`' arrays, the
+    formulas of :meth:`Clusterer.clusters` op for op): at least ``min_cells`` cells (or
+    ``tracked[k]``, if ``tracked`` is not empty) and a bounding box at most ``max_extent``
+    (m, slack included) on each side."""
+    keep = np.zeros(n, np.bool_)
+    n_kept = 0
+    n_cells = 0
+    for k in range(n):
+        count = stats[k, 0]
+        span_r = (stats[k, 5] - stats[k, 4] + 1) * res
+        span_c = (stats[k, 7] - stats[k, 6] + 1) * res
+        big_enough = count >= min_cells or (tracked.shape[0] > 0 and tracked[k])
+        if big_enough and span_r <= max_extent and span_c <= max_extent:
+            keep[k] = True
+            n_kept += 1
+            n_cells += count
+    cells = np.empty(n_cells, np.int64)
+    offsets = np.zeros(n_kept + 1, np.int64)
+    centroid = np.empty((n_kept, 2))
+    bbox = np.empty((n_kept, 4))
+    seeds = np.empty(n_kept, np.int64)
+    mean_m = np.empty(n_kept, np.float32)
+    at = 0
+    j = 0
+    out = 0
+    for k in range(n):
+        count = stats[k, 0]
+        if keep[k]:
+            total = 0
+            for q in range(at, at + count):
+                cells[out] = all_cells[q]
+                total += np.int64(betp_flat[all_cells[q]])
+                out += 1
+            offsets[j + 1] = out
+            cnt = float(max(count, 1))
+            centroid[j, 0] = (col0 + stats[k, 3] / cnt + 0.5) * res
+            centroid[j, 1] = (row0 + stats[k, 2] / cnt + 0.5) * res
+            bbox[j, 0] = (col0 + stats[k, 6]) * res
+            bbox[j, 1] = (row0 + stats[k, 4]) * res
+            bbox[j, 2] = (col0 + stats[k, 7] + 1) * res
+            bbox[j, 3] = (row0 + stats[k, 5] + 1) * res
+            seeds[j] = stats[k, 1]
+            mean_m[j] = np.float32(total / cnt / 255.0)
+            j += 1
+        at += count
+    return cells, offsets, centroid, bbox, seeds, mean_m
 
 
 def tracked_clusters(first_cells: np.ndarray, extra_seeds: np.ndarray) -> np.ndarray:
@@ -211,6 +304,8 @@ class Clusterer:
         thr = params.seed_conflict_fo
         self._fo_q = max(1, int(np.ceil(255.0 * thr - 1e-9))) if thr > 0 else 0
         self._everywhere = np.ones(n, np.uint8)  # ``now`` where the growth is not limited
+        self._no_words = np.zeros(0, np.uint64)
+        self._no_flags = np.zeros(0, np.bool_)
 
     def clusters(self, decision: np.ndarray, betp_moving: np.ndarray, conflict_fo: np.ndarray,
                  window: Window, extra_seeds: np.ndarray | None = None,
@@ -228,40 +323,27 @@ class Clusterer:
         if seed_all:
             if occupied_now is None or occupied_now.shape != self.shape:
                 raise ValueError("seeds = 'occupied' needs the scan's occupied cells")
-            now = np.ascontiguousarray(occupied_now, np.uint8).reshape(-1)
+            now = (occupied_now.reshape(-1).view(np.uint8)  # no copy (bool is a 0/1 byte)
+                   if occupied_now.dtype == np.bool_ and occupied_now.flags.c_contiguous
+                   else np.ascontiguousarray(occupied_now, np.uint8).reshape(-1))
         else:
             now = self._everywhere
-        n, used = _flood(decision.reshape(-1), conflict_fo.reshape(-1), now, seed_all,
-                         self.shape[1], self._fo_q, _MOVING, _GROWS, extra, self._mark,
-                         self._cells, self._stats)
-        stats = self._stats[:n]
-        count = stats[:, 0]
-        offsets = np.zeros(n + 1, np.int64)
-        np.cumsum(count, out=offsets[1:])
-        res = window.resolution_m
-        span_r = (stats[:, 5] - stats[:, 4] + 1) * res
-        span_c = (stats[:, 7] - stats[:, 6] + 1) * res
-        big_enough = count >= self.params.min_cells
+        flat = decision.reshape(-1)
+        if seed_all or self._fo_q == 0:  # words of 8 cells for the scan's skip test
+            whole = flat.size - flat.size % 8
+            dec_words = flat[:whole].view(np.uint64)
+            now_words = now[:whole].view(np.uint64) if seed_all else self._no_words
+        else:  # seeds by ∅_FO: no skip test
+            dec_words = now_words = self._no_words
+        n, _ = _flood(flat, conflict_fo.reshape(-1), now, seed_all, self.shape[1], self._fo_q,
+                      _MOVING, _GROWS, extra, self._mark, self._cells, self._stats,
+                      dec_words, now_words)
+        tracked = self._no_flags
         if self.params.keep_tracked_small and len(extra):
-            big_enough |= tracked_clusters(self._cells[offsets[:-1]], extra)
-        keep = (big_enough & (span_r <= self.params.max_extent_m + 1e-9)
-                & (span_c <= self.params.max_extent_m + 1e-9))
-        kept = np.flatnonzero(keep)
-        all_cells = self._cells[:used]
-        pieces = [all_cells[offsets[k]:offsets[k + 1]] for k in kept]
-        cells = np.concatenate(pieces) if pieces else np.zeros(0, np.int64)
-        new_offsets = np.zeros(len(kept) + 1, np.int64)
-        np.cumsum(count[kept], out=new_offsets[1:])
-        st = stats[kept]
-        cnt = st[:, 0].astype(np.float64)
-        centroid = np.stack([(window.col0 + st[:, 3] / np.maximum(cnt, 1) + 0.5) * res,
-                             (window.row0 + st[:, 2] / np.maximum(cnt, 1) + 0.5) * res],
-                            axis=1) if len(kept) else np.zeros((0, 2))
-        bbox = np.stack([(window.col0 + st[:, 6]) * res, (window.row0 + st[:, 4]) * res,
-                         (window.col0 + st[:, 7] + 1) * res, (window.row0 + st[:, 5] + 1) * res],
-                        axis=1).astype(np.float64) if len(kept) else np.zeros((0, 4))
-        flat_m = betp_moving.reshape(-1)
-        sums = np.add.reduceat(flat_m[cells].astype(np.int64), new_offsets[:-1]) \
-            if len(kept) else np.zeros(0, np.int64)
-        mean_m = (sums / np.maximum(cnt, 1) / 255.0).astype(np.float32)
-        return Clusters(cells, new_offsets, centroid, bbox, st[:, 1].copy(), mean_m)
+            offsets = np.zeros(n + 1, np.int64)
+            np.cumsum(self._stats[:n, 0], out=offsets[1:])
+            tracked = tracked_clusters(self._cells[offsets[:-1]], extra)
+        return Clusters(*_summarise(self._cells, self._stats, n, betp_moving.reshape(-1),
+                                    window.row0, window.col0, float(window.resolution_m),
+                                    self.params.min_cells, self.params.max_extent_m + 1e-9,
+                                    tracked))

@@ -79,6 +79,12 @@ _MOVING = DECISION_CODES["moving"]
 _STATIC = DECISION_CODES["static"]
 _STOPPED = DECISION_CODES["stopped"]
 _UNMAPPED = DECISION_CODES["unmapped"]
+#: a word of 8 bytes each 1 / each with its high bit, and each a code (zero-byte tests)
+_ONES = np.uint64(0x0101010101010101)
+_HIGHS = np.uint64(0x8080808080808080)
+_STATIC_BYTES = np.uint64(_STATIC * 0x0101010101010101)
+_STOPPED_BYTES = np.uint64(_STOPPED * 0x0101010101010101)
+_UNMAPPED_BYTES = np.uint64(_UNMAPPED * 0x0101010101010101)
 
 
 def unmapped_enabled(config: dict[str, Any]) -> bool:
@@ -195,13 +201,14 @@ class UnmappedCue:
             seen.reshape(-1)[np.asarray(moving_cells, np.int64)] = 1
         p = self.params
         res = self.resolution_m
+        flat = decision.reshape(-1)
         n, relabelled = _unmapped_pass(
             decision, labels if has_labels else self._no_labels, has_labels, seen,
             state.age_s, state.moved, int(offset[0]) % rows if rows else 0,
             int(offset[1]) % cols if cols else 0, int(shift[0]), int(shift[1]),
             np.float32(max(dt_s, 0.0)), p.max_width_m / res, np.float32(p.min_age_s),
             p.unmapped, p.stopped_needs_road, self._cos, self._sin, self._mark, self._cells,
-            self._stats)
+            self._stats, flat[:flat.size - flat.size % 8].view(np.uint64))
         self.components = n
         self._stats[:n, STAT_WIDTH_M:STAT_LENGTH_M + 1] *= res
         return relabelled
@@ -215,12 +222,60 @@ class UnmappedCue:
         return self._stats[:self.components]
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _update_kept(dec, seen, age, moved, dt):  # pragma: no cover - compiled
+    """The per-cell state update (module docstring, 1.) of a run of cells that were in the
+    previous window (1-d views of one row: window order for ``dec`` and ``seen``, buffer
+    order for ``age`` and ``moved``). Selects, not branches, so that it vectorises."""
+    for k in range(dec.shape[0]):
+        a = age[k]
+        d = dec[k]
+        occ = (d == _MOVING) | (d == _STATIC) | (d == _STOPPED) | (d == _UNMAPPED)
+        grown = np.float32(0.0) if a < 0 else a + dt
+        age[k] = grown if occ else (NOT_OCCUPIED if d == _FREE else a)
+        moved[k] = np.uint8(1) if seen[k] != 0 else moved[k]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _update_entered(dec, seen, age, moved):  # pragma: no cover - compiled
+    """:func:`_update_kept` of cells that entered the window (their state starts reset:
+    ``age_s`` −1, so 0 if occupied now, else −1; ``moved`` 0)."""
+    for k in range(dec.shape[0]):
+        d = dec[k]
+        occ = (d == _MOVING) | (d == _STATIC) | (d == _STOPPED) | (d == _UNMAPPED)
+        age[k] = np.float32(0.0) if occ else NOT_OCCUPIED
+        moved[k] = np.uint8(1) if seen[k] != 0 else np.uint8(0)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _update_columns(decision, seen_moving, age_s, moved, r, br, c0, c1, off_c, kept, dt
+                    ):  # pragma: no cover - compiled
+    """The state update of window columns [c0, c1) of window row ``r`` (buffer row
+    ``br``): split where the circular buffer wraps (window column c is buffer column
+    c + off_c, less cols from ``cols - off_c`` on)."""
+    cols = decision.shape[1]
+    wrap = cols - off_c
+    for a0, a1, delta in ((c0, min(c1, wrap), off_c), (max(c0, wrap), c1, off_c - cols)):
+        if a0 >= a1:
+            continue
+        dec = decision[r, a0:a1]
+        seen = seen_moving[r, a0:a1]
+        age = age_s[br, a0 + delta:a1 + delta]
+        mv = moved[br, a0 + delta:a1 + delta]
+        if kept:
+            _update_kept(dec, seen, age, mv, dt)
+        else:
+            _update_entered(dec, seen, age, mv)
+
+
 @numba.njit(cache=True, nogil=True)
 def _unmapped_pass(decision, labels, has_labels, seen_moving, age_s, moved, off_r, off_c,
                    dr, dc, dt, max_width, min_age, relabel_unmapped, stopped_needs_road,
-                   cos, sin, mark, cells, stats):  # pragma: no cover - compiled
+                   cos, sin, mark, cells, stats, dec_words):  # pragma: no cover - compiled
     """The state update, then the components (module docstring). ``max_width`` in cells.
-    Returns (components, cells relabelled)."""
+    ``dec_words``: the first cells of ``decision`` as uint64 words (8 cells each; the
+    scan for components skips the words without a cell decided static, stopped or
+    unmapped). Returns (components, cells relabelled)."""
     rows, cols = decision.shape
     lo = min(max(-dc, 0), cols)  # window columns [lo, hi) were in the previous window
     hi = max(min(cols - dc, cols), lo)
@@ -228,23 +283,15 @@ def _unmapped_pass(decision, labels, has_labels, seen_moving, age_s, moved, off_
         br = r + off_r
         br = br - rows if br >= rows else br
         row_lo, row_hi = (lo, hi) if 0 <= r + dr < rows else (0, 0)
-        for c in range(cols):
-            bc = c + off_c
-            bc = bc - cols if bc >= cols else bc
-            a = age_s[br, bc]
-            m = moved[br, bc]
-            if c < row_lo or c >= row_hi:  # entered the window: reset
-                a = NOT_OCCUPIED
-                m = np.uint8(0)
-            d = decision[r, c]
-            if d == _MOVING or d == _STATIC or d == _STOPPED or d == _UNMAPPED:
-                a = np.float32(0.0) if a < 0 else a + dt
-            elif d == _FREE:
-                a = NOT_OCCUPIED
-            if seen_moving[r, c]:
-                m = np.uint8(1)
-            age_s[br, bc] = a
-            moved[br, bc] = m
+        if row_lo > 0:
+            _update_columns(decision, seen_moving, age_s, moved, r, br, 0, row_lo, off_c,
+                            False, dt)
+        if row_hi > row_lo:
+            _update_columns(decision, seen_moving, age_s, moved, r, br, row_lo, row_hi,
+                            off_c, True, dt)
+        if cols > row_hi:
+            _update_columns(decision, seen_moving, age_s, moved, r, br, max(row_hi, row_lo),
+                            cols, off_c, False, dt)
     flat = decision.reshape(-1)
     n_comp = 0
     n_cells = 0
@@ -252,102 +299,125 @@ def _unmapped_pass(decision, labels, has_labels, seen_moving, age_s, moved, off_
     n_angles = cos.shape[0]
     lo_p = np.empty(n_angles)
     hi_p = np.empty(n_angles)
-    for start in range(rows * cols):
-        if mark[start]:
-            continue
-        d0 = flat[start]
-        if not (d0 == _STATIC or d0 == _STOPPED or d0 == _UNMAPPED):
-            continue
-        mark[start] = 1
-        first = n_cells
-        cells[n_cells] = start
-        n_cells += 1
-        head = first
-        road = 0
-        near_building = False
-        any_moved = False
-        for k in range(n_angles):
-            lo_p[k] = np.inf
-            hi_p[k] = -np.inf
-        while head < n_cells:  # the component's cells double as the queue (breadth first)
-            i = cells[head]
-            head += 1
-            r = i // cols
-            c = i - r * cols
-            br = r + off_r
-            br = br - rows if br >= rows else br
-            bc = c + off_c
-            bc = bc - cols if bc >= cols else bc
-            if moved[br, bc]:
-                any_moved = True
+    n_words = dec_words.shape[0]
+    total = rows * cols
+    w = 0
+    while w <= n_words:
+        if w < n_words:  # 8 cells at once: the words without a candidate are skipped
+            while w < n_words:
+                x = dec_words[w]
+                a = x ^ _STATIC_BYTES  # a zero byte where decided static, ...
+                b = x ^ _STOPPED_BYTES
+                e = x ^ _UNMAPPED_BYTES
+                hit = (((a - _ONES) & ~a) | ((b - _ONES) & ~b) | ((e - _ONES) & ~e)) & _HIGHS
+                if hit != 0:
+                    break
+                w += 1
+            if w == n_words:
+                continue
+            at = 8 * w
+            stop = at + 8
+            w += 1
+        else:  # the cells after the last whole word
+            at = 8 * n_words
+            stop = total
+            w += 1
+        for start in range(at, stop):
+            if mark[start]:
+                continue
+            d0 = flat[start]
+            if not (d0 == _STATIC or d0 == _STOPPED or d0 == _UNMAPPED):
+                continue
+            mark[start] = 1
+            first = n_cells
+            cells[n_cells] = start
+            n_cells += 1
+            head = first
+            road = 0
+            near_building = False
+            any_moved = False
             for k in range(n_angles):
-                p = c * cos[k] + r * sin[k]
-                lo_p[k] = min(lo_p[k], p)
-                hi_p[k] = max(hi_p[k], p)
-            for ddr in range(-1, 2):
-                rr = r + ddr
-                if rr < 0 or rr >= rows:
-                    continue
-                for ddc in range(-1, 2):
-                    cc = c + ddc
-                    if cc < 0 or cc >= cols:
-                        continue
-                    if has_labels:
-                        lab = labels[rr, cc]
-                        if lab == CONTEXT_BUILDING:
-                            near_building = True
-                        elif ddr == 0 and ddc == 0 and lab == CONTEXT_ROAD:
-                            road += 1
-                    j = rr * cols + cc
-                    if mark[j]:
-                        continue
-                    dj = flat[j]
-                    if dj == _STATIC or dj == _STOPPED or dj == _UNMAPPED:
-                        mark[j] = 1
-                        cells[n_cells] = j
-                        n_cells += 1
-        count = n_cells - first
-        thinnest = 0
-        for k in range(1, n_angles):
-            if hi_p[k] - lo_p[k] < hi_p[thinnest] - lo_p[thinnest] - 1e-9:
-                thinnest = k
-        along = (thinnest + n_angles // 2) % n_angles
-        length = hi_p[along] - lo_p[along] + 1.0
-        width = count / length
-        eligible = (relabel_unmapped and has_labels and width <= max_width + 1e-9
-                    and road == 0 and not near_building and not any_moved)
-        changed = 0
-        if eligible:
-            for q in range(first, n_cells):
-                i = cells[q]
+                lo_p[k] = np.inf
+                hi_p[k] = -np.inf
+            while head < n_cells:  # the component's cells double as the queue (breadth first)
+                i = cells[head]
+                head += 1
                 r = i // cols
                 c = i - r * cols
-                if labels[r, c] != CONTEXT_OTHER:
-                    continue
                 br = r + off_r
                 br = br - rows if br >= rows else br
                 bc = c + off_c
                 bc = bc - cols if bc >= cols else bc
-                if age_s[br, bc] >= min_age - SLACK:
-                    flat[i] = _UNMAPPED
-                    changed += 1
-        stats[n_comp, 0] = count
-        stats[n_comp, 1] = road
-        stats[n_comp, 2] = 1.0 if near_building else 0.0
-        stats[n_comp, 3] = 1.0 if any_moved else 0.0
-        stats[n_comp, 4] = width
-        stats[n_comp, 5] = length
-        unstopped = 0
-        if stopped_needs_road and has_labels and road == 0 and not any_moved:
-            for q in range(first, n_cells):  # step 4: what step 3 left stopped
-                i = cells[q]
-                if flat[i] == _STOPPED:
-                    flat[i] = _STATIC
-                    unstopped += 1
-        stats[n_comp, 6] = changed
-        stats[n_comp, 7] = unstopped
-        relabelled += changed
-        n_comp += 1
+                if moved[br, bc]:
+                    any_moved = True
+                for k in range(n_angles):
+                    p = c * cos[k] + r * sin[k]
+                    lo_p[k] = min(lo_p[k], p)
+                    hi_p[k] = max(hi_p[k], p)
+                for ddr in range(-1, 2):
+                    rr = r + ddr
+                    if rr < 0 or rr >= rows:
+                        continue
+                    for ddc in range(-1, 2):
+                        cc = c + ddc
+                        if cc < 0 or cc >= cols:
+                            continue
+                        if has_labels:
+                            lab = labels[rr, cc]
+                            if lab == CONTEXT_BUILDING:
+                                near_building = True
+                            elif ddr == 0 and ddc == 0 and lab == CONTEXT_ROAD:
+                                road += 1
+                        j = rr * cols + cc
+                        if mark[j]:
+                            continue
+                        dj = flat[j]
+                        if dj == _STATIC or dj == _STOPPED or dj == _UNMAPPED:
+                            mark[j] = 1
+                            cells[n_cells] = j
+                            n_cells += 1
+            count = n_cells - first
+            thinnest = 0
+            for k in range(1, n_angles):
+                if hi_p[k] - lo_p[k] < hi_p[thinnest] - lo_p[thinnest] - 1e-9:
+                    thinnest = k
+            along = (thinnest + n_angles // 2) % n_angles
+            length = hi_p[along] - lo_p[along] + 1.0
+            width = count / length
+            eligible = (relabel_unmapped and has_labels and width <= max_width + 1e-9
+                        and road == 0 and not near_building and not any_moved)
+            changed = 0
+            if eligible:
+                for q in range(first, n_cells):
+                    i = cells[q]
+                    r = i // cols
+                    c = i - r * cols
+                    if labels[r, c] != CONTEXT_OTHER:
+                        continue
+                    br = r + off_r
+                    br = br - rows if br >= rows else br
+                    bc = c + off_c
+                    bc = bc - cols if bc >= cols else bc
+                    if age_s[br, bc] >= min_age - SLACK:
+                        flat[i] = _UNMAPPED
+                        changed += 1
+            stats[n_comp, 0] = count
+            stats[n_comp, 1] = road
+            stats[n_comp, 2] = 1.0 if near_building else 0.0
+            stats[n_comp, 3] = 1.0 if any_moved else 0.0
+            stats[n_comp, 4] = width
+            stats[n_comp, 5] = length
+            unstopped = 0
+            if stopped_needs_road and has_labels and road == 0 and not any_moved:
+                for q in range(first, n_cells):  # step 4: what step 3 left stopped
+                    i = cells[q]
+                    if flat[i] == _STOPPED:
+                        flat[i] = _STATIC
+                        unstopped += 1
+            stats[n_comp, 6] = changed
+            stats[n_comp, 7] = unstopped
+            relabelled += changed
+            n_comp += 1
     for q in range(n_cells):
         mark[cells[q]] = 0
     return n_comp, relabelled
