@@ -755,19 +755,30 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
 
 
 @numba.njit(cache=True, nogil=True)
-def _fill_records(track_id, state_code, cell_count, age, centroid_out, bbox_out, extent,
-                  velocity_out, sigma_out, mean_out, rows, cl, ids, flags, hits, velocity,
-                  sigma, cells, offsets, centroid, bbox, mean_m):  # pragma: no cover
-    """The reported objects' fields (the record arrays' field views, filled in place) in
-    track id order, and their cells (uint32, in record order)."""
+def _fill_records(rows, cl, ids, flags, hits, velocity, sigma, cells, offsets, centroid, bbox,
+                  mean_m):  # pragma: no cover - compiled
+    """The reported objects' fields, in track id order (contiguous arrays, one a field of
+    :data:`~evperc.output.objects.OBJECT_DTYPE`, in its dtype), and their cells (uint32,
+    in record order)."""
+    n = rows.shape[0]
     order = np.argsort(ids[rows], kind="mergesort")  # by id (rows are in id order already)
     total = 0
-    for k in range(rows.shape[0]):
+    for k in range(n):
         c = cl[k]
         total += offsets[c + 1] - offsets[c]
+    track_id = np.empty(n, np.uint32)
+    state_code = np.empty(n, np.uint8)
+    cell_count = np.empty(n, np.uint32)
+    age = np.empty(n, np.uint32)
+    centroid_out = np.empty((n, 2), np.float64)
+    bbox_out = np.empty((n, 4), np.float64)
+    extent = np.empty((n, 2), np.float32)
+    velocity_out = np.empty((n, 2), np.float32)
+    sigma_out = np.empty(n, np.float32)
+    mean_out = np.empty(n, np.float32)
     out = np.empty(total, np.uint32)
     at = 0
-    for k in range(order.shape[0]):
+    for k in range(n):
         i = rows[order[k]]
         c = cl[order[k]]
         a = offsets[c]
@@ -787,7 +798,12 @@ def _fill_records(track_id, state_code, cell_count, age, centroid_out, bbox_out,
         for q in range(a, b):
             out[at] = cells[q]
             at += 1
-    return out
+    return (track_id, state_code, cell_count, age, centroid_out, bbox_out, extent,
+            velocity_out, sigma_out, mean_out, out)
+
+
+_FIELDS = ("track_id", "state", "cell_count", "age_frames", "centroid_m", "bbox_m", "extent_m",
+           "velocity_m_per_s", "speed_sigma_m_per_s", "mean_betp_moving")
 
 
 _NO_DECISION = np.zeros(0, np.uint8)
@@ -841,12 +857,11 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
      state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
      state.past_n, state.past, state.next_id, rows, cl) = out
     state.next_id = int(state.next_id)
+    *fields, cells_out = _fill_records(
+        rows, cl, state.id, state.flags, state.hits, state.velocity, state.sigma,
+        clusters.cells, clusters.offsets, clusters.centroid_m, clusters.bbox_m,
+        clusters.mean_betp_moving)
     records = np.zeros(len(rows), OBJECT_DTYPE)
-    cells_out = _fill_records(
-        records["track_id"], records["state"], records["cell_count"], records["age_frames"],
-        records["centroid_m"], records["bbox_m"], records["extent_m"],
-        records["velocity_m_per_s"], records["speed_sigma_m_per_s"],
-        records["mean_betp_moving"], rows, cl, state.id, state.flags, state.hits,
-        state.velocity, state.sigma, clusters.cells, clusters.offsets, clusters.centroid_m,
-        clusters.bbox_m, clusters.mean_betp_moving)
+    for name, value in zip(_FIELDS, fields, strict=True):
+        records[name] = value
     return records, cells_out
