@@ -98,6 +98,8 @@ RULES: dict[str, tuple] = {
     "objects.point_height_margin_m": ("range", 0.0, 100.0, False, False),
     "objects.footprint_frames": ("range", 0, 1_000, False, False),
     "objects.arrival_share": ("range", *_UNIT_INTERVAL, False, False),
+    "objects.fragment_gap_cells": ("range", 0, 100, False, False),
+    "objects.fragment_extent_m": ("range", 0.0, 100.0, True, False),
     "objects.unmapped_max_width_m": ("range", 0.0, 100.0, True, False),
     "objects.unmapped_min_age_s": ("range", 0.0, 3600.0, False, False),
     "input.max_pose_gap_s": ("range", 0.0, 1e6, True, False),

@@ -24,6 +24,19 @@ The completed cells join the object's cells in the object list (the record's
 velocity is the tracker's), and with ``objects.fill_moving`` they are decided ``moving``:
 a decision, not evidence (the masses are not changed, as for the fill).
 
+**Fragments** (``objects.fragment_gap_cells`` g, ``objects.fragment_extent_m`` L; ours,
+issue "switches"). One car's returns often form two clusters split by a single empty cell
+(its near face and its side), and both tracks can be reported moving: two objects for one
+agent. After the completion, a moving object whose observed cluster cells lie within
+Chebyshev distance g (lattice cells) of an older moving object's observed cells, and whose
+observed cells joined with the older one's fit in a box no longer than L along x and y, is
+reported as part of the older one (its completed cells get the older track id; its record
+is dropped; the older record's cells, centroid, bbox and extent are recomputed). "Older":
+more earlier moving frames in the history (the track reported moving longest keeps the
+agent's identity), then more ``age_frames``, then the smaller track id. Only the object
+list changes: the tracker keeps both tracks, the moving cells are the same union (so cell
+scores do not change), and the history stays per track id.
+
 Input is the object list of the frame (records and cells, :mod:`evperc.output.objects`),
 so this does not depend on the tracker's internals."""
 
@@ -47,10 +60,18 @@ class FootprintParams:
     #: objects.footprint_frames: past moving frames whose cluster cells, carried forward by
     #: the velocity, complete the footprint (0: off)
     frames: int = 0  # configs/default.toml: tuned value
+    #: objects.fragment_gap_cells: a moving object within this Chebyshev distance (cells) of
+    #: an older moving one is reported as part of it (0: off)
+    fragment_gap_cells: int = 0
+    #: objects.fragment_extent_m: largest side (m) of the joined footprint's box
+    fragment_extent_m: float = 6.0
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> FootprintParams:
-        return FootprintParams(frames=int(config.get("objects", {}).get("footprint_frames", 0)))
+        o = config.get("objects", {})
+        return FootprintParams(frames=int(o.get("footprint_frames", 0)),
+                               fragment_gap_cells=int(o.get("fragment_gap_cells", 0)),
+                               fragment_extent_m=float(o.get("fragment_extent_m", 6.0)))
 
 
 @dataclass
@@ -109,6 +130,64 @@ def _cells_at(xy: np.ndarray, window: Window) -> np.ndarray:
     return row[inside] * window.cols + col[inside]
 
 
+def _set_geometry(rec: np.ndarray, cells: np.ndarray, window: Window) -> None:
+    """``rec``'s cell_count, centroid, bbox and extent set to those of ``cells``."""
+    xy = cell_centres(cells, window)
+    res = window.resolution_m
+    rec["cell_count"] = len(cells)
+    rec["centroid_m"] = xy.mean(axis=0)
+    lo, hi = xy.min(axis=0) - res / 2, xy.max(axis=0) + res / 2
+    rec["bbox_m"] = (lo[0], lo[1], hi[0], hi[1])
+    rec["extent_m"] = hi - lo
+
+
+def _gap_cells(a: np.ndarray, b: np.ndarray, cols: int) -> int:
+    """Smallest Chebyshev distance (cells) between flat cells ``a`` and ``b`` (non-empty)."""
+    ra, ca = np.divmod(a, cols)
+    rb, cb = np.divmod(b, cols)
+    d = np.maximum(np.abs(ra[:, None] - rb[None, :]), np.abs(ca[:, None] - cb[None, :]))
+    return int(d.min())
+
+
+def merge_fragments(objects: np.ndarray, pieces: list[np.ndarray], observed: list[np.ndarray],
+                    streak: list[int], window: Window, params: FootprintParams
+                    ) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The moving fragments of one object joined into the oldest (module docstring,
+    **Fragments**). ``pieces``: each record's (completed) cells; ``observed``: its cluster
+    cells; ``streak``: its earlier moving frames held in the history (at most
+    ``footprint_frames``). Returns the kept records and their cells, in record order."""
+    moving = [k for k in range(len(objects)) if objects[k]["state"] == _MOVING
+              and len(observed[k]) > 0]
+    order = sorted(moving, key=lambda k: (-int(streak[k]), -int(objects[k]["age_frames"]),
+                                          int(objects[k]["track_id"])))
+    owner = {k: k for k in range(len(objects))}
+    joined = {k: pieces[k] for k in range(len(objects))}
+    seen_cells = {k: observed[k] for k in range(len(objects))}
+    res = window.resolution_m
+    for j_at, j in enumerate(order):  # each younger object, into the oldest that fits
+        for i in order[:j_at]:
+            if owner[i] != i:
+                continue
+            if _gap_cells(seen_cells[i], observed[j], window.cols) > params.fragment_gap_cells:
+                continue
+            both = np.union1d(seen_cells[i], observed[j])
+            xy = cell_centres(both, window)
+            if (xy.max(axis=0) - xy.min(axis=0) + res).max() > params.fragment_extent_m + 1e-9:
+                continue
+            owner[j] = i
+            joined[i] = np.union1d(joined[i], joined[j])
+            seen_cells[i] = both
+            break
+    if all(owner[k] == k for k in owner):
+        return objects, pieces
+    keep = [k for k in range(len(objects)) if owner[k] == k]
+    out = objects[keep].copy()
+    for at, k in enumerate(keep):
+        if len(joined[k]) != len(pieces[k]):
+            _set_geometry(out[at], joined[k], window)
+    return out, [joined[k] for k in keep]
+
+
 def complete_footprints(state: FootprintState, objects: np.ndarray, cells: np.ndarray,
                         window: Window, stamp_ns: int, scan_speaks: np.ndarray,
                         params: FootprintParams) -> tuple[np.ndarray, np.ndarray]:
@@ -122,20 +201,24 @@ def complete_footprints(state: FootprintState, objects: np.ndarray, cells: np.nd
     speaks = np.asarray(scan_speaks, bool).reshape(-1)
     out = objects.copy()
     pieces = []
+    observed = []
+    streak = []
     at = 0
     seen: set[int] = set()
-    res = window.resolution_m
     for k, rec in enumerate(objects):
         n = int(rec["cell_count"])
         own = np.asarray(cells[at:at + n], np.int64)
+        observed.append(own)
         at += n
         tid = int(rec["track_id"])
         seen.add(tid)
         if rec["state"] != _MOVING:
             state.history.pop(tid, None)
+            streak.append(0)
             pieces.append(own)
             continue
         past = state.history.get(tid, [])
+        streak.append(len(past))
         v = np.asarray(rec["velocity_m_per_s"], np.float64)
         extra = [_cells_at(xy + v * ((stamp_ns - t) * 1e-9), window) for t, xy in past]
         if extra:
@@ -149,14 +232,11 @@ def complete_footprints(state: FootprintState, objects: np.ndarray, cells: np.nd
         state.history[tid] = past[-params.frames:]
         pieces.append(full)
         if len(full) != n:
-            xy = cell_centres(full, window)
-            out[k]["cell_count"] = len(full)
-            out[k]["centroid_m"] = xy.mean(axis=0)
-            lo, hi = xy.min(axis=0) - res / 2, xy.max(axis=0) + res / 2
-            out[k]["bbox_m"] = (lo[0], lo[1], hi[0], hi[1])
-            out[k]["extent_m"] = hi - lo
+            _set_geometry(out[k], full, window)
     for tid in [t for t in state.history if t not in seen]:  # tracks not reported now
         del state.history[tid]
+    if params.fragment_gap_cells > 0:
+        out, pieces = merge_fragments(out, pieces, observed, streak, window, params)
     new_cells = (np.concatenate(pieces).astype(np.uint32) if pieces
                  else np.zeros(0, np.uint32))
     return out, new_cells
