@@ -28,6 +28,7 @@ from evperc.geo.window import Window
 from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
+from evperc.objects.clusters import JOINS_ANY
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints
 from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
 from evperc.objects.stage import ObjectStage, fill_moving, fills_decision, objects_enabled
@@ -342,8 +343,9 @@ class Pipeline:
         self.footprint = FootprintParams.from_config(config)
         #: objects.cluster_on = "all_returns": clusters grow through the cells holding any
         #: obstacle return of the scan, not only those the sensor model marks occupied
-        self.cluster_all_returns = (self.objects is not None and config["objects"].get(
-            "cluster_on", "first_returns") == "all_returns")
+        self.cluster_on = (config["objects"].get("cluster_on", "first_returns")
+                           if self.objects is not None else "first_returns")
+        self.cluster_all_returns = self.cluster_on != "first_returns"
         self.unmapped = (UnmappedCue(UnmappedParams.from_config(config), probe.shape,
                                      self.resolution) if unmapped_enabled(config) else None)
         self._warm_up()
@@ -530,8 +532,11 @@ class Pipeline:
             if state.tracks is None:
                 state.tracks = TrackerState()
             occupied_now = inputs.occupied > 0
-            if inputs.hits is not None:  # objects.cluster_on = "all_returns"
+            if inputs.hits is not None and self.cluster_on == "all_returns":
                 occupied_now |= inputs.hits
+            elif inputs.hits is not None:  # "all_returns_join": the hit-only cells join any
+                occupied_now = occupied_now.view(np.uint8)
+                occupied_now[inputs.hits & (occupied_now == 0)] = JOINS_ANY
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
                 inputs.stamp_ns, occupied_now=occupied_now)

@@ -101,15 +101,23 @@ def _grow_lut() -> np.ndarray:
 
 _GROWS = _grow_lut()
 _MOVING = DECISION_CODES["moving"]
+_UNKNOWN = DECISION_CODES["unknown"]
+#: ``now`` value of a cell holding a return behind the first one of its azimuth bin
+#: (objects.cluster_on = "all_returns_join"): it joins a cluster growing next to it whatever
+#: its decision (the fusion often decides such a cell free or unknown), but seeds none
+#: (except as a track's previous cell)
+JOINS_ANY = 2
 
 
 @numba.njit(cache=True, nogil=True)
 def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_all: bool,
-           cols: int, fo_q: int, moving: int, grows: np.ndarray, extra: np.ndarray,
+           cols: int, fo_q: int, moving: int, unknown: int, grows: np.ndarray,
+           extra: np.ndarray,
            mark: np.ndarray, cells: np.ndarray, stats: np.ndarray) -> tuple[int, int]:
     """Flood fill from every seed; returns (clusters, cells). ``stats[k]``: count, seeds,
     Σrow, Σcol, min row, max row, min col, max col. ``decision``, ``conflict_fo``, ``now``
-    (1: a cell a cluster may hold unless decided moving): the window's cells, flat
+    (1: a cell a cluster may hold unless decided moving; :data:`JOINS_ANY`: a cell a growing
+    cluster takes whatever its decision, except infrastructure): the window's cells, flat
     (row-major, ``cols`` a row). ``seed_all``: every cell a cluster may hold seeds."""
     total = decision.shape[0]
     rows = total // cols
@@ -128,7 +136,7 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_
                 continue
             d = decision[start]
             if seed_all:
-                if not (d == moving or (grows[d] and now[start])):
+                if not (d == moving or (grows[d] and now[start] == 1)):
                     continue
             elif d != moving and not (fo_q > 0 and conflict_fo[start] >= fo_q):
                 continue
@@ -161,6 +169,8 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_
             r1 = max(r1, r)
             c0 = min(c0, c)
             c1 = max(c1, c)
+            if now[i] == JOINS_ANY:  # a hit-only cell joins but does not grow the cluster
+                continue
             for dr in range(-1, 2):
                 rr = r + dr
                 if rr < 0 or rr >= rows:
@@ -174,6 +184,7 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_
                         continue
                     dj = decision[j]
                     if ((grows[dj] and (now[j] or dj == moving))
+                            or (now[j] == JOINS_ANY and dj == unknown)
                             or (fo_q > 0 and conflict_fo[j] >= fo_q)):
                         mark[j] = 1
                         cells[n_cells] = j
@@ -228,11 +239,13 @@ class Clusterer:
         if seed_all:
             if occupied_now is None or occupied_now.shape != self.shape:
                 raise ValueError("seeds = 'occupied' needs the scan's occupied cells")
+            # bool, or uint8 with JOINS_ANY cells (the runner's all_returns_join)
             now = np.ascontiguousarray(occupied_now, np.uint8).reshape(-1)
         else:
             now = self._everywhere
         n, used = _flood(decision.reshape(-1), conflict_fo.reshape(-1), now, seed_all,
-                         self.shape[1], self._fo_q, _MOVING, _GROWS, extra, self._mark,
+                         self.shape[1], self._fo_q, _MOVING, _UNKNOWN, _GROWS, extra,
+                         self._mark,
                          self._cells, self._stats)
         stats = self._stats[:n]
         count = stats[:, 0]
