@@ -102,10 +102,12 @@ def _grow_lut() -> np.ndarray:
 _GROWS = _grow_lut()
 _MOVING = DECISION_CODES["moving"]
 _UNKNOWN = DECISION_CODES["unknown"]
-#: ``now`` value of a cell holding a return behind the first one of its azimuth bin
-#: (objects.cluster_on = "all_returns_join"): it joins a cluster growing next to it whatever
-#: its decision (the fusion often decides such a cell free or unknown), but seeds none
-#: (except as a track's previous cell)
+#: ``now`` value of a cell holding only returns behind the first one of their azimuth bin
+#: (objects.cluster_on = "all_returns_join"): decided unknown (the grid has no occupied
+#: evidence there), it joins a cluster growing next to it as a leaf — it seeds none (except
+#: as a track's previous cell) and grows the cluster no further. Hit-only cells decided
+#: free are not taken: on the simulated hdl64 drives they cost object precision (they
+#: are later counted as vacated cells), notes/hits.md
 JOINS_ANY = 2
 
 
@@ -116,8 +118,8 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_
            mark: np.ndarray, cells: np.ndarray, stats: np.ndarray) -> tuple[int, int]:
     """Flood fill from every seed; returns (clusters, cells). ``stats[k]``: count, seeds,
     Σrow, Σcol, min row, max row, min col, max col. ``decision``, ``conflict_fo``, ``now``
-    (1: a cell a cluster may hold unless decided moving; :data:`JOINS_ANY`: a cell a growing
-    cluster takes whatever its decision, except infrastructure): the window's cells, flat
+    (1: a cell a cluster may hold unless decided moving; :data:`JOINS_ANY`: a leaf cell a
+    growing cluster takes if decided ``unknown``): the window's cells, flat
     (row-major, ``cols`` a row). ``seed_all``: every cell a cluster may hold seeds."""
     total = decision.shape[0]
     rows = total // cols

@@ -2,9 +2,9 @@
 
 "all_returns_join" (the runner passes ``occupied_now`` as uint8 with
 :data:`~evperc.objects.clusters.JOINS_ANY` at cells holding only returns behind the first
-one of their azimuth bin): such a cell joins a cluster growing next to it whatever its
-decision (free, unknown — the fusion often decides a cell it never saw occupied so), except
-infrastructure, and never seeds one. Hand-made grids; expected cells worked out by hand."""
+one of their azimuth bin): such a cell decided unknown joins a cluster growing next to it
+as a leaf (it grows the cluster no further) and never seeds one; decided free or
+infrastructure it does not join. Hand-made grids; expected cells worked out by hand."""
 
 from __future__ import annotations
 
@@ -24,25 +24,31 @@ def _clusters(dec: np.ndarray, now: np.ndarray):
 
 
 def _scene():
-    """A far object: two first-return cells (static), behind them two cells with returns
-    the sensor grid leaves unknown (decided free and unknown), beside them a mapped building
-    cell holding a return; elsewhere three hit-only cells decided free, alone."""
+    """A far object: two first-return cells (static), behind them three cells with returns
+    the sensor grid leaves unknown (decided unknown, unknown, free), a mapped building cell
+    holding a return; a chain of hit-only unknown cells off the leaf; three hit-only cells
+    decided unknown, alone."""
     dec = np.full(WIN.shape, D["free"], np.uint8)
     now = np.zeros(WIN.shape, np.uint8)
     dec[3, 2:4] = D["static"]
     now[3, 2:4] = 1                                   # first returns, sensor occupied
-    dec[3, 4], dec[4, 4] = D["free"], D["unknown"]    # returns behind them
+    dec[3, 4] = dec[4, 4] = D["unknown"]              # returns behind them
+    dec[4, 2] = D["free"]
     dec[2, 4] = D["infrastructure"]
-    now[3, 4] = now[4, 4] = now[2, 4] = JOINS_ANY
-    now[6, 6:9] = JOINS_ANY                           # hit-only cells decided free, alone
+    now[3, 4] = now[4, 4] = now[4, 2] = now[2, 4] = JOINS_ANY
+    dec[5, 5] = dec[6, 5] = D["unknown"]              # a chain beyond the leaf (4, 4)
+    now[5, 5] = now[6, 5] = JOINS_ANY
+    dec[6, 7:10] = D["unknown"]
+    now[6, 7:10] = JOINS_ANY                          # hit-only cells, alone
     return dec, now
 
 
-def test_hit_only_cells_join_a_growing_cluster_whatever_their_decision():
+def test_hit_only_unknown_cells_join_a_growing_cluster_as_leaves():
     dec, now = _scene()
     c = _clusters(dec, now)
-    # (3,2) (3,3) seed; (3,4) free and (4,4) unknown join; (2,4) infrastructure does not;
-    # the lone hit-only row (6, 6..8) seeds nothing
+    # (3,2) (3,3) seed; (3,4) and (4,4) unknown join; (4,2) free and (2,4) infrastructure
+    # do not; (5,5) touches only the leaf (4,4): not taken; the lone row (6, 7..9) seeds
+    # nothing
     assert len(c) == 1
     assert sorted(c.cells_of(0)) == [3 * 10 + 2, 3 * 10 + 3, 3 * 10 + 4, 4 * 10 + 4]
 
