@@ -90,6 +90,7 @@ RULES: dict[str, tuple] = {
     "objects.motion_test": ("range", 0.0, 1e6, False, False),
     "objects.centroid_sigma_m": ("range", 0.0, 100.0, True, False),
     "objects.seeds": ("choice", "occupied", "moving"),
+    "objects.cluster_on": ("choice", "first_returns", "all_returns", "all_returns_join"),
     "objects.motion_evidence_frames": ("range", 0, 10_000, False, False),
     "objects.conflict_cells": ("range", 1, 1_000_000, False, False),
     "objects.vacated_frames": ("range", 1, 1_000, False, False),

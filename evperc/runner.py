@@ -28,6 +28,7 @@ from evperc.geo.window import Window
 from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
+from evperc.objects.clusters import JOINS_ANY
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints
 from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
 from evperc.objects.stage import ObjectStage, fill_moving, fills_decision, objects_enabled
@@ -80,6 +81,9 @@ class FrameInputs:
     t_crs: np.ndarray | None = None  # its sensor pose in the working CRS
     #: (scan, t_crs, point kinds) kept for the per-point labels (``--point-labels``)
     labelling: tuple[PosedScan, np.ndarray, np.ndarray] | None = None
+    #: cells holding any obstacle return of the scan (bool), with objects.cluster_on =
+    #: "all_returns" only (:func:`evperc.sensor.sensor_grid`, ``hits_out``)
+    hits: np.ndarray | None = None
 
 
 def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
@@ -337,6 +341,11 @@ class Pipeline:
         self.objects = (ObjectStage(config, probe.shape) if objects_enabled(config) else None)
         self.fill_moving = fills_decision(config)
         self.footprint = FootprintParams.from_config(config)
+        #: objects.cluster_on = "all_returns": clusters grow through the cells holding any
+        #: obstacle return of the scan, not only those the sensor model marks occupied
+        self.cluster_on = (config["objects"].get("cluster_on", "first_returns")
+                           if self.objects is not None else "first_returns")
+        self.cluster_all_returns = self.cluster_on != "first_returns"
         self.unmapped = (UnmappedCue(UnmappedParams.from_config(config), probe.shape,
                                      self.resolution) if unmapped_enabled(config) else None)
         self._warm_up()
@@ -349,7 +358,8 @@ class Pipeline:
                      "install; cached for the next runs)")
         tiny = Window(self.resolution, 2, 2, 0, 0)
         points = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, -1.5]], np.float32)
-        free, occupied = sensor_grid(points, False, np.eye(4), tiny, self.sensor_params)
+        free, occupied = sensor_grid(points, False, np.eye(4), tiny, self.sensor_params,
+                                     hits_out=np.empty(tiny.shape, np.bool_))
         state = FusionState.fresh(tiny)
         out = StoredOutputs.empty(tiny.shape)
         gate = gate_step(state.gate, free, occupied, 0.1, self.params)
@@ -462,12 +472,13 @@ class Pipeline:
         t0 = time.perf_counter()
         scan = inputs.scan
         kinds = np.empty(len(scan.points), np.uint8) if self.request.point_labels else None
+        hits = np.empty(inputs.window.shape, np.bool_) if self.cluster_all_returns else None
         free, occupied = sensor_grid(scan.points, scan.planar, inputs.t_crs, inputs.window,
-                                     self.sensor_params, kinds_out=kinds)
+                                     self.sensor_params, kinds_out=kinds, hits_out=hits)
         seconds = {**inputs.seconds, "sensor": time.perf_counter() - t0}
         labelling = (scan, inputs.t_crs, kinds) if kinds is not None else None
         return replace(inputs, free=free, occupied=occupied, seconds=seconds, scan=None,
-                       t_crs=None, labelling=labelling)
+                       t_crs=None, labelling=labelling, hits=hits)
 
     def inputs(self, after_index: int, defer: threading.Event | None = None
                ) -> Iterator[tuple[int, FrameInputs]]:
@@ -520,9 +531,15 @@ class Pipeline:
         if self.objects is not None:  # clusters and tracks (evperc.objects), from the layers
             if state.tracks is None:
                 state.tracks = TrackerState()
+            occupied_now = inputs.occupied > 0
+            if inputs.hits is not None and self.cluster_on == "all_returns":
+                occupied_now |= inputs.hits
+            elif inputs.hits is not None:  # "all_returns_join": the hit-only cells join any
+                occupied_now = occupied_now.view(np.uint8)
+                occupied_now[inputs.hits & (occupied_now == 0)] = JOINS_ANY
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
-                inputs.stamp_ns, occupied_now=inputs.occupied > 0)
+                inputs.stamp_ns, occupied_now=occupied_now)
             if self.footprint.frames > 0:  # motion-compensated footprints (objects/footprint.py)
                 if state.footprints is None:
                     state.footprints = FootprintState()

@@ -101,11 +101,19 @@ def _grow_lut() -> np.ndarray:
 
 _GROWS = _grow_lut()
 _MOVING = DECISION_CODES["moving"]
+_UNKNOWN = DECISION_CODES["unknown"]
+#: ``now`` value of a cell holding only returns behind the first one of their azimuth bin
+#: (objects.cluster_on = "all_returns_join"): decided unknown (the grid has no occupied
+#: evidence there), it joins a cluster growing next to it as a leaf — it seeds none (except
+#: as a track's previous cell) and grows the cluster no further. Hit-only cells decided
+#: free are not taken: on the simulated hdl64 drives they cost object precision (they
+#: are later counted as vacated cells), notes/hits.md
+JOINS_ANY = 2
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _grow(start, k, n_cells, decision, conflict_fo, now, cols, rows, fo_q, moving, grows,
-          mark, cells, stats):  # pragma: no cover - compiled
+def _grow(start, k, n_cells, decision, conflict_fo, now, cols, rows, fo_q, moving, unknown,
+          grows, mark, cells, stats):  # pragma: no cover - compiled
     """Flood fill of cluster ``k`` from ``start`` (not yet marked); its cells are appended
     to ``cells`` from ``n_cells`` on; returns the new ``n_cells``."""
     first = n_cells
@@ -135,6 +143,8 @@ def _grow(start, k, n_cells, decision, conflict_fo, now, cols, rows, fo_q, movin
         r1 = max(r1, r)
         c0 = min(c0, c)
         c1 = max(c1, c)
+        if now[i] == JOINS_ANY:  # a hit-only cell joins but does not grow the cluster
+            continue
         for dr in range(-1, 2):
             rr = r + dr
             if rr < 0 or rr >= rows:
@@ -148,6 +158,7 @@ def _grow(start, k, n_cells, decision, conflict_fo, now, cols, rows, fo_q, movin
                     continue
                 dj = decision[j]
                 if ((grows[dj] and (now[j] or dj == moving))
+                        or (now[j] == JOINS_ANY and dj == unknown)
                         or (fo_q > 0 and conflict_fo[j] >= fo_q)):
                     mark[j] = 1
                     cells[n_cells] = j
@@ -170,12 +181,14 @@ _HIGHS = np.uint64(0x8080808080808080)
 
 @numba.njit(cache=True, nogil=True)
 def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_all: bool,
-           cols: int, fo_q: int, moving: int, grows: np.ndarray, extra: np.ndarray,
+           cols: int, fo_q: int, moving: int, unknown: int, grows: np.ndarray,
+           extra: np.ndarray,
            mark: np.ndarray, cells: np.ndarray, stats: np.ndarray, dec_words: np.ndarray,
            now_words: np.ndarray) -> tuple[int, int]:  # pragma: no cover - compiled
     """Flood fill from every seed; returns (clusters, cells). ``stats[k]``: count, seeds,
     Σrow, Σcol, min row, max row, min col, max col. ``decision``, ``conflict_fo``, ``now``
-    (1: a cell a cluster may hold unless decided moving): the window's cells, flat
+    (1: a cell a cluster may hold unless decided moving; :data:`JOINS_ANY`: a leaf cell a
+    growing cluster takes if decided ``unknown``): the window's cells, flat
     (row-major, ``cols`` a row). ``seed_all``: every cell a cluster may hold seeds.
     ``dec_words``, ``now_words``: the first cells of ``decision`` and ``now`` as uint64
     words (8 cells each; empty: no skipping): the scan skips the 8 cells of a word
@@ -191,7 +204,7 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_
                 or not (now[start] or decision[start] == moving)):
             continue
         n_cells = _grow(start, n_clusters, n_cells, decision, conflict_fo, now, cols, rows,
-                        fo_q, moving, grows, mark, cells, stats)
+                        fo_q, moving, unknown, grows, mark, cells, stats)
         n_clusters += 1
     w_end = 8 * dec_words.shape[0]
     moving_bytes = np.uint64(moving) * _ONES
@@ -221,12 +234,12 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_
                 continue
             d = decision[start]
             if seed_all:
-                if not (d == moving or (grows[d] and now[start])):
+                if not (d == moving or (grows[d] and now[start] == 1)):
                     continue
             elif d != moving and not (fo_q > 0 and conflict_fo[start] >= fo_q):
                 continue
             n_cells = _grow(start, n_clusters, n_cells, decision, conflict_fo, now, cols,
-                            rows, fo_q, moving, grows, mark, cells, stats)
+                            rows, fo_q, moving, unknown, grows, mark, cells, stats)
             n_clusters += 1
     for m in range(n_cells):
         mark[cells[m]] = 0
@@ -323,7 +336,9 @@ class Clusterer:
         if seed_all:
             if occupied_now is None or occupied_now.shape != self.shape:
                 raise ValueError("seeds = 'occupied' needs the scan's occupied cells")
-            now = (occupied_now.reshape(-1).view(np.uint8)  # no copy (bool is a 0/1 byte)
+            # bool (viewed, no copy: a 0/1 byte), or uint8 with JOINS_ANY cells (the
+            # runner's all_returns_join)
+            now = (occupied_now.reshape(-1).view(np.uint8)
                    if occupied_now.dtype == np.bool_ and occupied_now.flags.c_contiguous
                    else np.ascontiguousarray(occupied_now, np.uint8).reshape(-1))
         else:
@@ -336,7 +351,7 @@ class Clusterer:
         else:  # seeds by ∅_FO: no skip test
             dec_words = now_words = self._no_words
         n, _ = _flood(flat, conflict_fo.reshape(-1), now, seed_all, self.shape[1], self._fo_q,
-                      _MOVING, _GROWS, extra, self._mark, self._cells, self._stats,
+                      _MOVING, _UNKNOWN, _GROWS, extra, self._mark, self._cells, self._stats,
                       dec_words, now_words)
         tracked = self._no_flags
         if self.params.keep_tracked_small and len(extra):

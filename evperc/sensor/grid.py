@@ -21,7 +21,12 @@ from evperc.sensor.conservative import conservative_free
 from evperc.sensor.evidence import beam_extents
 from evperc.sensor.ground import OBSTACLE, classify_points, histogram_shape
 from evperc.sensor.params import SensorParams
-from evperc.sensor.projection import rasterise, scatter_free_polar_cells, scatter_hits
+from evperc.sensor.projection import (
+    rasterise,
+    scatter_all_hits,
+    scatter_free_polar_cells,
+    scatter_hits,
+)
 
 log = logging.getLogger(__name__)
 
@@ -45,8 +50,8 @@ _scratch = _Scratch()
 
 
 def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, window: Window,
-                params: SensorParams, kinds_out: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
+                params: SensorParams, kinds_out: np.ndarray | None = None,
+                hits_out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(free, occupied)``: float32 ``window.shape`` arrays of m({F}) and m({O}) for one scan;
     m(Ω_SG) = 1 − free − occupied and a cell has at most one of the two nonzero.
 
@@ -65,6 +70,10 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
     ``kinds_out`` (uint8 (N,), optional) receives each point's kind from the ground split
     (:data:`~evperc.sensor.ground.IGNORED` — out of range, non-finite or above
     ``max_obstacle_height_m`` —, ``GROUND``, ``OBSTACLE``), for the per-point labels.
+    ``hits_out`` (bool ``window.shape``, optional) is overwritten with the cells holding at
+    least one OBSTACLE point of the scan — all its returns in range and in the height band,
+    not only the first per azimuth bin that the sensor model marks occupied (the object
+    stage's ``objects.cluster_on = "all_returns"``; the masses do not depend on it).
     """
     layout = PolarLayout.build(params.azimuth_resolution_deg,
                                params.range_bin_m or window.resolution_m,
@@ -100,6 +109,12 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
     state.fill(0)
     scatter_free_polar_cells(state, window, sensor_xy, heading, layout, free_end)
     scatter_hits(state, window, sensor_xy, x, y, az_bin, range_bin, kind, obstacle_bin)
+    if hits_out is not None:
+        if hits_out.shape != window.shape or hits_out.dtype != np.bool_:
+            raise ValueError(f"hits_out must be bool {window.shape}, got {hits_out.dtype} "
+                             f"{hits_out.shape}")
+        hits_out.fill(False)
+        scatter_all_hits(hits_out, window, sensor_xy, x, y, kind)
     if log.isEnabledFor(logging.DEBUG):
         log.debug("sensor grid: %d points kept, %d obstacle", int((az_bin >= 0).sum()),
                   int((kind == OBSTACLE).sum()))

@@ -64,6 +64,15 @@ def scatter_hits(state: np.ndarray, window: Window, sensor_xy: tuple[float, floa
                   sensor_xy[1], x, y, az_bin, range_bin, kind, obstacle_bin)
 
 
+def scatter_all_hits(mask: np.ndarray, window: Window, sensor_xy: tuple[float, float],
+                     x: np.ndarray, y: np.ndarray, kind: np.ndarray) -> None:
+    """Set True in ``mask`` (bool ``window.shape``, not cleared here) every world cell
+    holding an OBSTACLE point — every return, not only the first of its azimuth bin (the
+    object stage's ``objects.cluster_on = "all_returns"``). Not part of the sensor grid."""
+    _scatter_all_hits(mask.view(np.uint8), float(window.resolution_m), window.row0,
+                      window.col0, sensor_xy[0], sensor_xy[1], x, y, kind)
+
+
 def rasterise(state: np.ndarray, window: Window, sensor_xy: tuple[float, float],
               heading_rad: float, layout: PolarLayout, obstacle_bin: np.ndarray,
               free_end: np.ndarray, mu_free: float, mu_occupied: float,
@@ -110,6 +119,15 @@ def _scatter_hits(state, res, row0, col0, sx, sy, x, y, az_bin, range_bin, kind,
         if kind[i] == OBSTACLE and range_bin[i] == obstacle_bin[az_bin[i]]:
             _mark(state, res, row0, col0, sx + np.float64(x[i]), sy + np.float64(y[i]),
                   OCCUPIED)
+
+
+@numba.njit(cache=True, nogil=True)
+def _scatter_all_hits(mask, res, row0, col0, sx, sy, x, y, kind) -> None:
+    """See :func:`scatter_all_hits`."""
+    for i in range(x.shape[0]):
+        if kind[i] == OBSTACLE:
+            _mark(mask, res, row0, col0, sx + np.float64(x[i]), sy + np.float64(y[i]),
+                  np.uint8(1))
 
 
 @numba.njit(cache=True, nogil=True)
