@@ -138,7 +138,8 @@ def main() -> int:
 
 KITTI_CONFIGS = (("**defaults**", "default"), ("paper's method", "kurdej2013"),
                  ("no motion gate", "no_gate"), ("with the free margin", "free_margin"),
-                 ("no object stage", "no_objects"))
+                 ("no object stage", "no_objects"),
+                 ("configs/semantickitti.toml (clusters on all returns)", "semantickitti"))
 
 
 def kitti_table(folder: Path) -> int:
