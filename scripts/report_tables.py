@@ -154,7 +154,7 @@ def kitti_table(folder: Path) -> int:
         return "–" if v is None else f"{v:.3f}"
 
     for seq in ("00", "01", "05", "07", "09", "10"):
-        use = "tuning (sensor side)" if seq in tuning else "held out"
+        use = "tuning" if seq in tuning else "held out"
         for label, config in KITTI_CONFIGS:
             path = folder / f"{config}-{seq}.json"
             if not path.is_file():
