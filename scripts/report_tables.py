@@ -34,7 +34,9 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("no building margin", "configs/ablation/no_building_margin.toml"),
              ("no object stage (no fill, no object list)", "configs/ablation/no_objects.toml"),
              ("no unmapped cue", "configs/ablation/no_unmapped_cue.toml"),
-             ("stopped without the road rule", "configs/ablation/no_stopped_needs_road.toml"))
+             ("stopped without the road rule", "configs/ablation/no_stopped_needs_road.toml"),
+             ("no footprint completion", "configs/ablation/no_footprint_completion.toml"),
+             ("no arrival evidence", "configs/ablation/no_arrival_evidence.toml"))
 
 
 #: the scores of the headline and ablation rows, in column order
