@@ -31,7 +31,13 @@ from evperc.logs.transforms import extrinsic_matrix
 from evperc.objects.clusters import JOINS_ANY
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints
 from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
-from evperc.objects.stage import ObjectStage, fill_moving, fills_decision, objects_enabled
+from evperc.objects.stage import (
+    ObjectStage,
+    fill_moving,
+    fills_decision,
+    objects_enabled,
+    unfill_small,
+)
 from evperc.objects.tracking import TrackerState
 from evperc.objects.unmapped import UnmappedCue, UnmappedParams, UnmappedState, unmapped_enabled
 from evperc.output.manifest import read_manifest
@@ -549,6 +555,8 @@ class Pipeline:
             moving_cells = moving_object_cells(frame["objects"], frame["object_cells"])
             if self.fill_moving:  # the moving objects' cells decided moving (method.md §8)
                 fill_moving(out.decision, moving_cells)
+            if self.objects.moving_min_cells > 0:  # small clusters' moving cells: static
+                unfill_small(out.decision, self.objects.small_moving, moving_cells)
             clock.lap("objects")
         else:
             moving_cells = None

@@ -41,7 +41,7 @@ from evperc.fusion.twin import DECISION_CODES  # noqa: E402
 from evperc.geo.window import Window  # noqa: E402
 from evperc.objects import stage as stage_mod  # noqa: E402
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints  # noqa: E402,E501
-from evperc.objects.stage import ObjectStage, fill_moving  # noqa: E402
+from evperc.objects.stage import ObjectStage, fill_moving, unfill_small  # noqa: E402
 from evperc.objects.tracking import TrackerState  # noqa: E402
 from evperc.output.objects import moving_object_cells, object_labels  # noqa: E402
 
@@ -174,6 +174,8 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
         moving = moving_object_cells(objects, cells)
         if fill:
             fill_moving(decision, moving)
+        if stage.moving_min_cells > 0:
+            unfill_small(decision, stage.small_moving, moving)
         f = stored.get(int(stamps[k]))
         if f is not None:  # the unmapped cue's cells, where the replay did not decide moving
             relabel = (np.asarray(f.decision) == _UNMAPPED) & (decision != _MOVING)

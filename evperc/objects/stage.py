@@ -10,22 +10,31 @@ fusion decided them."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
-from evperc.objects.clusters import Clusterer, ClusterParams
+from evperc.objects.clusters import Clusterer, ClusterParams, Clusters
 from evperc.objects.tracking import TrackerState, TrackingParams, footprint_seeds, track_step
 
 MOVING = DECISION_CODES["moving"]
+STATIC = DECISION_CODES["static"]
 
 
 def objects_enabled(config: dict[str, Any]) -> bool:
     """Whether a run with ``config`` computes objects (a config written before the
     ``[objects]`` table existed, e.g. an old run's manifest on resume: no)."""
     return bool(config.get("objects", {}).get("enabled", False))
+
+
+def moving_min_cluster_cells(config: dict[str, Any]) -> int:
+    """``objects.moving_min_cluster_cells`` (0: off, and without the object stage)."""
+    if not objects_enabled(config):
+        return 0
+    return int(config["objects"].get("moving_min_cluster_cells", 0))
 
 
 def fills_decision(config: dict[str, Any]) -> bool:
@@ -40,6 +49,16 @@ class ObjectStage:
         self.cluster_params = ClusterParams.from_config(config)
         self.tracking_params = TrackingParams.from_config(config)
         self.clusterer = Clusterer(self.cluster_params, shape)
+        #: objects.moving_min_cluster_cells: the fusion's moving cells of smaller clusters
+        #: are decided static (:func:`unfill_small`); 0 = off
+        self.moving_min_cells = moving_min_cluster_cells(config)
+        self._all_clusters = (Clusterer(replace(self.cluster_params, min_cells=1,
+                                                max_extent_m=float("inf"),
+                                                keep_tracked_small=False), shape)
+                              if self.moving_min_cells > 0 else None)
+        #: flat window cells decided moving whose cluster is smaller than moving_min_cells,
+        #: of the last :meth:`step` (empty when off)
+        self.small_moving = np.zeros(0, np.int64)
 
     def step(self, state: TrackerState, decision: np.ndarray, betp_moving: np.ndarray,
              conflict_fo: np.ndarray, window: Window, stamp_ns: int,
@@ -50,6 +69,10 @@ class ObjectStage:
         seeds = footprint_seeds(state, window)
         clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds,
                                            occupied_now)
+        if self._all_clusters is not None:
+            every = self._all_clusters.clusters(decision, betp_moving, conflict_fo, window,
+                                                seeds, occupied_now)
+            self.small_moving = small_moving_cells(every, decision, self.moving_min_cells)
         return track_step(state, clusters, window, stamp_ns, self.tracking_params, decision)
 
     def history(self) -> int:
@@ -65,4 +88,36 @@ def fill_moving(decision: np.ndarray, moving_cells: np.ndarray) -> int:
     flat = decision.reshape(-1)
     changed = int(np.count_nonzero(flat[moving_cells] != MOVING))
     flat[moving_cells] = MOVING
+    return changed
+
+
+def small_moving_cells(clusters: Clusters, decision: np.ndarray, min_cells: int) -> np.ndarray:
+    """The flat window cells decided ``moving`` in the clusters of ``clusters`` (every
+    cluster of the frame: no size or extent filter) with fewer than ``min_cells`` cells."""
+    sizes = np.diff(clusters.offsets)
+    small = np.repeat(sizes < min_cells, sizes)
+    cells = clusters.cells[small]
+    return cells[decision.reshape(-1)[cells] == MOVING]
+
+
+def unfill_small(decision: np.ndarray, small_cells: np.ndarray,
+                 moving_cells: np.ndarray | None) -> int:
+    """Decide ``static`` the cells ``small_cells`` (:func:`small_moving_cells`: the fusion
+    decided them moving, their cluster is smaller than ``objects.moving_min_cluster_cells``)
+    that no moving object holds (``moving_cells``, flat; a completed footprint may cover
+    them); ``decision`` changed in place, returns the cells changed.
+
+    Why (docs/notes, issue "ibeofp"): on ibeo4 most false moving cells are one or two cells
+    of a pole, bollard or trunk at 20-50 m, or a lone cell in the open, that a beam passed
+    beside (the cell seen free) and hit a scan later: the conflict through the motion gate,
+    in a group too small to be an object. ``static``: the cell holds a return; which static
+    class, the decision does not say (the masses are not changed, as for the fill)."""
+    if small_cells.size == 0:
+        return 0
+    cells = small_cells
+    if moving_cells is not None and moving_cells.size:
+        cells = cells[~np.isin(cells, moving_cells)]
+    flat = decision.reshape(-1)
+    changed = int(np.count_nonzero(flat[cells] == MOVING))
+    flat[cells] = STATIC
     return changed
