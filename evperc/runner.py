@@ -545,7 +545,7 @@ class Pipeline:
                     state.footprints = FootprintState()
                 frame["objects"], frame["object_cells"] = complete_footprints(
                     state.footprints, frame["objects"], frame["object_cells"], window,
-                    inputs.stamp_ns, (inputs.free > 0) | (inputs.occupied > 0), self.footprint)
+                    inputs.stamp_ns, (inputs.free, inputs.occupied), self.footprint)
             moving_cells = moving_object_cells(frame["objects"], frame["object_cells"])
             if self.fill_moving:  # the moving objects' cells decided moving (method.md §8)
                 fill_moving(out.decision, moving_cells)
