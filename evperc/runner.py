@@ -30,6 +30,7 @@ from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
 from evperc.objects.clusters import JOINS_ANY
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints
+from evperc.objects.footprint import warm_up as warm_up_footprints
 from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
 from evperc.objects.stage import ObjectStage, fill_moving, fills_decision, objects_enabled
 from evperc.objects.tracking import TrackerState
@@ -369,6 +370,7 @@ class Pipeline:
             ObjectStage(self.request.config, tiny.shape).step(
                 TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0,
                 occupied_now=occupied > 0)
+            warm_up_footprints(self.footprint)
         if self.unmapped is not None:
             UnmappedCue(self.unmapped.params, tiny.shape, self.resolution).step(
                 UnmappedState.fresh(tiny.shape), out.decision, None, 0.1)
