@@ -132,3 +132,19 @@ def test_the_random_drives_merge_fragments() -> None:
                                              k * 100_000_000, np.zeros(shape, bool), p)
             merged += len(out) < len(objects)
     assert merged > 0
+
+
+def test_from_arrays_reads_ungrouped_entries_as_the_reference() -> None:
+    """A checkpoint whose entries are not grouped by track (not written by to_arrays, but
+    readable by the old from_arrays): the same history and the same arrays back."""
+    arrays = {"footprint_id": np.array([5, 3, 5, 3, 9], np.int64),
+              "footprint_stamp": np.array([1, 2, 3, 4, 5], np.int64),
+              "footprint_n": np.array([2, 1, 0, 3, 1], np.int64),
+              "footprint_xy": np.arange(14, dtype=np.float64).reshape(7, 2)}
+    a, b = fast.FootprintState.from_arrays(arrays), ref.FootprintState.from_arrays(arrays)
+    assert a is not None and b is not None
+    _state_equal(a.to_arrays(), b.to_arrays())
+    assert list(a.history) == list(b.history) == [5, 3, 9]
+    for tid in b.history:
+        for (t1, x1), (t2, x2) in zip(a.history[tid], b.history[tid], strict=True):
+            assert t1 == t2 and x1.tobytes() == x2.tobytes() and x1.shape == x2.shape
