@@ -30,6 +30,7 @@ from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
 from evperc.objects.clusters import JOINS_ANY
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints
+from evperc.objects.footprint import warm_up as warm_up_footprints
 from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
 from evperc.objects.stage import (
     ObjectStage,
@@ -375,6 +376,7 @@ class Pipeline:
             ObjectStage(self.request.config, tiny.shape).step(
                 TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0,
                 occupied_now=occupied > 0)
+            warm_up_footprints(self.footprint)
         if self.unmapped is not None:
             UnmappedCue(self.unmapped.params, tiny.shape, self.resolution).step(
                 UnmappedState.fresh(tiny.shape), out.decision, None, 0.1)
@@ -551,7 +553,7 @@ class Pipeline:
                     state.footprints = FootprintState()
                 frame["objects"], frame["object_cells"] = complete_footprints(
                     state.footprints, frame["objects"], frame["object_cells"], window,
-                    inputs.stamp_ns, (inputs.free > 0) | (inputs.occupied > 0), self.footprint)
+                    inputs.stamp_ns, (inputs.free, inputs.occupied), self.footprint)
             moving_cells = moving_object_cells(frame["objects"], frame["object_cells"])
             if self.fill_moving:  # the moving objects' cells decided moving (method.md §8)
                 fill_moving(out.decision, moving_cells)

@@ -38,17 +38,25 @@ list changes: the tracker keeps both tracks, the moving cells are the same union
 scores do not change), and the history stays per track id.
 
 Input is the object list of the frame (records and cells, :mod:`evperc.output.objects`),
-so this does not depend on the tracker's internals."""
+so this does not depend on the tracker's internals.
+
+Implementation: one compiled pass a frame for the completion (:func:`_complete`) and one for
+the fragment merge (:func:`_merge`), on the history kept as the flat arrays the checkpoint
+stores; outputs, cell order and checkpoint arrays are bit-identical to the per-object numpy
+version they replaced (tests/objects/reference_footprint.py; the centroid is numpy's
+``mean(axis=0)``, a sequential sum over the cells, reproduced as such). Track ids are unique
+within a frame's object list (the tracker's)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 
 from evperc.geo.window import Window
-from evperc.output.objects import OBJECT_STATES
+from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
 
 _MOVING = OBJECT_STATES["moving"]
 
@@ -74,44 +82,68 @@ class FootprintParams:
                                fragment_extent_m=float(o.get("fragment_extent_m", 6.0)))
 
 
-@dataclass
-class FootprintState:
-    """Per track id, its last moving frames: (stamp_ns, cell centres (m, 2) x, y metres)."""
 
-    history: dict[int, list[tuple[int, np.ndarray]]] = field(default_factory=dict)
+_EMPTY_XY = np.zeros((0, 2), np.float64)
+
+
+class FootprintState:
+    """Per track id, its last moving frames: (stamp_ns, cell centres (m, 2) x, y metres),
+    held flat as the checkpoint stores them: one entry a (track, frame), entries grouped by
+    track (tracks in first-insertion order, frames oldest first), ``n`` centres each, their
+    centres concatenated in ``xy``."""
+
+    __slots__ = ("id", "stamp", "n", "xy")
+
+    def __init__(self, id: np.ndarray | None = None, stamp: np.ndarray | None = None,
+                 n: np.ndarray | None = None, xy: np.ndarray | None = None) -> None:
+        self.id = np.zeros(0, np.int64) if id is None else id
+        self.stamp = np.zeros(0, np.int64) if stamp is None else stamp
+        self.n = np.zeros(0, np.int64) if n is None else n
+        self.xy = _EMPTY_XY if xy is None else xy
+
+    @property
+    def history(self) -> dict[int, list[tuple[int, np.ndarray]]]:
+        """The entries as {track id: [(stamp_ns, centres), ...]} (copies; for reading)."""
+        out: dict[int, list[tuple[int, np.ndarray]]] = {}
+        at = 0
+        for tid, t, n in zip(self.id.tolist(), self.stamp.tolist(), self.n.tolist(),
+                             strict=True):
+            out.setdefault(tid, []).append((t, self.xy[at:at + n].copy()))
+            at += n
+        return out
 
     def copy(self) -> FootprintState:
-        return FootprintState({k: [(t, xy.copy()) for t, xy in v]
-                               for k, v in self.history.items()})
+        return FootprintState(self.id.copy(), self.stamp.copy(), self.n.copy(),
+                              self.xy.copy())
 
     def to_arrays(self, prefix: str = "footprint_") -> dict[str, np.ndarray]:
         """Flat arrays for the checkpoint (:meth:`from_arrays` reads them back exactly)."""
-        ids, stamps, counts, xys = [], [], [], []
-        for tid, frames in self.history.items():
-            for t, xy in frames:
-                ids.append(tid)
-                stamps.append(t)
-                counts.append(len(xy))
-                xys.append(xy)
-        return {f"{prefix}id": np.array(ids, np.int64),
-                f"{prefix}stamp": np.array(stamps, np.int64),
-                f"{prefix}n": np.array(counts, np.int64),
-                f"{prefix}xy": (np.concatenate(xys) if xys else np.zeros((0, 2), np.float64))}
+        return {f"{prefix}id": self.id.copy(), f"{prefix}stamp": self.stamp.copy(),
+                f"{prefix}n": self.n.copy(), f"{prefix}xy": self.xy.copy()}
 
     @staticmethod
     def from_arrays(arrays: Any, prefix: str = "footprint_") -> FootprintState | None:
         """The state saved by :meth:`to_arrays`, or None if ``arrays`` holds none."""
         if f"{prefix}id" not in arrays:
             return None
-        state = FootprintState()
-        xy = np.asarray(arrays[f"{prefix}xy"], np.float64)
-        at = 0
-        for tid, t, n in zip(arrays[f"{prefix}id"], arrays[f"{prefix}stamp"],
-                             arrays[f"{prefix}n"], strict=True):
-            state.history.setdefault(int(tid), []).append(
-                (int(t), xy[at:at + int(n)].copy()))
-            at += int(n)
-        return state
+        ids = np.array(arrays[f"{prefix}id"], np.int64).reshape(-1)
+        n = np.array(arrays[f"{prefix}n"], np.int64).reshape(-1)
+        xy = np.array(arrays[f"{prefix}xy"], np.float64).reshape(-1, 2)[:int(n.sum())]
+        if len(ids):  # entries grouped by track id (a saved state is; regroup any other)
+            first = {}
+            for k, t in enumerate(ids.tolist()):
+                first.setdefault(t, k)
+            order = np.array(sorted(range(len(ids)), key=lambda k: first[int(ids[k])]),
+                             np.int64)
+            if np.any(order != np.arange(len(ids))):
+                starts = np.concatenate([[0], np.cumsum(n)[:-1]])
+                xy = (np.concatenate([xy[starts[k]:starts[k] + n[k]] for k in order])
+                      if len(xy) else xy)
+                ids, n = ids[order], n[order]
+                return FootprintState(ids, np.array(arrays[f"{prefix}stamp"], np.int64)
+                                      .reshape(-1)[order], n, np.ascontiguousarray(xy))
+        return FootprintState(ids, np.array(arrays[f"{prefix}stamp"], np.int64).reshape(-1),
+                              n, np.ascontiguousarray(xy))
 
 
 def cell_centres(cells: np.ndarray, window: Window) -> np.ndarray:
@@ -121,122 +153,372 @@ def cell_centres(cells: np.ndarray, window: Window) -> np.ndarray:
     return np.stack([(c + window.col0 + 0.5) * res, (r + window.row0 + 0.5) * res], axis=1)
 
 
-def _cells_at(xy: np.ndarray, window: Window) -> np.ndarray:
-    """Flat window indices of the cells holding points ``xy``; points outside dropped."""
-    res = window.resolution_m
-    col = np.floor(xy[:, 0] / res).astype(np.int64) - window.col0
-    row = np.floor(xy[:, 1] / res).astype(np.int64) - window.row0
-    inside = (row >= 0) & (row < window.rows) & (col >= 0) & (col < window.cols)
-    return row[inside] * window.cols + col[inside]
+@numba.njit(cache=True, nogil=True)
+def _geometry(cells: np.ndarray, cols: int, row0: int, col0: int, res: float,
+              centroid: np.ndarray, bbox: np.ndarray, extent: np.ndarray) -> None:
+    """Centroid (mean of the cell centres, summed in order as numpy's ``mean(axis=0)``),
+    bbox of the outer edges and extent of non-empty flat ``cells``, into the given rows."""
+    sx = 0.0
+    sy = 0.0
+    lox = np.inf
+    loy = np.inf
+    hix = -np.inf
+    hiy = -np.inf
+    for i in range(len(cells)):
+        x = ((cells[i] % cols) + col0 + 0.5) * res
+        y = ((cells[i] // cols) + row0 + 0.5) * res
+        sx += x
+        sy += y
+        lox = min(lox, x)
+        loy = min(loy, y)
+        hix = max(hix, x)
+        hiy = max(hiy, y)
+    m = len(cells)
+    centroid[0] = sx / m
+    centroid[1] = sy / m
+    half = res / 2
+    bbox[0] = lox - half
+    bbox[1] = loy - half
+    bbox[2] = hix + half
+    bbox[3] = hiy + half
+    extent[0] = bbox[2] - bbox[0]
+    extent[1] = bbox[3] - bbox[1]
 
 
-def _set_geometry(rec: np.ndarray, cells: np.ndarray, window: Window) -> None:
-    """``rec``'s cell_count, centroid, bbox and extent set to those of ``cells``."""
-    xy = cell_centres(cells, window)
-    res = window.resolution_m
-    rec["cell_count"] = len(cells)
-    rec["centroid_m"] = xy.mean(axis=0)
-    lo, hi = xy.min(axis=0) - res / 2, xy.max(axis=0) + res / 2
-    rec["bbox_m"] = (lo[0], lo[1], hi[0], hi[1])
-    rec["extent_m"] = hi - lo
+@numba.njit(cache=True, nogil=True)
+def _sorted_unique(a: np.ndarray) -> np.ndarray:
+    """np.unique of an int64 array."""
+    if len(a) == 0:
+        return a.copy()
+    s = np.sort(a)
+    keep = np.ones(len(s), np.bool_)
+    for i in range(1, len(s)):
+        keep[i] = s[i] != s[i - 1]
+    return s[keep]
 
 
-def _gap_cells(a: np.ndarray, b: np.ndarray, cols: int) -> int:
-    """Smallest Chebyshev distance (cells) between flat cells ``a`` and ``b`` (non-empty)."""
-    ra, ca = np.divmod(a, cols)
-    rb, cb = np.divmod(b, cols)
-    d = np.maximum(np.abs(ra[:, None] - rb[None, :]), np.abs(ca[:, None] - cb[None, :]))
-    return int(d.min())
+@numba.njit(cache=True, nogil=True)
+def _complete(tid, moving, count, vel, cells, rows, cols, row0, col0, res, stamp, speaks_a,
+              speaks_b, frames, h_id, h_stamp, h_n, h_xy):
+    """The completion of one frame (module docstring): per record its completed cells
+    (``full``, concatenated; ``full_n`` each), its earlier moving frames (``streak``),
+    whether its geometry changed and the new geometry; and the new history arrays."""
+    nrec = len(tid)
+    # the history's groups: track id, first entry, entries, first centre
+    ng = 0
+    for e in range(len(h_id)):
+        if e == 0 or h_id[e] != h_id[e - 1]:
+            ng += 1
+    g_tid = np.empty(ng, np.int64)
+    g_e0 = np.empty(ng, np.int64)
+    g_ne = np.zeros(ng, np.int64)
+    g_x0 = np.empty(ng, np.int64)
+    g = -1
+    x_at = 0
+    for e in range(len(h_id)):
+        if e == 0 or h_id[e] != h_id[e - 1]:
+            g += 1
+            g_tid[g] = h_id[e]
+            g_e0[g] = e
+            g_x0[g] = x_at
+        g_ne[g] += 1
+        x_at += h_n[e]
+    e_x0 = np.empty(len(h_id), np.int64)  # first centre of each entry
+    x_at = 0
+    for e in range(len(h_id)):
+        e_x0[e] = x_at
+        x_at += h_n[e]
+    rec_group = np.full(nrec, -1, np.int64)  # the record's old group, -1: none
+    group_rec = np.full(ng, -1, np.int64)    # the group's moving record now, -1: dropped
+    own0 = np.empty(nrec + 1, np.int64)
+    own0[0] = 0
+    for k in range(nrec):
+        own0[k + 1] = own0[k] + count[k]
+        for gg in range(ng):
+            if g_tid[gg] == tid[k]:
+                rec_group[k] = gg
+                if moving[k]:
+                    group_rec[gg] = k
+                break
+    streak = np.zeros(nrec, np.int64)
+    full_n = np.empty(nrec, np.int64)
+    changed = np.zeros(nrec, np.bool_)
+    centroid = np.zeros((nrec, 2))
+    bbox = np.zeros((nrec, 4))
+    extent = np.zeros((nrec, 2))
+    pieces = []
+    for k in range(nrec):
+        own = cells[own0[k]:own0[k + 1]]
+        gg = rec_group[k]
+        if not moving[k] or gg < 0:
+            full_n[k] = len(own)
+            pieces.append(own.copy())
+            continue
+        streak[k] = g_ne[gg]
+        total = 0
+        for e in range(g_e0[gg], g_e0[gg] + g_ne[gg]):
+            total += h_n[e]
+        buf = np.empty(total, np.int64)
+        m = 0
+        v0 = vel[k, 0]
+        v1 = vel[k, 1]
+        for e in range(g_e0[gg], g_e0[gg] + g_ne[gg]):
+            dt = (stamp - h_stamp[e]) * 1e-9
+            d0 = v0 * dt
+            d1 = v1 * dt
+            for i in range(e_x0[e], e_x0[e] + h_n[e]):
+                c = np.int64(np.floor((h_xy[i, 0] + d0) / res)) - col0
+                r = np.int64(np.floor((h_xy[i, 1] + d1) / res)) - row0
+                if r >= 0 and r < rows and c >= 0 and c < cols:
+                    buf[m] = r * cols + c
+                    m += 1
+        add = _sorted_unique(buf[:m])
+        own_sorted = np.sort(own)
+        keep = np.zeros(len(add), np.bool_)
+        na = 0
+        for i in range(len(add)):
+            a = add[i]
+            if speaks_a[a] > 0 or speaks_b[a] > 0:  # seen free or holding a return now
+                continue
+            j = np.searchsorted(own_sorted, a)
+            if j < len(own_sorted) and own_sorted[j] == a:
+                continue
+            keep[i] = True
+            na += 1
+        full = np.empty(len(own) + na, np.int64)
+        full[:len(own)] = own
+        full[len(own):] = add[keep]
+        full_n[k] = len(full)
+        pieces.append(full)
+        if len(full) != len(own):
+            changed[k] = True
+            _geometry(full, cols, row0, col0, res, centroid[k], bbox[k], extent[k])
+    # the new history: kept old tracks in their order, then new moving tracks in record order
+    n_new = 0
+    x_new = 0
+    o_id = np.empty(0, np.int64)
+    o_stamp = np.empty(0, np.int64)
+    o_n = np.empty(0, np.int64)
+    o_xy = np.empty((0, 2), np.float64)
+    for pass_ in range(2):
+        if pass_ == 1:
+            o_id = np.empty(n_new, np.int64)
+            o_stamp = np.empty(n_new, np.int64)
+            o_n = np.empty(n_new, np.int64)
+            o_xy = np.empty((x_new, 2), np.float64)
+        e_at = 0
+        x_at = 0
+        for step in range(ng + nrec):
+            if step < ng:
+                k = group_rec[step]
+                if k < 0:
+                    continue
+                gg = step
+            else:
+                k = step - ng
+                if not moving[k] or rec_group[k] >= 0:
+                    continue
+                gg = -1
+            old = g_ne[gg] if gg >= 0 else 0
+            skip = max(0, old + 1 - frames)  # past[-frames:] of the old entries + this one
+            for e in range(skip, old + 1):
+                if e < old:
+                    src = g_e0[gg] + e
+                    cnt = h_n[src]
+                    if pass_ == 1:
+                        o_id[e_at] = tid[k]
+                        o_stamp[e_at] = h_stamp[src]
+                        o_n[e_at] = cnt
+                        o_xy[x_at:x_at + cnt] = h_xy[e_x0[src]:e_x0[src] + cnt]
+                else:
+                    cnt = own0[k + 1] - own0[k]
+                    if pass_ == 1:
+                        o_id[e_at] = tid[k]
+                        o_stamp[e_at] = stamp
+                        o_n[e_at] = cnt
+                        for i in range(cnt):
+                            cell = cells[own0[k] + i]
+                            o_xy[x_at + i, 0] = ((cell % cols) + col0 + 0.5) * res
+                            o_xy[x_at + i, 1] = ((cell // cols) + row0 + 0.5) * res
+                e_at += 1
+                x_at += cnt
+        n_new = e_at
+        x_new = x_at
+    total = 0
+    for k in range(nrec):
+        total += full_n[k]
+    full_cells = np.empty(total, np.int64)
+    at = 0
+    for k in range(nrec):
+        full_cells[at:at + full_n[k]] = pieces[k]
+        at += full_n[k]
+    return (full_cells, full_n, streak, changed, centroid, bbox, extent,
+            o_id, o_stamp, o_n, o_xy)
 
 
-def merge_fragments(objects: np.ndarray, pieces: list[np.ndarray], observed: list[np.ndarray],
-                    streak: list[int], window: Window, params: FootprintParams
-                    ) -> tuple[np.ndarray, list[np.ndarray]]:
-    """The moving fragments of one object joined into the oldest (module docstring,
-    **Fragments**). ``pieces``: each record's (completed) cells; ``observed``: its cluster
-    cells; ``streak``: its earlier moving frames held in the history (at most
-    ``footprint_frames``). Returns the kept records and their cells, in record order."""
-    moving = [k for k in range(len(objects)) if objects[k]["state"] == _MOVING
-              and len(observed[k]) > 0]
-    order = sorted(moving, key=lambda k: (-int(streak[k]), -int(objects[k]["age_frames"]),
-                                          int(objects[k]["track_id"])))
-    owner = {k: k for k in range(len(objects))}
-    joined = {k: pieces[k] for k in range(len(objects))}
-    seen_cells = {k: observed[k] for k in range(len(objects))}
-    res = window.resolution_m
-    for j_at, j in enumerate(order):  # each younger object, into the oldest that fits
-        for i in order[:j_at]:
+@numba.njit(cache=True, nogil=True)
+def _merge(moving, age, tid, streak, full, full_n, cells, count, cols, row0, col0, res, gap,
+           extent_m):
+    """The fragment merge (module docstring, **Fragments**): whether any record joined
+    another, each record's owner, the owners' joined cells (concatenated, ``out_n`` each;
+    owners only), and for the owners whose cells grew, their new geometry."""
+    nrec = len(tid)
+    f0 = np.empty(nrec + 1, np.int64)
+    o0 = np.empty(nrec + 1, np.int64)
+    f0[0] = 0
+    o0[0] = 0
+    for k in range(nrec):
+        f0[k + 1] = f0[k] + full_n[k]
+        o0[k + 1] = o0[k] + count[k]
+    order = np.empty(nrec, np.int64)
+    no = 0
+    for k in range(nrec):  # the moving records, stably sorted by (-streak, -age, id)
+        if not moving[k] or count[k] == 0:
+            continue
+        j = no
+        while j > 0:
+            p = order[j - 1]
+            if (streak[p] < streak[k] or (streak[p] == streak[k] and (
+                    age[p] < age[k] or (age[p] == age[k] and tid[p] > tid[k])))):
+                order[j] = p
+                j -= 1
+            else:
+                break
+        order[j] = k
+        no += 1
+    owner = np.arange(nrec)
+    joined = [full[f0[k]:f0[k + 1]].copy() for k in range(nrec)]
+    seen = [cells[o0[k]:o0[k + 1]].copy() for k in range(nrec)]
+    merged = False
+    for j_at in range(no):
+        j = order[j_at]
+        obs = cells[o0[j]:o0[j + 1]]
+        for i_at in range(j_at):
+            i = order[i_at]
             if owner[i] != i:
                 continue
-            if _gap_cells(seen_cells[i], observed[j], window.cols) > params.fragment_gap_cells:
+            si = seen[i]
+            d = np.iinfo(np.int64).max
+            for a in range(len(si)):
+                ra = si[a] // cols
+                ca = si[a] % cols
+                for b in range(len(obs)):
+                    d = min(d, max(abs(ra - obs[b] // cols), abs(ca - obs[b] % cols)))
+            if d > gap:
                 continue
-            both = np.union1d(seen_cells[i], observed[j])
-            xy = cell_centres(both, window)
-            if (xy.max(axis=0) - xy.min(axis=0) + res).max() > params.fragment_extent_m + 1e-9:
+            both = _sorted_unique(np.concatenate((si, obs)))
+            lox = np.inf
+            loy = np.inf
+            hix = -np.inf
+            hiy = -np.inf
+            for a in range(len(both)):
+                x = ((both[a] % cols) + col0 + 0.5) * res
+                y = ((both[a] // cols) + row0 + 0.5) * res
+                lox = min(lox, x)
+                hix = max(hix, x)
+                loy = min(loy, y)
+                hiy = max(hiy, y)
+            if max(hix - lox + res, hiy - loy + res) > extent_m + 1e-9:
                 continue
             owner[j] = i
-            joined[i] = np.union1d(joined[i], joined[j])
-            seen_cells[i] = both
+            joined[i] = _sorted_unique(np.concatenate((joined[i], joined[j])))
+            seen[i] = both
+            merged = True
             break
-    if all(owner[k] == k for k in owner):
-        return objects, pieces
-    keep = [k for k in range(len(objects)) if owner[k] == k]
-    out = objects[keep].copy()
-    for at, k in enumerate(keep):
-        if len(joined[k]) != len(pieces[k]):
-            _set_geometry(out[at], joined[k], window)
-    return out, [joined[k] for k in keep]
+    total = 0
+    for k in range(nrec):
+        if owner[k] == k:
+            total += len(joined[k])
+    out = np.empty(total, np.int64)
+    out_n = np.zeros(nrec, np.int64)
+    grown = np.zeros(nrec, np.bool_)
+    centroid = np.zeros((nrec, 2))
+    bbox = np.zeros((nrec, 4))
+    extent = np.zeros((nrec, 2))
+    at = 0
+    for k in range(nrec):
+        if owner[k] == k:
+            out_n[k] = len(joined[k])
+            out[at:at + out_n[k]] = joined[k]
+            at += out_n[k]
+            if out_n[k] != full_n[k]:
+                grown[k] = True
+                _geometry(joined[k], cols, row0, col0, res, centroid[k], bbox[k], extent[k])
+    return merged, owner, out, out_n, grown, centroid, bbox, extent
+
+
+def _set_geometry(out: np.ndarray, rows: np.ndarray, counts: np.ndarray,
+                  centroid: np.ndarray, bbox: np.ndarray, extent: np.ndarray) -> None:
+    """Records ``rows`` of ``out`` given the cell counts and geometry computed for them."""
+    if len(rows):
+        out["cell_count"][rows] = counts[rows]
+        out["centroid_m"][rows] = centroid[rows]
+        out["bbox_m"][rows] = bbox[rows]
+        out["extent_m"][rows] = extent[rows]
 
 
 def complete_footprints(state: FootprintState, objects: np.ndarray, cells: np.ndarray,
-                        window: Window, stamp_ns: int, scan_speaks: np.ndarray,
+                        window: Window, stamp_ns: int,
+                        scan_speaks: np.ndarray | tuple[np.ndarray, np.ndarray],
                         params: FootprintParams) -> tuple[np.ndarray, np.ndarray]:
     """The frame's object list with each moving object's footprint completed (module
     docstring); ``state`` updated in place. ``objects``, ``cells``: the tracker's records
     and their flat window cells, in record order; ``scan_speaks``: (rows, cols) bool, the
-    cells seen free or holding a return in this scan. Returns new records and cells (the
-    inputs unchanged); with ``params.frames == 0``, the inputs themselves."""
+    cells seen free or holding a return in this scan, or a pair of (rows, cols) layers (the
+    sensor grid's m({F}), m({O})) of which a cell speaks where either is > 0, read only at
+    the cells the completion needs (saves the runner a pass over the window). Returns new
+    records and cells (the inputs unchanged); with ``params.frames == 0``, the inputs
+    themselves."""
     if params.frames <= 0:
         return objects, cells
-    speaks = np.asarray(scan_speaks, bool).reshape(-1)
     out = objects.copy()
-    pieces = []
-    observed = []
-    streak = []
-    at = 0
-    seen: set[int] = set()
-    for k, rec in enumerate(objects):
-        n = int(rec["cell_count"])
-        own = np.asarray(cells[at:at + n], np.int64)
-        observed.append(own)
-        at += n
-        tid = int(rec["track_id"])
-        seen.add(tid)
-        if rec["state"] != _MOVING:
-            state.history.pop(tid, None)
-            streak.append(0)
-            pieces.append(own)
-            continue
-        past = state.history.get(tid, [])
-        streak.append(len(past))
-        v = np.asarray(rec["velocity_m_per_s"], np.float64)
-        extra = [_cells_at(xy + v * ((stamp_ns - t) * 1e-9), window) for t, xy in past]
-        if extra:
-            add = np.unique(np.concatenate(extra))
-            add = add[~speaks[add]]
-            add = add[~np.isin(add, own)]
-            full = np.concatenate([own, add])
-        else:
-            full = own
-        past.append((int(stamp_ns), cell_centres(own, window)))
-        state.history[tid] = past[-params.frames:]
-        pieces.append(full)
-        if len(full) != n:
-            _set_geometry(out[k], full, window)
-    for tid in [t for t in state.history if t not in seen]:  # tracks not reported now
-        del state.history[tid]
-    if params.fragment_gap_cells > 0:
-        out, pieces = merge_fragments(out, pieces, observed, streak, window, params)
-    new_cells = (np.concatenate(pieces).astype(np.uint32) if pieces
-                 else np.zeros(0, np.uint32))
-    return out, new_cells
+    if len(objects) == 0:
+        state.id, state.stamp, state.n, state.xy = (np.zeros(0, np.int64), np.zeros(0, np.int64),
+                                                    np.zeros(0, np.int64), _EMPTY_XY)
+        return out, np.zeros(0, np.uint32)
+    if isinstance(scan_speaks, tuple):
+        speaks_a, speaks_b = (np.ascontiguousarray(layer).reshape(-1) for layer in scan_speaks)
+    else:
+        speaks_a = speaks_b = np.ascontiguousarray(np.asarray(scan_speaks, bool).reshape(-1))
+    tid = np.ascontiguousarray(objects["track_id"], np.int64)
+    moving = np.ascontiguousarray(objects["state"] == _MOVING)
+    count = np.ascontiguousarray(objects["cell_count"], np.int64)
+    vel = np.ascontiguousarray(objects["velocity_m_per_s"], np.float64)
+    own = np.ascontiguousarray(np.asarray(cells, np.int64)[:int(count.sum())])
+    res = float(window.resolution_m)
+    rows, cols, row0, col0 = int(window.rows), int(window.cols), int(window.row0), int(window.col0)
+    (full, full_n, streak, changed, centroid, bbox, extent,
+     state.id, state.stamp, state.n, state.xy) = _complete(
+        tid, moving, count, vel, own, rows, cols, row0, col0, res, int(stamp_ns), speaks_a,
+        speaks_b,
+        int(params.frames), state.id, state.stamp, state.n, state.xy)
+    _set_geometry(out, np.flatnonzero(changed), full_n, centroid, bbox, extent)
+    if params.fragment_gap_cells > 0 and np.count_nonzero(moving & (count > 0)) > 1:
+        merged, owner, joined, joined_n, grown, centroid, bbox, extent = _merge(
+            moving, np.ascontiguousarray(objects["age_frames"], np.int64), tid, streak,
+            full, full_n, own, count, cols, row0, col0, res, int(params.fragment_gap_cells),
+            float(params.fragment_extent_m))
+        if merged:
+            _set_geometry(out, np.flatnonzero(grown), joined_n, centroid, bbox, extent)
+            return out[owner == np.arange(len(owner))], joined.astype(np.uint32)
+    return out, full.astype(np.uint32)
+
+
+def warm_up(params: FootprintParams) -> None:
+    """Load (or compile) the compiled passes for the argument types the runner gives them
+    (float32 sensor-grid layers as ``scan_speaks``, a history of two frames, two moving
+    fragments), on a tiny made-up object list: the first real frames are not charged a
+    cache load (~30–40 ms each). Changes nothing."""
+    if params.frames <= 0:
+        return
+    window = Window(1.0, 4, 4, 0, 0)
+    layers = (np.zeros(window.shape, np.float32), np.zeros(window.shape, np.float32))
+    objects = np.zeros(2, OBJECT_DTYPE)
+    objects["track_id"] = (1, 2)
+    objects["state"] = _MOVING
+    objects["cell_count"] = 1
+    objects["velocity_m_per_s"] = (1.0, 0.0)
+    state = FootprintState()
+    for k, cells in enumerate(([0, 2], [1, 3])):
+        complete_footprints(state, objects, np.array(cells, np.uint32), window,
+                            k * 100_000_000, layers, params)
