@@ -6,7 +6,10 @@
     .venv/bin/python scripts/evaluation_study.py --work W --config default \\
         --config kurdej2013 --config configs/ablation/free_margin.toml \\
         --config configs/ablation/no_gate.toml --config configs/ablation/no_building_margin.toml \\
-        --config configs/ablation/no_objects.toml --config configs/ablation/no_unmapped_cue.toml
+        --config configs/ablation/no_objects.toml --config configs/ablation/no_unmapped_cue.toml \\
+        --config configs/ablation/no_stopped_needs_road.toml \\
+        --config configs/ablation/no_footprint_completion.toml \\
+        --config configs/ablation/no_arrival_evidence.toml --config configs/ibeo4.toml
     .venv/bin/python scripts/report_tables.py --work W
 
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
@@ -36,7 +39,8 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("no unmapped cue", "configs/ablation/no_unmapped_cue.toml"),
              ("stopped without the road rule", "configs/ablation/no_stopped_needs_road.toml"),
              ("no footprint completion", "configs/ablation/no_footprint_completion.toml"),
-             ("no arrival evidence", "configs/ablation/no_arrival_evidence.toml"))
+             ("no arrival evidence", "configs/ablation/no_arrival_evidence.toml"),
+             ("configs/ibeo4.toml (small moving groups static)", "configs/ibeo4.toml"))
 
 
 #: the scores of the headline and ablation rows, in column order
