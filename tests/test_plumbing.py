@@ -165,10 +165,17 @@ def test_ctrl_c_in_the_consumer_stops_the_producer():
 
     source = Interrupting(100_000)
     seen = []
-    with pytest.raises(KeyboardInterrupt):
-        with contextlib.closing(prefetched(source, name="test-sigint")) as items:
-            for item in items:
-                seen.append(item)
+    # Python's own Ctrl-C handler, whatever the test process inherited: a background job of
+    # a non-interactive shell (`nohup ... &`) starts with SIGINT ignored, and Python then
+    # installs no handler, so no KeyboardInterrupt would ever come
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with contextlib.closing(prefetched(source, name="test-sigint")) as items:
+                for item in items:
+                    seen.append(item)
+    finally:
+        signal.signal(signal.SIGINT, inherited)
     assert _threads("test-sigint") == []
     assert source.closed.is_set()
     assert seen == list(range(len(seen)))
