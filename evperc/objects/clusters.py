@@ -319,6 +319,7 @@ class Clusterer:
         self._everywhere = np.ones(n, np.uint8)  # ``now`` where the growth is not limited
         self._no_words = np.zeros(0, np.uint64)
         self._no_flags = np.zeros(0, np.bool_)
+        self._groups = 0  # groups the last flood fill found (before the filters)
 
     def clusters(self, decision: np.ndarray, betp_moving: np.ndarray, conflict_fo: np.ndarray,
                  window: Window, extra_seeds: np.ndarray | None = None,
@@ -353,6 +354,7 @@ class Clusterer:
         n, _ = _flood(flat, conflict_fo.reshape(-1), now, seed_all, self.shape[1], self._fo_q,
                       _MOVING, _UNKNOWN, _GROWS, extra, self._mark, self._cells, self._stats,
                       dec_words, now_words)
+        self._groups = n
         tracked = self._no_flags
         if self.params.keep_tracked_small and len(extra):
             offsets = np.zeros(n + 1, np.int64)
@@ -362,3 +364,10 @@ class Clusterer:
                                     window.row0, window.col0, float(window.resolution_m),
                                     self.params.min_cells, self.params.max_extent_m + 1e-9,
                                     tracked))
+
+    def groups(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every 8-connected group of the last :meth:`clusters` call, before the size and
+        extent filters: (cells, sizes) — flat window cells, group after group, and each
+        group's cell count. Views of the scratch buffers: valid until the next call."""
+        sizes = self._stats[:self._groups, 0]
+        return self._cells[:int(sizes.sum())], sizes

@@ -10,14 +10,13 @@ fusion decided them."""
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
-from evperc.objects.clusters import Clusterer, ClusterParams, Clusters
+from evperc.objects.clusters import Clusterer, ClusterParams
 from evperc.objects.tracking import TrackerState, TrackingParams, footprint_seeds, track_step
 
 MOVING = DECISION_CODES["moving"]
@@ -52,10 +51,6 @@ class ObjectStage:
         #: objects.moving_min_cluster_cells: the fusion's moving cells of smaller clusters
         #: are decided static (:func:`unfill_small`); 0 = off
         self.moving_min_cells = moving_min_cluster_cells(config)
-        self._all_clusters = (Clusterer(replace(self.cluster_params, min_cells=1,
-                                                max_extent_m=float("inf"),
-                                                keep_tracked_small=False), shape)
-                              if self.moving_min_cells > 0 else None)
         #: flat window cells decided moving whose cluster is smaller than moving_min_cells,
         #: of the last :meth:`step` (empty when off)
         self.small_moving = np.zeros(0, np.int64)
@@ -69,10 +64,9 @@ class ObjectStage:
         seeds = footprint_seeds(state, window)
         clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds,
                                            occupied_now)
-        if self._all_clusters is not None:
-            every = self._all_clusters.clusters(decision, betp_moving, conflict_fo, window,
-                                                seeds, occupied_now)
-            self.small_moving = small_moving_cells(every, decision, self.moving_min_cells)
+        if self.moving_min_cells > 0:  # every group of the same flood fill, unfiltered
+            self.small_moving = small_moving_cells(*self.clusterer.groups(), decision,
+                                                   self.moving_min_cells)
         return track_step(state, clusters, window, stamp_ns, self.tracking_params, decision)
 
     def history(self) -> int:
@@ -91,12 +85,13 @@ def fill_moving(decision: np.ndarray, moving_cells: np.ndarray) -> int:
     return changed
 
 
-def small_moving_cells(clusters: Clusters, decision: np.ndarray, min_cells: int) -> np.ndarray:
-    """The flat window cells decided ``moving`` in the clusters of ``clusters`` (every
-    cluster of the frame: no size or extent filter) with fewer than ``min_cells`` cells."""
-    sizes = np.diff(clusters.offsets)
+def small_moving_cells(group_cells: np.ndarray, sizes: np.ndarray, decision: np.ndarray,
+                       min_cells: int) -> np.ndarray:
+    """The flat window cells decided ``moving`` in the groups of fewer than ``min_cells``
+    cells (``group_cells``, ``sizes``: every group of the frame, no size or extent filter,
+    :meth:`evperc.objects.clusters.Clusterer.groups`)."""
     small = np.repeat(sizes < min_cells, sizes)
-    cells = clusters.cells[small]
+    cells = group_cells[small]
     return cells[decision.reshape(-1)[cells] == MOVING]
 
 

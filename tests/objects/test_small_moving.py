@@ -52,12 +52,16 @@ def test_small_clusters_moving_cells_by_size() -> None:
 def test_off_computes_nothing_and_the_static_cell_is_never_listed() -> None:
     dec, now = _frame()
     stage = _stage(0)
-    assert stage.moving_min_cells == 0 and stage._all_clusters is None
+    assert stage.moving_min_cells == 0
     stage.step(TrackerState(), dec, Z, Z, WIN, T0, occupied_now=now)
     assert stage.small_moving.size == 0
-    every = _stage(3)._all_clusters.clusters(dec, Z, Z, WIN, None, now)
+    on = _stage(3)
+    on.step(TrackerState(), dec, Z, Z, WIN, T0, occupied_now=now)
+    cells, sizes = on.clusterer.groups()
+    assert sorted(sizes.tolist()) == [1, 2, 6]  # every group, the 1- and 2-cell ones too
     # (5, 11) is in the pair's cluster but decided static: not a moving cell to change
-    assert 5 * 30 + 11 not in small_moving_cells(every, dec, 3).tolist()
+    assert 5 * 30 + 11 in cells.tolist()
+    assert 5 * 30 + 11 not in small_moving_cells(cells, sizes, dec, 3).tolist()
 
 
 def test_unfill_small_spares_the_moving_objects_cells() -> None:
