@@ -65,6 +65,17 @@ def simulated_drive(work: Path, profile: str, seed: str) -> Path:
     return drive
 
 
+def recorded(work: Path, profile: str, seed: str, config: Path | None = None
+             ) -> tuple[Path, Path]:
+    """(drive, run dir) of a tuning drive in ``work``: simulated (:func:`simulated_drive`)
+    and recorded (:func:`record`) unless already there."""
+    drive = simulated_drive(work, profile, seed)
+    out = work / "replay_runs" / f"{profile}-s{seed}"
+    if not (out / INPUTS).exists():
+        record(drive, out, config)
+    return drive, out
+
+
 def record(drive: Path, out: Path, config: Path | None = None) -> Path:
     """``evperc run`` of ``drive`` (with its map) into ``out``, in this process, saving the
     object stage's inputs of every frame to ``out/object_inputs.npz``."""
@@ -244,10 +255,7 @@ def main() -> None:
     table: dict[str, dict[str, dict[str, Any]]] = {s: {} for s in sets}
     for profile in args.profiles.split(","):
         for seed in args.seeds.split(","):
-            drive = simulated_drive(args.work, profile, seed)
-            out = args.work / "replay_runs" / f"{profile}-s{seed}"
-            if not (out / INPUTS).exists():
-                record(drive, out, args.config)
+            drive, out = recorded(args.work, profile, seed, args.config)
             truth = load_truth(drive / "truth")
             for s in sets:
                 table[s][f"{profile}-s{seed}"] = r = scores(

@@ -337,10 +337,7 @@ def main() -> None:
     results = {}
     for profile in args.profiles.split(","):
         for seed in args.seeds.split(","):
-            drive = object_replay.simulated_drive(args.work, profile, seed)
-            out = args.work / "replay_runs" / f"{profile}-s{seed}"
-            if not (out / object_replay.INPUTS).exists():
-                object_replay.record(drive, out, args.config)
+            drive, out = object_replay.recorded(args.work, profile, seed, args.config)
             STAGE.clear()
             run = object_replay.replay(out, config, step=traced_step)
             results[f"{profile}-s{seed}"] = attribute(list(STAGE), run,
