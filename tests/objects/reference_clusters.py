@@ -37,46 +37,16 @@ neighbours; the scratch marks are cleared cell by cell afterwards."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numba
 import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
+from evperc.objects.clusters import ClusterParams  # the same parameters
 
 #: decisions a cluster grows through (the cells occupied now, except mapped buildings)
 GROWS_THROUGH = ("moving", "static", "stopped", "unmapped")
-
-
-@dataclass(frozen=True)
-class ClusterParams:
-    """The ``[objects]`` keys of the clustering (configs/default.toml)."""
-
-    #: objects.min_cluster_cells: smaller clusters are dropped (a car's near face at
-    #: 0.5 m cells is 4-10 cells; a lone cell is noise)
-    min_cells: int = 3
-    #: objects.max_cluster_extent_m: a cluster whose bounding box is longer than this along
-    #: x or y is no object (a bus is 12 m; a wall reached from a false seed is longer)
-    max_extent_m: float = 20.0
-    #: objects.seed_conflict_fo: cells with ∅_FO at least this seed a cluster too, even if
-    #: not decided moving; 0 = off (only decided-moving cells seed)
-    seed_conflict_fo: float = 0.0
-    #: objects.seeds: "moving" (decided-moving cells seed, growth through every occupied
-    #: decision) or "occupied" (every cell seen occupied now seeds; module docstring)
-    seeds: str = "moving"  # configs/default.toml: "occupied"
-    #: objects.keep_tracked_small: a cluster grown from an extra seed (a cell a track that
-    #: has moved held in the previous frame) is kept whatever its size
-    keep_tracked_small: bool = False
-
-    @staticmethod
-    def from_config(config: dict[str, Any]) -> ClusterParams:
-        o = config["objects"]
-        return ClusterParams(min_cells=int(o["min_cluster_cells"]),
-                             max_extent_m=float(o["max_cluster_extent_m"]),
-                             seed_conflict_fo=float(o["seed_conflict_fo"]),
-                             seeds=str(o["seeds"]),
-                             keep_tracked_small=bool(o.get("keep_tracked_small", False)))
 
 
 @dataclass(frozen=True)

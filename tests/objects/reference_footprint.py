@@ -9,30 +9,10 @@ from typing import Any
 import numpy as np
 
 from evperc.geo.window import Window
+from evperc.objects.footprint import FootprintParams  # the same parameters
 from evperc.output.objects import OBJECT_STATES
 
 _MOVING = OBJECT_STATES["moving"]
-
-
-@dataclass(frozen=True)
-class FootprintParams:
-    """The ``[objects]`` key of the completion (configs/default.toml)."""
-
-    #: objects.footprint_frames: past moving frames whose cluster cells, carried forward by
-    #: the velocity, complete the footprint (0: off)
-    frames: int = 0  # configs/default.toml: tuned value
-    #: objects.fragment_gap_cells: a moving object within this Chebyshev distance (cells) of
-    #: an older moving one is reported as part of it (0: off)
-    fragment_gap_cells: int = 0
-    #: objects.fragment_extent_m: largest side (m) of the joined footprint's box
-    fragment_extent_m: float = 6.0
-
-    @staticmethod
-    def from_config(config: dict[str, Any]) -> FootprintParams:
-        o = config.get("objects", {})
-        return FootprintParams(frames=int(o.get("footprint_frames", 0)),
-                               fragment_gap_cells=int(o.get("fragment_gap_cells", 0)),
-                               fragment_extent_m=float(o.get("fragment_extent_m", 6.0)))
 
 
 @dataclass

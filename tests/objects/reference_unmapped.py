@@ -68,6 +68,7 @@ import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.prior import CONTEXT_BUILDING, CONTEXT_OTHER, CONTEXT_ROAD
+from evperc.objects.unmapped import UnmappedParams  # the same parameters
 
 #: orientations of the shape test (every 180° / ANGLES; even, so that each has its normal)
 ANGLES = 16
@@ -92,33 +93,6 @@ def unmapped_enabled(config: dict[str, Any]) -> bool:
     resume: no)."""
     o = config.get("objects", {})
     return bool(o.get("unmapped_cue", False)) or bool(o.get("stopped_needs_road", False))
-
-
-@dataclass(frozen=True)
-class UnmappedParams:
-    """The ``[objects]`` keys of the unmapped cue (configs/default.toml)."""
-
-    #: objects.unmapped_max_width_m: the widest component (area / length) that may be
-    #: furniture. The simulator's poles (0.24 m), trunks (0.6 m), bollards (0.2 m) and
-    #: fences (0.1 m × 4-12 m) are one cell across at 0.5 m (a line: ≤ 0.5 m at any angle);
-    #: a parked car is 1.7-2.0 m wide; an L of three cells is 0.62 m, a 2 × 2 block 1.0 m
-    max_width_m: float = 0.55
-    #: objects.unmapped_min_age_s: a cell is relabelled once decided occupied this long
-    #: (0.1 s: in two decisions at 10 Hz)
-    min_age_s: float = 0.1
-    #: objects.unmapped_cue: relabel the unmapped-like components (steps 1-3)
-    unmapped: bool = True
-    #: objects.stopped_needs_road: step 4 (off here, the fusion's decision; on in
-    #: configs/default.toml)
-    stopped_needs_road: bool = False
-
-    @staticmethod
-    def from_config(config: dict[str, Any]) -> UnmappedParams:
-        o = config["objects"]
-        return UnmappedParams(max_width_m=float(o["unmapped_max_width_m"]),
-                              min_age_s=float(o["unmapped_min_age_s"]),
-                              unmapped=bool(o.get("unmapped_cue", False)),
-                              stopped_needs_road=bool(o.get("stopped_needs_road", False)))
 
 
 @dataclass
