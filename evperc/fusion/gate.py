@@ -16,7 +16,9 @@ reset), four numbers:
 - ``ever``: the cell is *ever-free*.
 
 Per scan, with R(x) = [free_s(x) ≥ gate_free_s] after this scan's update and
-V(x) = [x's return this scan ends an occupied run of occ_s ≥ gate_revoke_s]:
+V(x) = [x's return this scan ends an occupied run of occ_s ≥ gate_revoke_s, or comes back
+after a gap: more than ``gate_gap_s`` and at most ``gate_rehit_s`` since x's previous
+return (a thin object seen through beam gaps; 0 = off)]:
 
     ever(x) ← 0                 if V(y) for some y in the 3 × 3 block around x
     ever(x) ← 1                 elif R(y) for every y in the 3 × 3 block around x
@@ -91,7 +93,7 @@ def gate_step(state: GateState, free: np.ndarray, occupied: np.ndarray, dt_s: fl
                int(offset[1]) % shape[1] if shape[1] else 0, int(shift[0]), int(shift[1]),
                free32, occ32, np.float32(max(dt_s, 0.0)), np.float32(params.gate_min_free),
                np.float32(params.gate_free_s), np.float32(params.gate_revoke_s),
-               np.float32(params.gate_gap_s), marks, out)
+               np.float32(params.gate_gap_s), np.float32(params.gate_rehit_s), marks, out)
     if closed is not None:
         if closed.shape != shape:
             raise ValueError(f"closed mask of shape {closed.shape}, the gate state is {shape}")
@@ -101,7 +103,7 @@ def gate_step(state: GateState, free: np.ndarray, occupied: np.ndarray, dt_s: fl
 
 @numba.njit(cache=True, nogil=True)
 def _gate_pass(times, ever, off_r, off_c, dr, dc, free, occ, dt, min_free, t_free,
-               t_revoke, t_gap, marks, gate):  # pragma: no cover - compiled
+               t_revoke, t_gap, t_rehit, marks, gate):  # pragma: no cover - compiled
     """Pass 1: each cell's times (reset where it entered the window) and its marks (bit 0:
     R, free long enough; bit 1: V, revoking); pass 2: the 3 × 3 AND of R and OR of V,
     separably (a row pass into ``gate``, then a column pass), ``ever`` and the gate layer.
@@ -141,7 +143,9 @@ def _gate_pass(times, ever, off_r, off_c, dr, dc, free, occ, dt, min_free, t_fre
                 occ_s[br, bc] = run
                 free_s[br, bc] = fs
                 quiet_s[br, bc] = zero if o else qs
-                marks[r, c] = (np.uint8(2) if (o & (run >= t_revoke - SLACK)) else np.uint8(0)) \
+                back = (qs > t_gap + SLACK) & (qs <= t_rehit + SLACK)
+                marks[r, c] = (np.uint8(2) if (o & ((run >= t_revoke - SLACK) | back))
+                               else np.uint8(0)) \
                     | (np.uint8(1) if fs >= t_free - SLACK else np.uint8(0))
     # row pass: bit 0 the AND of R over (c − 1, c, c + 1), bit 1 the OR of V; outside the
     # window R is false

@@ -13,6 +13,9 @@ from evperc.fusion.twin import FusionParams
 
 PARAMS = FusionParams(motion_gate="ever_free", gate_free_s=0.3, gate_revoke_s=0.5,
                       gate_gap_s=0.2, gate_min_free=0.5)
+#: the same with the re-hit revocation on (a return back 0.2–0.6 s after the previous one)
+REHIT = FusionParams(motion_gate="ever_free", gate_free_s=0.3, gate_revoke_s=0.5,
+                     gate_gap_s=0.2, gate_min_free=0.5, gate_rehit_s=0.6)
 
 
 class Reference:
@@ -45,7 +48,8 @@ class Reference:
                     cell["occ_run"] = 0.0
                 cell["last_occ"] = 0.0
                 cell["run"] = None
-                rev = cell["occ_run"] >= p.gate_revoke_s - 1e-3
+                back = since is not None and p.gate_gap_s + 1e-3 < since <= p.gate_rehit_s + 1e-3
+                rev = cell["occ_run"] >= p.gate_revoke_s - 1e-3 or back
             elif free[r, c] >= p.gate_min_free:
                 cell["run"] = 0.0 if cell["run"] is None else cell["run"] + dt
             ready[r, c] = cell["run"] is not None and cell["run"] >= p.gate_free_s - 1e-3
@@ -61,8 +65,9 @@ class Reference:
         return gate
 
 
+@pytest.mark.parametrize("params", [PARAMS, REHIT], ids=["rehit-off", "rehit-on"])
 @pytest.mark.parametrize("seed", range(4))
-def test_gate_pass_matches_reference(seed: int) -> None:
+def test_gate_pass_matches_reference(seed: int, params: FusionParams) -> None:
     """Random free / occupied / unseen scans with long free and occupied stretches (so
     that cells become ever-free and are revoked), the window scrolling by 0–2 cells."""
     rng = np.random.default_rng(seed)
@@ -85,8 +90,8 @@ def test_gate_pass_matches_reference(seed: int) -> None:
         free = np.where(kind == 1, rng.choice([0.7, 0.3], size=shape, p=[0.9, 0.1]), 0.0)
         occ = np.where(kind == 2, 0.8, 0.0)
         dt = float(rng.choice([0.1, 0.1, 0.05, 0.3]))
-        got = gate_step(state, free, occ, dt, PARAMS, offset=tuple(offset), shift=shift)
-        want = ref.step(free, occ, dt, PARAMS)
+        got = gate_step(state, free, occ, dt, params, offset=tuple(offset), shift=shift)
+        want = ref.step(free, occ, dt, params)
         np.testing.assert_array_equal(got, want, err_msg=f"frame {frame}")
         np.testing.assert_array_equal(window_order(state.ever, offset), want)
         opened += int(((got == 1) & (previous == 0)).sum())
@@ -147,6 +152,47 @@ def test_long_occupancy_revokes_the_cell_and_its_neighbours() -> None:
     assert gates[9][3, 3] == 1
     assert not gates[10][2:5, 2:5].any() and gates[10][1, 1] == 1
     assert not gates[12][2:5, 2:5].any()  # not re-opened while occupied
+
+
+def pole_scene() -> list[tuple[np.ndarray, np.ndarray]]:
+    """A thin pole at (3, 3) in open ground: seen free (through the gap between two beams)
+    for 4 scans, hit, free for 3 scans, hit again, free 7 scans, hit again."""
+    shape = (7, 7)
+    free = np.full(shape, 0.7, np.float32)
+    occ = np.zeros(shape, np.float32)
+    pole = occ.copy()
+    pole[3, 3] = 0.8
+    hit = (np.where(pole > 0, 0, free), pole)
+    return [(free, occ)] * 4 + [hit] + [(free, occ)] * 3 + [hit] + [(free, occ)] * 7 + [hit]
+
+
+def test_rehit_within_the_bound_closes_the_gate_for_a_pole_seen_through_gaps() -> None:
+    """Without the rule the pole's every return passes the gate (ever-free is kept while
+    the cell holds no long occupied run); with gate_rehit_s 0.6 s the first return still
+    passes (the cell's history cannot tell a pole from a car yet), the one 0.4 s later
+    does not (nor do its neighbours), the one 0.8 s after that does (past the bound)."""
+    frames = pole_scene()
+    off, on = run_scene(frames), run_scene(frames, REHIT)
+    assert [g[3, 3] for g in off][4::4][:3] == [1, 1, 1]  # scans 4, 8, 12 (12: free)
+    assert off[8][3, 3] == 1 and off[16][3, 3] == 1
+    assert on[4][3, 3] == 1
+    assert on[8][3, 3] == 0 and not on[8][2:5, 2:5].any() and on[8][1, 1] == 1
+    assert on[16][3, 3] == 1  # 0.8 s after the previous return: past the bound
+
+
+def test_rehit_spares_a_car_driving_through() -> None:
+    """A car's cells are hit on consecutive scans (no gap over gate_gap_s): the rule does
+    not fire, the gate stays open ahead of it as it drives a cell a scan."""
+    shape = (5, 12)
+    free = np.full(shape, 0.7, np.float32)
+    frames = [(free, np.zeros(shape, np.float32))] * 4
+    for k in range(6):
+        occ = np.zeros(shape, np.float32)
+        occ[2, 3 + k:5 + k] = 0.8
+        frames.append((np.where(occ > 0, 0, free), occ))
+    on = run_scene(frames, REHIT)
+    for k in range(6):
+        assert on[4 + k][2, 4 + k] == 1, k  # the car's front cell: the gate open
 
 
 def test_rejects_mismatched_grids() -> None:
