@@ -97,7 +97,8 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
                          np.int32)
     classify_points(z, range_m, az_bin, layout.n_az, layout.max_range_m, bool(planar),
                     np.float32(params.sensor_height_m), np.float32(params.ground_threshold_m),
-                    np.float32(params.max_obstacle_height_m), hist, kind)
+                    np.float32(params.max_obstacle_height_m), hist, kind,
+                    params.ground_fallback == "scan")
     if kinds_out is not None:
         kinds_out[:] = kind
 

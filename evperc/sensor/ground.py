@@ -12,7 +12,14 @@ azimuth × bands of ``BAND_M`` horizontal range):
    in an edge bin, and it lies within ``BASE_TOLERANCE_M + MAX_SLOPE·r_out`` of the prior
    (``r_out`` the band's outer range) — the ground may slope by at most ``MAX_SLOPE``.
 4. Otherwise the cell takes the estimate of the nearest accepted band nearer the sensor in
-   the same sector, or the prior (height 0) if there is none.
+   the same sector, or, if there is none, the *fallback*: the prior (height 0,
+   ``sensor.ground_fallback = "prior"``, the paper's preset) or the median of the scan's
+   accepted estimates (``"scan"``; the prior if none is accepted). A sensor mounted lower
+   or higher than ``sensor_height_m`` (an IBEO at a bumper, 0.5 m, against the prior's
+   1.73 m) sees the ground ``sensor_height_m − mount`` above the prior plane; in a sector
+   whose few ground returns fall short of ``MIN_POINTS`` (behind a car, at the field of
+   view's edge) the prior then makes them obstacles, a ring of false returns where the
+   lowest layer meets the road. The scan's other sectors know better.
 
 A point is *ground* if its height above the estimate is below ``ground_threshold_m``
 (points below the estimate, e.g. in a ditch or multipath echoes, count as ground), an
@@ -64,7 +71,7 @@ def histogram_shape(max_range_m: float) -> tuple[int, int, int]:
 def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az: int,
                     max_range_m: float, planar: bool, sensor_height: np.float32,
                     threshold: np.float32, max_height: np.float32, hist: np.ndarray,
-                    kind: np.ndarray) -> None:
+                    kind: np.ndarray, scan_fallback: bool = False) -> None:
     """Write into ``kind`` the GROUND / OBSTACLE / IGNORED kind of each point.
 
     ``z``: levelled height above the sensor; ``range_m``: horizontal range; ``az_bin``:
@@ -73,7 +80,8 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
     float32; ground if ``d < threshold``, obstacle if ``threshold ≤ d ≤ max_height``. See
     the module docstring for the ground estimate. ``planar``: every kept point is an
     obstacle. ``hist``: int32 work array of ``n_sector · n_band · n_z`` elements
-    (:func:`histogram_shape`)."""
+    (:func:`histogram_shape`). ``scan_fallback``: step 4's fallback is the median of the
+    scan's accepted estimates instead of the prior."""
     if planar:
         for i in range(z.shape[0]):
             kind[i] = OBSTACLE if az_bin[i] >= 0 else IGNORED
@@ -87,7 +95,7 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
         if az_bin[i] >= 0:
             cell = sector_start[az_bin[i]] + min(np.int64(range_m[i] * inv_band), n_band - 1)
             hist[cell * n_z + _z_bin(z[i] + sensor_height, n_z)] += 1
-    ground = _fill_ground(hist, n_sector, n_band, n_z)
+    ground = _fill_ground(hist, n_sector, n_band, n_z, scan_fallback)
     for i in range(z.shape[0]):
         kind[i] = IGNORED
         if az_bin[i] >= 0:
@@ -111,27 +119,39 @@ def _z_bin(height: np.float32, n_z: int) -> int:
 
 
 @numba.njit(cache=True, nogil=True)
-def _fill_ground(hist: np.ndarray, n_sector: int, n_band: int, n_z: int) -> np.ndarray:
+def _fill_ground(hist: np.ndarray, n_sector: int, n_band: int, n_z: int,
+                 scan_fallback: bool = False) -> np.ndarray:
     """Ground estimate (float32) per coarse cell: its own if accepted, else that of the
-    nearest accepted band nearer the sensor in its sector, else 0 (steps 2–4)."""
+    nearest accepted band nearer the sensor in its sector, else the fallback — 0 (the
+    prior) or, with ``scan_fallback``, the median of the accepted estimates (steps 2–4)."""
+    accepted = np.empty(n_sector * n_band, dtype=np.float64)
+    ok = np.zeros(n_sector * n_band, dtype=np.bool_)
+    for cell in range(n_sector * n_band):
+        band = cell % n_band
+        n = hist[cell * n_z:(cell + 1) * n_z].sum()
+        if n >= MIN_POINTS:
+            target = max(math.ceil(PERCENTILE * n), 1)
+            cum = 0
+            pct_bin = 0
+            while True:
+                cum += hist[cell * n_z + pct_bin]
+                if cum >= target:
+                    break
+                pct_bin += 1
+            estimate = (pct_bin + 0.5) * Z_BIN_M - Z_SPAN_M
+            tolerance = min(BASE_TOLERANCE_M + MAX_SLOPE * ((band + 1.0) * BAND_M), Z_SPAN_M)
+            if 0 < pct_bin < n_z - 1 and abs(estimate) <= tolerance:
+                accepted[cell] = estimate
+                ok[cell] = True
+    fallback = 0.0
+    if scan_fallback and ok.any():
+        fallback = np.median(accepted[ok])
     ground = np.zeros(n_sector * n_band, dtype=np.float32)
     for sector in range(n_sector):
-        last = 0.0
+        last = fallback
         for band in range(n_band):
             cell = sector * n_band + band
-            n = hist[cell * n_z:(cell + 1) * n_z].sum()
-            if n >= MIN_POINTS:
-                target = max(math.ceil(PERCENTILE * n), 1)
-                cum = 0
-                pct_bin = 0
-                while True:
-                    cum += hist[cell * n_z + pct_bin]
-                    if cum >= target:
-                        break
-                    pct_bin += 1
-                estimate = (pct_bin + 0.5) * Z_BIN_M - Z_SPAN_M
-                tolerance = min(BASE_TOLERANCE_M + MAX_SLOPE * ((band + 1.0) * BAND_M), Z_SPAN_M)
-                if 0 < pct_bin < n_z - 1 and abs(estimate) <= tolerance:
-                    last = estimate
+            if ok[cell]:
+                last = accepted[cell]
             ground[cell] = np.float32(last)
     return ground

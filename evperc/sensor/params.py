@@ -28,6 +28,7 @@ class SensorParams:
     range_bin_m: float | None = None
     free_margin_m: float = 0.0
     free_erosion_m: float = 0.0
+    ground_fallback: str = "prior"
 
     @staticmethod
     def from_config(sensor: Mapping[str, Any], cell_size_m: float) -> SensorParams:
@@ -44,4 +45,5 @@ class SensorParams:
             range_bin_m=float(cell_size_m),
             free_margin_m=float(sensor["free_margin_m"]),
             free_erosion_m=float(sensor["free_erosion_m"]),
+            ground_fallback=str(sensor["ground_fallback"]),
         )

@@ -123,3 +123,50 @@ def test_ground_with_a_kerb_and_a_gentle_slope_is_not_an_obstacle(params):
                             Window.centred_on(*SENSOR, 60.0, RES), params)
     assert not occ.any()
     assert (free > 0).sum() > 0.9 * math.pi * (20.0**2 - 1.0) / RES**2
+
+
+def bumper_ring() -> np.ndarray:
+    """A sensor 0.5 m above flat ground (an IBEO at a bumper), its lowest layer meeting the
+    road on a ring at 23.9 m: 0.75° apart over 150° in front, except a 20° sector (30°–50°)
+    where something near hides all but 3 returns; level offsets from the sensor."""
+    az = np.radians(np.arange(-75.0, 75.0, 0.75))
+    keep = (az < np.radians(30.0)) | (az >= np.radians(50.0))
+    hidden = np.flatnonzero(~keep)[1::7][:3]  # 30.75°, 36°, 41.25°: inside the sector
+    az = np.concatenate([az[keep], az[hidden]])
+    r = np.full(az.size, 23.9)
+    return np.stack([r * np.cos(az), r * np.sin(az), np.full(az.size, -0.5)], 1)
+
+
+def test_a_low_sensor_with_the_scan_fallback_keeps_its_sparse_ground_ground(params):
+    """The prior puts the ground 1.73 m below; the ring is 1.23 m above that plane. Where
+    a 10° sector holds ≥ 5 ring returns, the local estimate finds the ground (both
+    fallbacks); in the hidden sector 3 returns are too few and with the prior as fallback
+    they are obstacles — the false ring of the simulated IBEO drives — while with the
+    scan's median (the ring's height everywhere else) they are ground."""
+    from dataclasses import replace
+
+    from evperc.sensor.ground import GROUND, OBSTACLE
+    ring = bumper_ring()
+    t = pose(*SENSOR, 0.5)
+    window = Window.centred_on(*SENSOR, 60.0, RES)
+    sparse = np.arange(len(ring)) >= len(ring) - 3  # bumper_ring puts them last
+    for fallback, sparse_kind in (("prior", OBSTACLE), ("scan", GROUND)):
+        kinds = np.empty(len(ring), np.uint8)
+        sensor_grid(world_to_sensor(ring, t), False, t, window,
+                    replace(params, ground_fallback=fallback), kinds_out=kinds)
+        assert (kinds[~sparse] == GROUND).all(), fallback
+        assert (kinds[sparse] == sparse_kind).all(), fallback
+
+
+def test_the_scan_fallback_keeps_a_box_an_obstacle(params):
+    """The fallback moves no accepted estimate: the flat-ground-and-box scene splits the
+    same with both fallbacks."""
+    from dataclasses import replace
+    t = pose(*SENSOR, H)
+    pts = world_to_sensor(np.vstack([ground_points(), box_points()]), t)
+    window = Window.centred_on(*SENSOR, 60.0, RES)
+    a = sensor_grid(pts, False, t, window, params)
+    b = sensor_grid(pts, False, t, window, replace(params, ground_fallback="scan"))
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+    assert a[1].any()
