@@ -93,8 +93,7 @@ def gate_step(state: GateState, free: np.ndarray, occupied: np.ndarray, dt_s: fl
                int(offset[1]) % shape[1] if shape[1] else 0, int(shift[0]), int(shift[1]),
                free32, occ32, np.float32(max(dt_s, 0.0)), np.float32(params.gate_min_free),
                np.float32(params.gate_free_s), np.float32(params.gate_revoke_s),
-               np.float32(params.gate_gap_s), np.float32(params.gate_rehit_s),
-               params.gate_rehit_reach == "cell", marks, out)
+               np.float32(params.gate_gap_s), np.float32(params.gate_rehit_s), marks, out)
     if closed is not None:
         if closed.shape != shape:
             raise ValueError(f"closed mask of shape {closed.shape}, the gate state is {shape}")
@@ -104,7 +103,7 @@ def gate_step(state: GateState, free: np.ndarray, occupied: np.ndarray, dt_s: fl
 
 @numba.njit(cache=True, nogil=True)
 def _gate_pass(times, ever, off_r, off_c, dr, dc, free, occ, dt, min_free, t_free,
-               t_revoke, t_gap, t_rehit, rehit_cell, marks, gate):  # pragma: no cover - compiled
+               t_revoke, t_gap, t_rehit, marks, gate):  # pragma: no cover - compiled
     """Pass 1: each cell's times (reset where it entered the window) and its marks (bit 0:
     R, free long enough; bit 1: V, revoking); pass 2: the 3 × 3 AND of R and OR of V,
     separably (a row pass into ``gate``, then a column pass), ``ever`` and the gate layer.
@@ -145,24 +144,20 @@ def _gate_pass(times, ever, off_r, off_c, dr, dc, free, occ, dt, min_free, t_fre
                 free_s[br, bc] = fs
                 quiet_s[br, bc] = zero if o else qs
                 back = (qs > t_gap + SLACK) & (qs <= t_rehit + SLACK)
-                back = o & back
-                spread = back & (not rehit_cell)
-                marks[r, c] = (np.uint8(2) if (o & (run >= t_revoke - SLACK)) | spread
+                marks[r, c] = (np.uint8(2) if (o & ((run >= t_revoke - SLACK) | back))
                                else np.uint8(0)) \
-                    | (np.uint8(4) if back & rehit_cell else np.uint8(0)) \
                     | (np.uint8(1) if fs >= t_free - SLACK else np.uint8(0))
     # row pass: bit 0 the AND of R over (c − 1, c, c + 1), bit 1 the OR of V; outside the
     # window R is false
     for r in range(rows):
         for c in range(1, cols - 1):
             a, b, d = marks[r, c - 1], marks[r, c], marks[r, c + 1]
-            gate[r, c] = (a & b & d & np.uint8(1)) | ((a | b | d) & np.uint8(2)) | (b & np.uint8(4))
+            gate[r, c] = (a & b & d & np.uint8(1)) | ((a | b | d) & np.uint8(2))
         if cols > 1:
-            gate[r, 0] = ((marks[r, 0] | marks[r, 1]) & np.uint8(2)) | (marks[r, 0] & np.uint8(4))
-            gate[r, cols - 1] = (((marks[r, cols - 2] | marks[r, cols - 1]) & np.uint8(2))
-                                 | (marks[r, cols - 1] & np.uint8(4)))
+            gate[r, 0] = (marks[r, 0] | marks[r, 1]) & np.uint8(2)
+            gate[r, cols - 1] = (marks[r, cols - 2] | marks[r, cols - 1]) & np.uint8(2)
         elif cols == 1:
-            gate[r, 0] = marks[r, 0] & np.uint8(6)
+            gate[r, 0] = marks[r, 0] & np.uint8(2)
     # column pass into marks (R and V of the 3 × 3 block), then ever and the gate
     for r in range(rows):
         up = max(r - 1, 0)
@@ -170,7 +165,7 @@ def _gate_pass(times, ever, off_r, off_c, dr, dc, free, occ, dt, min_free, t_fre
         inner = np.uint8(1) if (0 < r < rows - 1) else np.uint8(0)
         for c in range(cols):
             a, b, d = gate[up, c], gate[r, c], gate[down, c]
-            marks[r, c] = (a & b & d & inner) | ((a | b | d) & np.uint8(2)) | (b & np.uint8(4))
+            marks[r, c] = (a & b & d & inner) | ((a | b | d) & np.uint8(2))
     for r in range(rows):
         br = r + off_r
         br = br - rows if br >= rows else br
@@ -182,6 +177,6 @@ def _gate_pass(times, ever, off_r, off_c, dr, dc, free, occ, dt, min_free, t_fre
                 bc = c + shift_c
                 m = marks[r, c]
                 e = ever[br, bc]
-                e = np.uint8(0) if m & np.uint8(6) else (np.uint8(1) if m & np.uint8(1) else e)
+                e = np.uint8(0) if m & np.uint8(2) else (np.uint8(1) if m & np.uint8(1) else e)
                 ever[br, bc] = e
                 gate[r, c] = e

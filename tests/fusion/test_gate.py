@@ -16,9 +16,6 @@ PARAMS = FusionParams(motion_gate="ever_free", gate_free_s=0.3, gate_revoke_s=0.
 #: the same with the re-hit revocation on (a return back 0.2–0.6 s after the previous one)
 REHIT = FusionParams(motion_gate="ever_free", gate_free_s=0.3, gate_revoke_s=0.5,
                      gate_gap_s=0.2, gate_min_free=0.5, gate_rehit_s=0.6)
-REHIT_CELL = FusionParams(motion_gate="ever_free", gate_free_s=0.3, gate_revoke_s=0.5,
-                          gate_gap_s=0.2, gate_min_free=0.5, gate_rehit_s=0.6,
-                          gate_rehit_reach="cell")
 
 
 class Reference:
@@ -38,7 +35,7 @@ class Reference:
                       for r in range(self.shape[0]) for c in range(self.shape[1])}
 
     def step(self, free, occ, dt, p: FusionParams) -> np.ndarray:
-        ready, revoke, own = {}, {}, {}
+        ready, revoke = {}, {}
         for (r, c), cell in self.cells.items():
             # ages are kept as "seconds since" (None: never)
             since = None if cell["last_occ"] is None else cell["last_occ"] + dt
@@ -52,9 +49,7 @@ class Reference:
                 cell["last_occ"] = 0.0
                 cell["run"] = None
                 back = since is not None and p.gate_gap_s + 1e-3 < since <= p.gate_rehit_s + 1e-3
-                rev = cell["occ_run"] >= p.gate_revoke_s - 1e-3 or (
-                    back and p.gate_rehit_reach == "block")
-                own[r, c] = back and p.gate_rehit_reach == "cell"
+                rev = cell["occ_run"] >= p.gate_revoke_s - 1e-3 or back
             elif free[r, c] >= p.gate_min_free:
                 cell["run"] = 0.0 if cell["run"] is None else cell["run"] + dt
             ready[r, c] = cell["run"] is not None and cell["run"] >= p.gate_free_s - 1e-3
@@ -62,7 +57,7 @@ class Reference:
         gate = np.zeros(self.shape, np.uint8)
         for (r, c), cell in self.cells.items():
             block = [(r + y, c + x) for y in (-1, 0, 1) for x in (-1, 0, 1)]
-            if any(revoke.get(b, False) for b in block) or own.get((r, c), False):
+            if any(revoke.get(b, False) for b in block):
                 cell["ever"] = False
             elif all(ready.get(b, False) for b in block):
                 cell["ever"] = True
@@ -70,8 +65,7 @@ class Reference:
         return gate
 
 
-@pytest.mark.parametrize("params", [PARAMS, REHIT, REHIT_CELL],
-                         ids=["rehit-off", "rehit-block", "rehit-cell"])
+@pytest.mark.parametrize("params", [PARAMS, REHIT], ids=["rehit-off", "rehit-on"])
 @pytest.mark.parametrize("seed", range(4))
 def test_gate_pass_matches_reference(seed: int, params: FusionParams) -> None:
     """Random free / occupied / unseen scans with long free and occupied stretches (so
