@@ -272,8 +272,9 @@ def _update_columns(decision, from_decision, age_s, moved, r, br, c0, c1, off_c,
 
 @numba.njit(cache=True, nogil=True)
 def _unmapped_pass(decision, labels, has_labels, from_decision, seen_cells, age_s, moved,
-                   off_r, off_c, dr, dc, dt, max_width, min_age, relabel_unmapped, stopped_needs_road,
-                   cos, sin, mark, cells, stats, dec_words):  # pragma: no cover - compiled
+                   off_r, off_c, dr, dc, dt, max_width, min_age, relabel_unmapped,
+                   stopped_needs_road, cos, sin, mark, cells, stats, dec_words
+                   ):  # pragma: no cover - compiled
     """The state update, then the components (module docstring). ``max_width`` in cells.
     Seen moving: with ``from_decision`` the cells decided moving, else the flat window
     cells ``seen_cells`` (their ``moved`` set after the update, which resets it where a
