@@ -522,8 +522,32 @@ def _fits(t_s, xy, count, sigma0):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _distances(hist_xy, hist_n, velocity, dt, centroid, gate):  # pragma: no cover - compiled
+    """(tracks, clusters) float64: each track's centroid predicted by its velocity, ``last
+    + v · dt``, to each cluster centroid, ``hypot(px − cx, py − cy)`` — numpy's formulas
+    op for op (``hist_xy[i, hist_n[i] − 1]``, numpy's wrap of −1 kept; ``math.hypot`` and
+    ``np.hypot`` are both libm's ``hypot``; no fastmath, so no contraction into an FMA) —
+    where it may be within ``gate``: a pair with |px − cx| or |py − cy| above the gate is
+    farther (hypot(a, b) ≥ max(|a|, |b|), rounding included) and gets +inf."""
+    n = hist_n.shape[0]
+    m = centroid.shape[0]
+    dist = np.empty((n, m), np.float64)
+    for i in range(n):
+        j = hist_n[i] - 1
+        j = j + hist_xy.shape[1] if j < 0 else j
+        px = hist_xy[i, j, 0] + velocity[i, 0] * dt
+        py = hist_xy[i, j, 1] + velocity[i, 1] * dt
+        for c in range(m):
+            dx = px - centroid[c, 0]
+            dy = py - centroid[c, 1]
+            dist[i, c] = (np.inf if abs(dx) > gate or abs(dy) > gate
+                          else math.hypot(dx, dy))
+    return dist
+
+
+@numba.njit(cache=True, nogil=True)
 def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, sigma, fp_n,
-                  fp, evidence, past_n, past, dist, cells, offsets, centroid, seeds, row0,
+                  fp, evidence, past_n, past, dt, cells, offsets, centroid, seeds, row0,
                   col0, rows, cols, decision, has_decision, stamp_ns, next_id, gate,
                   history, confirm, max_missed, speed2_min, motion_test, sigma0, need,
                   conflict_cells, vacated_frames, share_min, every_frame, arrival_share
@@ -532,6 +556,10 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
     arrays; returns the new arrays, the next id, and the reported (track row, cluster)."""
     n_old = ids.shape[0]
     n_cl = offsets.shape[0] - 1
+    if n_old > 0 and n_cl > 0:  # read only within the gate
+        dist = _distances(hist_xy, hist_n, velocity, dt, centroid, gate)
+    else:
+        dist = np.zeros((n_old, n_cl), np.float64)
     # association: pairs within the gate, nearest first (ties: track, then cluster)
     of_track = np.full(n_old + n_cl, -1, np.int64)
     taken = np.zeros(n_cl, np.bool_)
@@ -826,25 +854,18 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
     ``motion_evidence_frames`` frames of conflict evidence at once.
 
     One compiled pass over the tracks (``_track_kernel``); the predicted centroids and
-    their distances to the clusters are numpy's (``np.hypot``), so the association is the
-    per-track tracker's (tests/objects/reference_tracking.py) to the bit."""
+    their distances to the clusters (``_distances``) are numpy's formulas op for op, so the
+    association is the per-track tracker's (tests/objects/reference_tracking.py) to the
+    bit."""
     dt_s = 0.0 if state.prev_ns is None else (stamp_ns - state.prev_ns) * 1e-9
     state.prev_ns = stamp_ns
-    n = len(state.id)
     centroids = clusters.centroid_m
-    if n and len(centroids):
-        last = state.hist_xy[np.arange(n), state.hist_n - 1]
-        px = last[:, 0] + state.velocity[:, 0] * dt_s
-        py = last[:, 1] + state.velocity[:, 1] * dt_s
-        dist = np.hypot(px[:, None] - centroids[None, :, 0], py[:, None] - centroids[None, :, 1])
-    else:
-        dist = np.zeros((n, len(centroids)))
     has_decision = decision is not None
     flat = (np.ascontiguousarray(decision).reshape(-1) if has_decision else _NO_DECISION)
     out = _track_kernel(
         state.id, state.hits, state.missed, state.flags, state.hist_n, state.hist_t,
         state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
-        state.past_n, state.past, dist, clusters.cells, clusters.offsets,
+        state.past_n, state.past, float(dt_s), clusters.cells, clusters.offsets,
         np.ascontiguousarray(centroids, np.float64), clusters.seeds, window.row0, window.col0,
         window.rows, window.cols, flat, has_decision, int(stamp_ns), state.next_id,
         float(params.gate_m), int(params.history_frames), int(params.confirm_frames),
