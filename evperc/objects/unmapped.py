@@ -236,7 +236,9 @@ def _update_kept(dec, from_decision, age, moved, dt):  # pragma: no cover - comp
         occ = (d == _MOVING) | (d == _STATIC) | (d == _STOPPED) | (d == _UNMAPPED)
         grown = np.float32(0.0) if a < 0 else a + dt
         age[k] = grown if occ else (NOT_OCCUPIED if d == _FREE else a)
-        moved[k] = np.uint8(1) if (from_decision and d == _MOVING) else moved[k]
+    if from_decision:  # else ``moved`` is left as it is here (neither read nor written)
+        for k in range(dec.shape[0]):
+            moved[k] = np.uint8(1) if dec[k] == _MOVING else moved[k]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
