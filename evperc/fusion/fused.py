@@ -283,7 +283,7 @@ def count_codes(decision: np.ndarray, n_codes: int) -> np.ndarray:
 _LANES = 16
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _count(codes: np.ndarray, counts: np.ndarray) -> None:  # pragma: no cover - compiled
     """``counts[code] += 1`` for every code, into ``_LANES`` interleaved sub-histograms
     summed at the end: neighbouring cells mostly share their code, and one histogram made

@@ -197,7 +197,7 @@ def _sorted_unique(a: np.ndarray) -> np.ndarray:
     return s[keep]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _complete(tid, moving, count, vel, cells, rows, cols, row0, col0, res, stamp, speaks_a,
               speaks_b, frames, h_id, h_stamp, h_n, h_xy):
     """The completion of one frame (module docstring): per record its completed cells
@@ -356,7 +356,7 @@ def _complete(tid, moving, count, vel, cells, rows, cols, row0, col0, res, stamp
             o_id, o_stamp, o_n, o_xy)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _merge(moving, age, tid, streak, full, full_n, cells, count, cols, row0, col0, res, gap,
            extent_m):
     """The fragment merge (module docstring, **Fragments**): whether any record joined

@@ -339,7 +339,7 @@ def window_indices(lattice: np.ndarray, window: Window) -> np.ndarray:
     return r[inside] * window.cols + c[inside]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _seed_cells(fp, fp_n, flags, row0, col0, rows, cols):  # pragma: no cover - compiled
     """:func:`footprint_seeds`: the window cells of the footprints of tracks that moved."""
     out = np.empty(fp.shape[0], np.int64)
@@ -545,7 +545,7 @@ def _distances(hist_xy, hist_n, velocity, dt, centroid, gate):  # pragma: no cov
     return dist
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, sigma, fp_n,
                   fp, evidence, past_n, past, dt, cells, offsets, centroid, seeds, row0,
                   col0, rows, cols, decision, has_decision, stamp_ns, next_id, gate,
@@ -782,7 +782,7 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
             rep_row[:n_rep].copy(), rep_cl[:n_rep].copy())
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _fill_records(rows, cl, ids, flags, hits, velocity, sigma, cells, offsets, centroid, bbox,
                   mean_m):  # pragma: no cover - compiled
     """The reported objects' fields, in track id order (contiguous arrays, one a field of

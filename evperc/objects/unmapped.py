@@ -272,7 +272,7 @@ def _update_columns(decision, from_decision, age_s, moved, r, br, c0, c1, off_c,
             _update_entered(dec, from_decision, age, mv)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _unmapped_pass(decision, labels, has_labels, from_decision, seen_cells, age_s, moved,
                    off_r, off_c, dr, dc, dt, max_width, min_age, relabel_unmapped,
                    stopped_needs_road, cos, sin, mark, cells, stats, dec_words
