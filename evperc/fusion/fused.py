@@ -259,7 +259,7 @@ def _kernel(floats: bool, lean: bool) -> Callable[..., None]:
     return fused_kernel.step_float if floats else fused_kernel.step_stored
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _unknown_labels(labels: np.ndarray) -> bool:  # pragma: no cover - compiled
     """Whether some label is neither 0, 1, 2 nor NO_MAP (one vectorised pass, ~10 µs on
     160,000 cells; numpy's comparisons took ~40)."""
