@@ -784,26 +784,17 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _fill_records(rows, cl, ids, flags, hits, velocity, sigma, cells, offsets, centroid, bbox,
-                  mean_m):  # pragma: no cover - compiled
-    """The reported objects' fields, in track id order (contiguous arrays, one a field of
-    :data:`~evperc.output.objects.OBJECT_DTYPE`, in its dtype), and their cells (uint32,
-    in record order)."""
+                  mean_m, records):  # pragma: no cover - compiled
+    """The reported objects, in track id order, written into ``records``
+    (:data:`~evperc.output.objects.OBJECT_DTYPE`, one per reported row; each field takes
+    the cast numpy's assignment of its value makes), and their cells (uint32, in record
+    order)."""
     n = rows.shape[0]
     order = np.argsort(ids[rows], kind="mergesort")  # by id (rows are in id order already)
     total = 0
     for k in range(n):
         c = cl[k]
         total += offsets[c + 1] - offsets[c]
-    track_id = np.empty(n, np.uint32)
-    state_code = np.empty(n, np.uint8)
-    cell_count = np.empty(n, np.uint32)
-    age = np.empty(n, np.uint32)
-    centroid_out = np.empty((n, 2), np.float64)
-    bbox_out = np.empty((n, 4), np.float64)
-    extent = np.empty((n, 2), np.float32)
-    velocity_out = np.empty((n, 2), np.float32)
-    sigma_out = np.empty(n, np.float32)
-    mean_out = np.empty(n, np.float32)
     out = np.empty(total, np.uint32)
     at = 0
     for k in range(n):
@@ -811,27 +802,23 @@ def _fill_records(rows, cl, ids, flags, hits, velocity, sigma, cells, offsets, c
         c = cl[order[k]]
         a = offsets[c]
         b = offsets[c + 1]
-        track_id[k] = ids[i]
-        state_code[k] = _STATE_MOVING if flags[i, 1] != 0 else _STATE_STOPPED
-        cell_count[k] = b - a
-        age[k] = hits[i]
+        rec = records[k]
+        rec.track_id = ids[i]
+        rec.state = _STATE_MOVING if flags[i, 1] != 0 else _STATE_STOPPED
+        rec.cell_count = b - a
+        rec.age_frames = hits[i]
         for q in range(2):
-            centroid_out[k, q] = centroid[c, q]
-            extent[k, q] = bbox[c, 2 + q] - bbox[c, q]
-            velocity_out[k, q] = velocity[i, q]
+            rec.centroid_m[q] = centroid[c, q]
+            rec.extent_m[q] = bbox[c, 2 + q] - bbox[c, q]
+            rec.velocity_m_per_s[q] = velocity[i, q]
         for q in range(4):
-            bbox_out[k, q] = bbox[c, q]
-        sigma_out[k] = sigma[i]
-        mean_out[k] = mean_m[c]
+            rec.bbox_m[q] = bbox[c, q]
+        rec.speed_sigma_m_per_s = sigma[i]
+        rec.mean_betp_moving = mean_m[c]
         for q in range(a, b):
             out[at] = cells[q]
             at += 1
-    return (track_id, state_code, cell_count, age, centroid_out, bbox_out, extent,
-            velocity_out, sigma_out, mean_out, out)
-
-
-_FIELDS = ("track_id", "state", "cell_count", "age_frames", "centroid_m", "bbox_m", "extent_m",
-           "velocity_m_per_s", "speed_sigma_m_per_s", "mean_betp_moving")
+    return out
 
 
 _NO_DECISION = np.zeros(0, np.uint8)
@@ -878,11 +865,9 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
      state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
      state.past_n, state.past, state.next_id, rows, cl) = out
     state.next_id = int(state.next_id)
-    *fields, cells_out = _fill_records(
+    records = np.zeros(len(rows), OBJECT_DTYPE)
+    cells_out = _fill_records(
         rows, cl, state.id, state.flags, state.hits, state.velocity, state.sigma,
         clusters.cells, clusters.offsets, clusters.centroid_m, clusters.bbox_m,
-        clusters.mean_betp_moving)
-    records = np.zeros(len(rows), OBJECT_DTYPE)
-    for name, value in zip(_FIELDS, fields, strict=True):
-        records[name] = value
+        clusters.mean_betp_moving, records)
     return records, cells_out
