@@ -198,8 +198,6 @@ class UnmappedCue:
         from_decision = moving_cells is None
         seen = self._no_cells if from_decision else np.ascontiguousarray(moving_cells,
                                                                          np.int64).reshape(-1)
-        if seen.size and (seen.min() < 0 or seen.max() >= rows * cols):
-            raise ValueError(f"moving_cells outside the {rows} x {cols} window")
         p = self.params
         res = self.resolution_m
         flat = decision.reshape(-1)
@@ -209,9 +207,10 @@ class UnmappedCue:
             int(offset[1]) % cols if cols else 0, int(shift[0]), int(shift[1]),
             np.float32(max(dt_s, 0.0)), p.max_width_m / res, np.float32(p.min_age_s),
             p.unmapped, p.stopped_needs_road, self._cos, self._sin, self._mark, self._cells,
-            self._stats, flat[:flat.size - flat.size % 8].view(np.uint64))
+            self._stats, flat[:flat.size - flat.size % 8].view(np.uint64), res)
+        if n < 0:  # checked before any state was changed
+            raise ValueError(f"moving_cells outside the {rows} x {cols} window")
         self.components = n
-        self._stats[:n, STAT_WIDTH_M:STAT_LENGTH_M + 1] *= res
         return relabelled
 
     @property
@@ -275,16 +274,20 @@ def _update_columns(decision, from_decision, age_s, moved, r, br, c0, c1, off_c,
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _unmapped_pass(decision, labels, has_labels, from_decision, seen_cells, age_s, moved,
                    off_r, off_c, dr, dc, dt, max_width, min_age, relabel_unmapped,
-                   stopped_needs_road, cos, sin, mark, cells, stats, dec_words
+                   stopped_needs_road, cos, sin, mark, cells, stats, dec_words, res
                    ):  # pragma: no cover - compiled
     """The state update, then the components (module docstring). ``max_width`` in cells.
     Seen moving: with ``from_decision`` the cells decided moving, else the flat window
     cells ``seen_cells`` (their ``moved`` set after the update, which resets it where a
-    cell entered the window).
+    cell entered the window). Returns (−1, 0), changing nothing, if a seen cell is outside
+    the window. The stats' width and length are stored in metres (× ``res``).
     ``dec_words``: the first cells of ``decision`` as uint64 words (8 cells each; the
     scan for components skips the words without a cell decided static, stopped or
     unmapped). Returns (components, cells relabelled)."""
     rows, cols = decision.shape
+    for q in range(seen_cells.shape[0]):
+        if seen_cells[q] < 0 or seen_cells[q] >= rows * cols:
+            return -1, 0
     lo = min(max(-dc, 0), cols)  # window columns [lo, hi) were in the previous window
     hi = max(min(cols - dc, cols), lo)
     for r in range(rows):
@@ -421,8 +424,8 @@ def _unmapped_pass(decision, labels, has_labels, from_decision, seen_cells, age_
             stats[n_comp, 1] = road
             stats[n_comp, 2] = 1.0 if near_building else 0.0
             stats[n_comp, 3] = 1.0 if any_moved else 0.0
-            stats[n_comp, 4] = width
-            stats[n_comp, 5] = length
+            stats[n_comp, 4] = width * res
+            stats[n_comp, 5] = length * res
             unstopped = 0
             if stopped_needs_road and has_labels and road == 0 and not any_moved:
                 for q in range(first, n_cells):  # step 4: what step 3 left stopped
