@@ -369,9 +369,13 @@ class Pipeline:
                                      hits_out=np.empty(tiny.shape, np.bool_))
         state = FusionState.fresh(tiny)
         out = StoredOutputs.empty(tiny.shape)
-        gate = gate_step(state.gate, free, occupied, 0.1, self.params)
-        fused_step(state.pg, state.zeta, free, occupied, None, self.betas, 0.1, self.params,
+        gate = gate_step(state.gate, free, occupied, 0.1, self.params,
+                         closed=np.zeros(tiny.shape, np.bool_))
+        # with a map, labels as the run's (their check's kernel is loaded here, not in frame 1)
+        labels = np.zeros(tiny.shape, np.uint8) if self.rasteriser is not None else None
+        fused_step(state.pg, state.zeta, free, occupied, labels, self.betas, 0.1, self.params,
                    out=out, flags=state.flags, focal=state.focal, gate=gate)
+        count_codes(out.decision, len(DECISION_CODES))
         if self.objects is not None:
             ObjectStage(self.request.config, tiny.shape).step(
                 TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0,

@@ -259,7 +259,7 @@ def _kernel(floats: bool, lean: bool) -> Callable[..., None]:
     return fused_kernel.step_float if floats else fused_kernel.step_stored
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _unknown_labels(labels: np.ndarray) -> bool:  # pragma: no cover - compiled
     """Whether some label is neither 0, 1, 2 nor NO_MAP (one vectorised pass, ~10 µs on
     160,000 cells; numpy's comparisons took ~40)."""
@@ -271,7 +271,7 @@ def _unknown_labels(labels: np.ndarray) -> bool:  # pragma: no cover - compiled
 
 def count_codes(decision: np.ndarray, n_codes: int) -> np.ndarray:
     """Cells per decision code of a uint8 grid (``np.bincount`` without its conversion of
-    the 160,000 codes to intp, ~5× faster)."""
+    the 160,000 codes to intp, ~5× faster; :func:`_count`)."""
     counts = np.zeros(max(n_codes, 256), np.int64)
     _count(np.ascontiguousarray(decision).reshape(-1), counts)
     if counts[n_codes:].any():
@@ -279,10 +279,27 @@ def count_codes(decision: np.ndarray, n_codes: int) -> np.ndarray:
     return counts[:n_codes]
 
 
-@numba.njit(cache=True, nogil=True)
+#: sub-histograms of :func:`_count`
+_LANES = 16
+
+
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _count(codes: np.ndarray, counts: np.ndarray) -> None:  # pragma: no cover - compiled
-    for code in codes:
-        counts[code] += 1
+    """``counts[code] += 1`` for every code, into ``_LANES`` interleaved sub-histograms
+    summed at the end: neighbouring cells mostly share their code, and one histogram made
+    each increment wait for the previous one's store (0.096 -> 0.048 ms on workload (a)'s
+    160,000 cells)."""
+    n = codes.shape[0]
+    lanes = np.zeros((_LANES, counts.shape[0]), np.int64)
+    whole = n - n % _LANES
+    for i in range(0, whole, _LANES):
+        for k in range(_LANES):
+            lanes[k, codes[i + k]] += 1
+    for i in range(whole, n):
+        lanes[0, codes[i]] += 1
+    for k in range(_LANES):
+        for c in range(counts.shape[0]):
+            counts[c] += lanes[k, c]
 
 
 def vacuous_flags(pg: np.ndarray, zeta: np.ndarray) -> np.ndarray:

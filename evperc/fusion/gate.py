@@ -43,6 +43,8 @@ FREE_S, OCC_S, QUIET_S = 0, 1, 2
 NEVER = np.float32(1e9)
 #: seconds of slack on the time comparisons (scan intervals jitter by a few ms)
 SLACK = np.float32(1e-3)
+#: the ``closed`` argument of :func:`_gate_pass` when no cell is held shut
+_NO_CLOSED = np.zeros((0, 0), np.uint8)
 
 
 @dataclass
@@ -88,95 +90,161 @@ def gate_step(state: GateState, free: np.ndarray, occupied: np.ndarray, dt_s: fl
         raise ValueError(f"sensor grid of shape {free32.shape}, the gate state is {shape}")
     if out is None:
         out = np.empty(shape, np.uint8)
-    marks = np.empty(shape, np.uint8)
+    if closed is not None and closed.shape != shape:
+        raise ValueError(f"closed mask of shape {closed.shape}, the gate state is {shape}")
+    shut = (_NO_CLOSED if closed is None
+            else np.ascontiguousarray(closed, np.bool_).view(np.uint8))  # 0/1 bytes, no copy
     _gate_pass(state.times, state.ever, int(offset[0]) % shape[0] if shape[0] else 0,
                int(offset[1]) % shape[1] if shape[1] else 0, int(shift[0]), int(shift[1]),
                free32, occ32, np.float32(max(dt_s, 0.0)), np.float32(params.gate_min_free),
                np.float32(params.gate_free_s), np.float32(params.gate_revoke_s),
-               np.float32(params.gate_gap_s), np.float32(params.gate_rehit_s), marks, out)
-    if closed is not None:
-        if closed.shape != shape:
-            raise ValueError(f"closed mask of shape {closed.shape}, the gate state is {shape}")
-        out[closed] = 0
+               np.float32(params.gate_gap_s), np.float32(params.gate_rehit_s), shut,
+               closed is not None, out)
     return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _reset_cells(free_s, occ_s, quiet_s, ever):  # pragma: no cover - compiled
+    """Cells that entered the window start reset (1-d runs of one buffer row)."""
+    for k in range(ever.shape[0]):
+        free_s[k] = np.float32(-1.0)
+        occ_s[k] = np.float32(0.0)
+        quiet_s[k] = NEVER
+        ever[k] = 0
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _update_cells(free_s, occ_s, quiet_s, free, occ, dt, min_free, t_free, t_revoke, t_gap,
+                  t_rehit, marks):  # pragma: no cover - compiled
+    """Pass 1 of a run of cells (1-d views: ``free``, ``occ``, ``marks`` in window order,
+    the times in buffer order): each cell's times and its marks (bit 0: R, free long
+    enough; bit 1: V, revoking). Selects, not branches, so that it vectorises."""
+    zero, minus = np.float32(0.0), np.float32(-1.0)
+    for k in range(marks.shape[0]):
+        o = occ[k] > zero
+        fr = free[k] >= min_free
+        fs = free_s[k]
+        qs = quiet_s[k] + dt
+        run = (occ_s[k] + qs) if qs <= t_gap + SLACK else zero
+        run = run if o else occ_s[k]
+        grown = zero if fs < zero else fs + dt
+        fs = minus if o else (grown if fr else fs)
+        qs = qs if qs < NEVER else NEVER
+        occ_s[k] = run
+        free_s[k] = fs
+        quiet_s[k] = zero if o else qs
+        back = (qs > t_gap + SLACK) & (qs <= t_rehit + SLACK)  # a re-hit after a gap
+        marks[k] = (np.uint8(2) if (o & ((run >= t_revoke - SLACK) | back)) else np.uint8(0)) \
+            | (np.uint8(1) if fs >= t_free - SLACK else np.uint8(0))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _times_row(free_s, occ_s, quiet_s, ever, free, occ, r, br, row_lo, row_hi, off_c, dt,
+               min_free, t_free, t_revoke, t_gap, t_rehit, marks):  # pragma: no cover
+    """Pass 1 of window row ``r`` (buffer row ``br``): the cells that entered the window
+    (window columns outside [row_lo, row_hi)) reset, then every cell's times and marks
+    (:func:`_update_cells`) into ``marks`` (one row, window order), over the two parts of
+    the row that are contiguous in the circular buffer (window column c is buffer column
+    c + off_c, less cols from ``cols - off_c`` on)."""
+    cols = marks.shape[0]
+    for seg in range(2):
+        a0 = 0 if seg == 0 else cols - off_c
+        a1 = cols - off_c if seg == 0 else cols
+        delta = off_c if seg == 0 else off_c - cols
+        for e0, e1 in ((a0, min(a1, row_lo)), (max(a0, row_hi), a1)):  # entered: reset
+            if e0 < e1:
+                _reset_cells(free_s[br, e0 + delta:e1 + delta], occ_s[br, e0 + delta:e1 + delta],
+                             quiet_s[br, e0 + delta:e1 + delta], ever[br, e0 + delta:e1 + delta])
+        if a0 < a1:
+            _update_cells(free_s[br, a0 + delta:a1 + delta], occ_s[br, a0 + delta:a1 + delta],
+                          quiet_s[br, a0 + delta:a1 + delta], free[r, a0:a1], occ[r, a0:a1],
+                          dt, min_free, t_free, t_revoke, t_gap, t_rehit, marks[a0:a1])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _row_block(marks, h):  # pragma: no cover - compiled
+    """One row of the separable 3 × 3 block: ``h[c]`` bit 0 the AND of R over
+    (c − 1, c, c + 1), bit 1 the OR of V; outside the window R is false."""
+    cols = marks.shape[0]
+    for c in range(1, cols - 1):
+        a, b, d = marks[c - 1], marks[c], marks[c + 1]
+        h[c] = (a & b & d & np.uint8(1)) | ((a | b | d) & np.uint8(2))
+    if cols > 1:
+        h[0] = (marks[0] | marks[1]) & np.uint8(2)
+        h[cols - 1] = (marks[cols - 2] | marks[cols - 1]) & np.uint8(2)
+    elif cols == 1:
+        h[0] = marks[0] & np.uint8(2)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _ever_cells(ever, up, mid, down, inner, gate):  # pragma: no cover - compiled
+    """The column pass of a run of cells (the 3 × 3 block's R and V from the row results
+    ``up``, ``mid``, ``down``; bit 0 only for an ``inner`` row), then ``ever`` (buffer order)
+    and the gate layer (window order); 1-d views."""
+    for k in range(gate.shape[0]):
+        a, b, d = up[k], mid[k], down[k]
+        m = (a & b & d & inner) | ((a | b | d) & np.uint8(2))
+        e = ever[k]
+        e = np.uint8(0) if m & np.uint8(2) else (np.uint8(1) if m & np.uint8(1) else e)
+        ever[k] = e
+        gate[k] = e
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _ever_row(ever, up, mid, down, inner, r, br, off_c, shut, has_shut, gate
+              ):  # pragma: no cover - compiled
+    """Window row ``r`` (buffer row ``br``) of the column pass, its ``ever`` and its gate
+    layer (:func:`_ever_cells`; outside the window R is false: ``inner`` 0 on the first and
+    last rows), then 0 where ``shut`` (with ``has_shut``)."""
+    cols = mid.shape[0]
+    for seg in range(2):
+        a0 = 0 if seg == 0 else cols - off_c
+        a1 = cols - off_c if seg == 0 else cols
+        delta = off_c if seg == 0 else off_c - cols
+        if a0 < a1:
+            _ever_cells(ever[br, a0 + delta:a1 + delta], up[a0:a1], mid[a0:a1], down[a0:a1],
+                        inner, gate[r, a0:a1])
+    if has_shut:
+        g = gate[r]
+        s = shut[r]
+        for c in range(cols):
+            g[c] &= s[c] ^ np.uint8(1)
 
 
 @numba.njit(cache=True, nogil=True)
 def _gate_pass(times, ever, off_r, off_c, dr, dc, free, occ, dt, min_free, t_free,
-               t_revoke, t_gap, t_rehit, marks, gate):  # pragma: no cover - compiled
-    """Pass 1: each cell's times (reset where it entered the window) and its marks (bit 0:
-    R, free long enough; bit 1: V, revoking); pass 2: the 3 × 3 AND of R and OR of V,
-    separably (a row pass into ``gate``, then a column pass), ``ever`` and the gate layer.
-    Branch-free inner loops over the two parts of a window row that are contiguous in the
-    circular buffer (LLVM vectorises them)."""
+               t_revoke, t_gap, t_rehit, shut, has_shut, gate):  # pragma: no cover
+    """One sweep down the window: pass 1 of row r (:func:`_times_row`), its row of the
+    separable 3 × 3 block (:func:`_row_block`) into a ring of three row buffers, then the
+    column pass, ``ever`` and the gate layer of row r − 1 (:func:`_ever_row`), which needs
+    the row results of r − 2, r − 1 and r; the last row after the sweep. Each window row's
+    cells are read and written once (the three-pass version wrote two window-sized scratch
+    layers and read them back); the same operations per cell, so the same bits. ``shut``:
+    uint8 window order, the cells whose gate layer is 0 (``has_shut``)."""
     rows, cols = ever.shape
+    if rows == 0 or cols == 0:
+        return
     free_s, occ_s, quiet_s = times[0], times[1], times[2]
-    zero, minus = np.float32(0.0), np.float32(-1.0)
     lo = min(max(-dc, 0), cols)  # window columns [lo, hi) were in the previous window
     hi = max(min(cols - dc, cols), lo)
+    marks = np.empty(cols, np.uint8)
+    ring = np.empty((3, cols), np.uint8)
     for r in range(rows):
         br = r + off_r
         br = br - rows if br >= rows else br
         row_lo, row_hi = (lo, hi) if 0 <= r + dr < rows else (0, 0)
-        for seg in range(2):
-            a0 = 0 if seg == 0 else cols - off_c
-            a1 = cols - off_c if seg == 0 else cols
-            shift_c = off_c if seg == 0 else off_c - cols
-            for c in range(a0, a1):  # entered the window: reset
-                if c < row_lo or c >= row_hi:
-                    bc = c + shift_c
-                    free_s[br, bc] = minus
-                    occ_s[br, bc] = zero
-                    quiet_s[br, bc] = NEVER
-                    ever[br, bc] = 0
-            for c in range(a0, a1):
-                bc = c + shift_c
-                o = occ[r, c] > zero
-                fr = free[r, c] >= min_free
-                fs = free_s[br, bc]
-                qs = quiet_s[br, bc] + dt
-                run = (occ_s[br, bc] + qs) if qs <= t_gap + SLACK else zero
-                run = run if o else occ_s[br, bc]
-                grown = zero if fs < zero else fs + dt
-                fs = minus if o else (grown if fr else fs)
-                qs = qs if qs < NEVER else NEVER
-                occ_s[br, bc] = run
-                free_s[br, bc] = fs
-                quiet_s[br, bc] = zero if o else qs
-                back = (qs > t_gap + SLACK) & (qs <= t_rehit + SLACK)
-                marks[r, c] = (np.uint8(2) if (o & ((run >= t_revoke - SLACK) | back))
-                               else np.uint8(0)) \
-                    | (np.uint8(1) if fs >= t_free - SLACK else np.uint8(0))
-    # row pass: bit 0 the AND of R over (c − 1, c, c + 1), bit 1 the OR of V; outside the
-    # window R is false
-    for r in range(rows):
-        for c in range(1, cols - 1):
-            a, b, d = marks[r, c - 1], marks[r, c], marks[r, c + 1]
-            gate[r, c] = (a & b & d & np.uint8(1)) | ((a | b | d) & np.uint8(2))
-        if cols > 1:
-            gate[r, 0] = (marks[r, 0] | marks[r, 1]) & np.uint8(2)
-            gate[r, cols - 1] = (marks[r, cols - 2] | marks[r, cols - 1]) & np.uint8(2)
-        elif cols == 1:
-            gate[r, 0] = marks[r, 0] & np.uint8(2)
-    # column pass into marks (R and V of the 3 × 3 block), then ever and the gate
-    for r in range(rows):
-        up = max(r - 1, 0)
-        down = min(r + 1, rows - 1)
-        inner = np.uint8(1) if (0 < r < rows - 1) else np.uint8(0)
-        for c in range(cols):
-            a, b, d = gate[up, c], gate[r, c], gate[down, c]
-            marks[r, c] = (a & b & d & inner) | ((a | b | d) & np.uint8(2))
-    for r in range(rows):
-        br = r + off_r
-        br = br - rows if br >= rows else br
-        for seg in range(2):
-            a0 = 0 if seg == 0 else cols - off_c
-            a1 = cols - off_c if seg == 0 else cols
-            shift_c = off_c if seg == 0 else off_c - cols
-            for c in range(a0, a1):
-                bc = c + shift_c
-                m = marks[r, c]
-                e = ever[br, bc]
-                e = np.uint8(0) if m & np.uint8(2) else (np.uint8(1) if m & np.uint8(1) else e)
-                ever[br, bc] = e
-                gate[r, c] = e
+        _times_row(free_s, occ_s, quiet_s, ever, free, occ, r, br, row_lo, row_hi, off_c,
+                   dt, min_free, t_free, t_revoke, t_gap, t_rehit, marks)
+        _row_block(marks, ring[r % 3])
+        if r >= 1:  # row r − 1 has both neighbours' row results now
+            q = r - 1
+            bq = q + off_r
+            bq = bq - rows if bq >= rows else bq
+            inner = np.uint8(1) if q > 0 else np.uint8(0)  # q < rows − 1 here
+            _ever_row(ever, ring[max(q - 1, 0) % 3], ring[q % 3], ring[r % 3], inner, q, bq,
+                      off_c, shut, has_shut, gate)
+    q = rows - 1  # the last row: below it is outside the window (clamped, as R is masked)
+    bq = q + off_r
+    bq = bq - rows if bq >= rows else bq
+    _ever_row(ever, ring[max(q - 1, 0) % 3], ring[q % 3], ring[q % 3], np.uint8(0), q, bq,
+              off_c, shut, has_shut, gate)

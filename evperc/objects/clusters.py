@@ -179,7 +179,7 @@ _ONES = np.uint64(0x0101010101010101)
 _HIGHS = np.uint64(0x8080808080808080)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_all: bool,
            cols: int, fo_q: int, moving: int, unknown: int, grows: np.ndarray,
            extra: np.ndarray,
@@ -246,7 +246,7 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_
     return n_clusters, n_cells
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_extent,
                tracked):  # pragma: no cover - compiled
     """The kept clusters of :func:`_flood`'s ``n`` (:class:`Clusters`' arrays, the

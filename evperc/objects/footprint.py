@@ -197,7 +197,7 @@ def _sorted_unique(a: np.ndarray) -> np.ndarray:
     return s[keep]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _complete(tid, moving, count, vel, cells, rows, cols, row0, col0, res, stamp, speaks_a,
               speaks_b, frames, h_id, h_stamp, h_n, h_xy):
     """The completion of one frame (module docstring): per record its completed cells
@@ -356,7 +356,7 @@ def _complete(tid, moving, count, vel, cells, rows, cols, row0, col0, res, stamp
             o_id, o_stamp, o_n, o_xy)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _merge(moving, age, tid, streak, full, full_n, cells, count, cols, row0, col0, res, gap,
            extent_m):
     """The fragment merge (module docstring, **Fragments**): whether any record joined
@@ -447,14 +447,42 @@ def _merge(moving, age, tid, streak, full, full_n, cells, count, cols, row0, col
     return merged, owner, out, out_n, grown, centroid, bbox, extent
 
 
-def _set_geometry(out: np.ndarray, rows: np.ndarray, counts: np.ndarray,
-                  centroid: np.ndarray, bbox: np.ndarray, extent: np.ndarray) -> None:
-    """Records ``rows`` of ``out`` given the cell counts and geometry computed for them."""
-    if len(rows):
-        out["cell_count"][rows] = counts[rows]
-        out["centroid_m"][rows] = centroid[rows]
-        out["bbox_m"][rows] = bbox[rows]
-        out["extent_m"][rows] = extent[rows]
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def _set_geometry(out, which, counts, centroid, bbox, extent):  # pragma: no cover - compiled
+    """The records of ``out`` where ``which`` is set, given the cell counts and geometry
+    computed for them (the fields' casts numpy's assignment makes: int64 → uint32,
+    float64 → float32 for the extent). One pass over the records instead of four fancy
+    assignments of field views."""
+    for k in range(out.shape[0]):
+        if not which[k]:
+            continue
+        out[k].cell_count = counts[k]
+        for q in range(2):
+            out[k].centroid_m[q] = centroid[k, q]
+            out[k].extent_m[q] = extent[k, q]
+        for q in range(4):
+            out[k].bbox_m[q] = bbox[k, q]
+
+
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def _fields(objects):  # pragma: no cover - compiled
+    """The record fields the completion reads, as contiguous arrays: track id, moving,
+    cell count, velocity (float64), age (one pass instead of five field copies)."""
+    n = objects.shape[0]
+    tid = np.empty(n, np.int64)
+    moving = np.empty(n, np.bool_)
+    count = np.empty(n, np.int64)
+    vel = np.empty((n, 2), np.float64)
+    age = np.empty(n, np.int64)
+    for k in range(n):
+        r = objects[k]
+        tid[k] = r.track_id
+        moving[k] = r.state == _MOVING
+        count[k] = r.cell_count
+        vel[k, 0] = r.velocity_m_per_s[0]
+        vel[k, 1] = r.velocity_m_per_s[1]
+        age[k] = r.age_frames
+    return tid, moving, count, vel, age
 
 
 def complete_footprints(state: FootprintState, objects: np.ndarray, cells: np.ndarray,
@@ -480,10 +508,7 @@ def complete_footprints(state: FootprintState, objects: np.ndarray, cells: np.nd
         speaks_a, speaks_b = (np.ascontiguousarray(layer).reshape(-1) for layer in scan_speaks)
     else:
         speaks_a = speaks_b = np.ascontiguousarray(np.asarray(scan_speaks, bool).reshape(-1))
-    tid = np.ascontiguousarray(objects["track_id"], np.int64)
-    moving = np.ascontiguousarray(objects["state"] == _MOVING)
-    count = np.ascontiguousarray(objects["cell_count"], np.int64)
-    vel = np.ascontiguousarray(objects["velocity_m_per_s"], np.float64)
+    tid, moving, count, vel, age = _fields(out)
     own = np.ascontiguousarray(np.asarray(cells, np.int64)[:int(count.sum())])
     res = float(window.resolution_m)
     rows, cols, row0, col0 = int(window.rows), int(window.cols), int(window.row0), int(window.col0)
@@ -492,14 +517,14 @@ def complete_footprints(state: FootprintState, objects: np.ndarray, cells: np.nd
         tid, moving, count, vel, own, rows, cols, row0, col0, res, int(stamp_ns), speaks_a,
         speaks_b,
         int(params.frames), state.id, state.stamp, state.n, state.xy)
-    _set_geometry(out, np.flatnonzero(changed), full_n, centroid, bbox, extent)
+    _set_geometry(out, changed, full_n, centroid, bbox, extent)
     if params.fragment_gap_cells > 0 and np.count_nonzero(moving & (count > 0)) > 1:
         merged, owner, joined, joined_n, grown, centroid, bbox, extent = _merge(
-            moving, np.ascontiguousarray(objects["age_frames"], np.int64), tid, streak,
+            moving, age, tid, streak,
             full, full_n, own, count, cols, row0, col0, res, int(params.fragment_gap_cells),
             float(params.fragment_extent_m))
         if merged:
-            _set_geometry(out, np.flatnonzero(grown), joined_n, centroid, bbox, extent)
+            _set_geometry(out, grown, joined_n, centroid, bbox, extent)
             return out[owner == np.arange(len(owner))], joined.astype(np.uint32)
     return out, full.astype(np.uint32)
 

@@ -339,7 +339,7 @@ def window_indices(lattice: np.ndarray, window: Window) -> np.ndarray:
     return r[inside] * window.cols + c[inside]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _seed_cells(fp, fp_n, flags, row0, col0, rows, cols):  # pragma: no cover - compiled
     """:func:`footprint_seeds`: the window cells of the footprints of tracks that moved."""
     out = np.empty(fp.shape[0], np.int64)
@@ -522,8 +522,32 @@ def _fits(t_s, xy, count, sigma0):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _distances(hist_xy, hist_n, velocity, dt, centroid, gate):  # pragma: no cover - compiled
+    """(tracks, clusters) float64: each track's centroid predicted by its velocity, ``last
+    + v · dt``, to each cluster centroid, ``hypot(px − cx, py − cy)`` — numpy's formulas
+    op for op (``hist_xy[i, hist_n[i] − 1]``, numpy's wrap of −1 kept; ``math.hypot`` and
+    ``np.hypot`` are both libm's ``hypot``; no fastmath, so no contraction into an FMA) —
+    where it may be within ``gate``: a pair with |px − cx| or |py − cy| above the gate is
+    farther (hypot(a, b) ≥ max(|a|, |b|), rounding included) and gets +inf."""
+    n = hist_n.shape[0]
+    m = centroid.shape[0]
+    dist = np.empty((n, m), np.float64)
+    for i in range(n):
+        j = hist_n[i] - 1
+        j = j + hist_xy.shape[1] if j < 0 else j
+        px = hist_xy[i, j, 0] + velocity[i, 0] * dt
+        py = hist_xy[i, j, 1] + velocity[i, 1] * dt
+        for c in range(m):
+            dx = px - centroid[c, 0]
+            dy = py - centroid[c, 1]
+            dist[i, c] = (np.inf if abs(dx) > gate or abs(dy) > gate
+                          else math.hypot(dx, dy))
+    return dist
+
+
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, sigma, fp_n,
-                  fp, evidence, past_n, past, dist, cells, offsets, centroid, seeds, row0,
+                  fp, evidence, past_n, past, dt, cells, offsets, centroid, seeds, row0,
                   col0, rows, cols, decision, has_decision, stamp_ns, next_id, gate,
                   history, confirm, max_missed, speed2_min, motion_test, sigma0, need,
                   conflict_cells, vacated_frames, share_min, every_frame, arrival_share
@@ -532,6 +556,10 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
     arrays; returns the new arrays, the next id, and the reported (track row, cluster)."""
     n_old = ids.shape[0]
     n_cl = offsets.shape[0] - 1
+    if n_old > 0 and n_cl > 0:  # read only within the gate
+        dist = _distances(hist_xy, hist_n, velocity, dt, centroid, gate)
+    else:
+        dist = np.zeros((n_old, n_cl), np.float64)
     # association: pairs within the gate, nearest first (ties: track, then cluster)
     of_track = np.full(n_old + n_cl, -1, np.int64)
     taken = np.zeros(n_cl, np.bool_)
@@ -754,28 +782,19 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
             rep_row[:n_rep].copy(), rep_cl[:n_rep].copy())
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _fill_records(rows, cl, ids, flags, hits, velocity, sigma, cells, offsets, centroid, bbox,
-                  mean_m):  # pragma: no cover - compiled
-    """The reported objects' fields, in track id order (contiguous arrays, one a field of
-    :data:`~evperc.output.objects.OBJECT_DTYPE`, in its dtype), and their cells (uint32,
-    in record order)."""
+                  mean_m, records):  # pragma: no cover - compiled
+    """The reported objects, in track id order, written into ``records``
+    (:data:`~evperc.output.objects.OBJECT_DTYPE`, one per reported row; each field takes
+    the cast numpy's assignment of its value makes), and their cells (uint32, in record
+    order)."""
     n = rows.shape[0]
     order = np.argsort(ids[rows], kind="mergesort")  # by id (rows are in id order already)
     total = 0
     for k in range(n):
         c = cl[k]
         total += offsets[c + 1] - offsets[c]
-    track_id = np.empty(n, np.uint32)
-    state_code = np.empty(n, np.uint8)
-    cell_count = np.empty(n, np.uint32)
-    age = np.empty(n, np.uint32)
-    centroid_out = np.empty((n, 2), np.float64)
-    bbox_out = np.empty((n, 4), np.float64)
-    extent = np.empty((n, 2), np.float32)
-    velocity_out = np.empty((n, 2), np.float32)
-    sigma_out = np.empty(n, np.float32)
-    mean_out = np.empty(n, np.float32)
     out = np.empty(total, np.uint32)
     at = 0
     for k in range(n):
@@ -783,27 +802,23 @@ def _fill_records(rows, cl, ids, flags, hits, velocity, sigma, cells, offsets, c
         c = cl[order[k]]
         a = offsets[c]
         b = offsets[c + 1]
-        track_id[k] = ids[i]
-        state_code[k] = _STATE_MOVING if flags[i, 1] != 0 else _STATE_STOPPED
-        cell_count[k] = b - a
-        age[k] = hits[i]
+        rec = records[k]
+        rec.track_id = ids[i]
+        rec.state = _STATE_MOVING if flags[i, 1] != 0 else _STATE_STOPPED
+        rec.cell_count = b - a
+        rec.age_frames = hits[i]
         for q in range(2):
-            centroid_out[k, q] = centroid[c, q]
-            extent[k, q] = bbox[c, 2 + q] - bbox[c, q]
-            velocity_out[k, q] = velocity[i, q]
+            rec.centroid_m[q] = centroid[c, q]
+            rec.extent_m[q] = bbox[c, 2 + q] - bbox[c, q]
+            rec.velocity_m_per_s[q] = velocity[i, q]
         for q in range(4):
-            bbox_out[k, q] = bbox[c, q]
-        sigma_out[k] = sigma[i]
-        mean_out[k] = mean_m[c]
+            rec.bbox_m[q] = bbox[c, q]
+        rec.speed_sigma_m_per_s = sigma[i]
+        rec.mean_betp_moving = mean_m[c]
         for q in range(a, b):
             out[at] = cells[q]
             at += 1
-    return (track_id, state_code, cell_count, age, centroid_out, bbox_out, extent,
-            velocity_out, sigma_out, mean_out, out)
-
-
-_FIELDS = ("track_id", "state", "cell_count", "age_frames", "centroid_m", "bbox_m", "extent_m",
-           "velocity_m_per_s", "speed_sigma_m_per_s", "mean_betp_moving")
+    return out
 
 
 _NO_DECISION = np.zeros(0, np.uint8)
@@ -826,25 +841,18 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
     ``motion_evidence_frames`` frames of conflict evidence at once.
 
     One compiled pass over the tracks (``_track_kernel``); the predicted centroids and
-    their distances to the clusters are numpy's (``np.hypot``), so the association is the
-    per-track tracker's (tests/objects/reference_tracking.py) to the bit."""
+    their distances to the clusters (``_distances``) are numpy's formulas op for op, so the
+    association is the per-track tracker's (tests/objects/reference_tracking.py) to the
+    bit."""
     dt_s = 0.0 if state.prev_ns is None else (stamp_ns - state.prev_ns) * 1e-9
     state.prev_ns = stamp_ns
-    n = len(state.id)
     centroids = clusters.centroid_m
-    if n and len(centroids):
-        last = state.hist_xy[np.arange(n), state.hist_n - 1]
-        px = last[:, 0] + state.velocity[:, 0] * dt_s
-        py = last[:, 1] + state.velocity[:, 1] * dt_s
-        dist = np.hypot(px[:, None] - centroids[None, :, 0], py[:, None] - centroids[None, :, 1])
-    else:
-        dist = np.zeros((n, len(centroids)))
     has_decision = decision is not None
     flat = (np.ascontiguousarray(decision).reshape(-1) if has_decision else _NO_DECISION)
     out = _track_kernel(
         state.id, state.hits, state.missed, state.flags, state.hist_n, state.hist_t,
         state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
-        state.past_n, state.past, dist, clusters.cells, clusters.offsets,
+        state.past_n, state.past, float(dt_s), clusters.cells, clusters.offsets,
         np.ascontiguousarray(centroids, np.float64), clusters.seeds, window.row0, window.col0,
         window.rows, window.cols, flat, has_decision, int(stamp_ns), state.next_id,
         float(params.gate_m), int(params.history_frames), int(params.confirm_frames),
@@ -857,11 +865,9 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
      state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
      state.past_n, state.past, state.next_id, rows, cl) = out
     state.next_id = int(state.next_id)
-    *fields, cells_out = _fill_records(
+    records = np.zeros(len(rows), OBJECT_DTYPE)
+    cells_out = _fill_records(
         rows, cl, state.id, state.flags, state.hits, state.velocity, state.sigma,
         clusters.cells, clusters.offsets, clusters.centroid_m, clusters.bbox_m,
-        clusters.mean_betp_moving)
-    records = np.zeros(len(rows), OBJECT_DTYPE)
-    for name, value in zip(_FIELDS, fields, strict=True):
-        records[name] = value
+        clusters.mean_betp_moving, records)
     return records, cells_out

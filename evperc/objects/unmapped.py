@@ -166,7 +166,7 @@ class UnmappedCue:
         self._cos = np.cos(theta)
         self._sin = np.sin(theta)
         self._no_labels = np.zeros((0, 0), np.uint8)
-        self._seen = np.zeros(shape, np.uint8)
+        self._no_cells = np.zeros(0, np.int64)
         self.components = 0  # components of the last step (``stats[:components]``)
 
     def step(self, state: UnmappedState, decision: np.ndarray, labels: np.ndarray | None,
@@ -193,24 +193,24 @@ class UnmappedCue:
         has_labels = labels is not None
         if has_labels and labels.shape != self.shape:
             raise ValueError(f"labels {labels.shape}, the cue's window is {self.shape}")
-        seen = self._seen
-        if moving_cells is None:
-            np.equal(decision, _MOVING, out=seen.view(np.bool_))
-        else:
-            seen.fill(0)
-            seen.reshape(-1)[np.asarray(moving_cells, np.int64)] = 1
+        # seen moving: the listed cells (set in ``moved`` after the update), else the cells
+        # decided moving (read in the update); no window-sized layer of them
+        from_decision = moving_cells is None
+        seen = self._no_cells if from_decision else np.ascontiguousarray(moving_cells,
+                                                                         np.int64).reshape(-1)
         p = self.params
         res = self.resolution_m
         flat = decision.reshape(-1)
         n, relabelled = _unmapped_pass(
-            decision, labels if has_labels else self._no_labels, has_labels, seen,
-            state.age_s, state.moved, int(offset[0]) % rows if rows else 0,
+            decision, labels if has_labels else self._no_labels, has_labels, from_decision,
+            seen, state.age_s, state.moved, int(offset[0]) % rows if rows else 0,
             int(offset[1]) % cols if cols else 0, int(shift[0]), int(shift[1]),
             np.float32(max(dt_s, 0.0)), p.max_width_m / res, np.float32(p.min_age_s),
             p.unmapped, p.stopped_needs_road, self._cos, self._sin, self._mark, self._cells,
-            self._stats, flat[:flat.size - flat.size % 8].view(np.uint64))
+            self._stats, flat[:flat.size - flat.size % 8].view(np.uint64), res)
+        if n < 0:  # checked before any state was changed
+            raise ValueError(f"moving_cells outside the {rows} x {cols} window")
         self.components = n
-        self._stats[:n, STAT_WIDTH_M:STAT_LENGTH_M + 1] *= res
         return relabelled
 
     @property
@@ -223,32 +223,36 @@ class UnmappedCue:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _update_kept(dec, seen, age, moved, dt):  # pragma: no cover - compiled
+def _update_kept(dec, from_decision, age, moved, dt):  # pragma: no cover - compiled
     """The per-cell state update (module docstring, 1.) of a run of cells that were in the
-    previous window (1-d views of one row: window order for ``dec`` and ``seen``, buffer
-    order for ``age`` and ``moved``). Selects, not branches, so that it vectorises."""
+    previous window (1-d views of one row: window order for ``dec``, buffer order for
+    ``age`` and ``moved``); with ``from_decision``, the cells decided moving are seen moving
+    (else :func:`_unmapped_pass` sets the listed ones after the update). Selects, not
+    branches, so that it vectorises."""
     for k in range(dec.shape[0]):
         a = age[k]
         d = dec[k]
         occ = (d == _MOVING) | (d == _STATIC) | (d == _STOPPED) | (d == _UNMAPPED)
         grown = np.float32(0.0) if a < 0 else a + dt
         age[k] = grown if occ else (NOT_OCCUPIED if d == _FREE else a)
-        moved[k] = np.uint8(1) if seen[k] != 0 else moved[k]
+    if from_decision:  # else ``moved`` is left as it is here (neither read nor written)
+        for k in range(dec.shape[0]):
+            moved[k] = np.uint8(1) if dec[k] == _MOVING else moved[k]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _update_entered(dec, seen, age, moved):  # pragma: no cover - compiled
+def _update_entered(dec, from_decision, age, moved):  # pragma: no cover - compiled
     """:func:`_update_kept` of cells that entered the window (their state starts reset:
     ``age_s`` −1, so 0 if occupied now, else −1; ``moved`` 0)."""
     for k in range(dec.shape[0]):
         d = dec[k]
         occ = (d == _MOVING) | (d == _STATIC) | (d == _STOPPED) | (d == _UNMAPPED)
         age[k] = np.float32(0.0) if occ else NOT_OCCUPIED
-        moved[k] = np.uint8(1) if seen[k] != 0 else np.uint8(0)
+        moved[k] = np.uint8(1) if (from_decision and d == _MOVING) else np.uint8(0)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _update_columns(decision, seen_moving, age_s, moved, r, br, c0, c1, off_c, kept, dt
+def _update_columns(decision, from_decision, age_s, moved, r, br, c0, c1, off_c, kept, dt
                     ):  # pragma: no cover - compiled
     """The state update of window columns [c0, c1) of window row ``r`` (buffer row
     ``br``): split where the circular buffer wraps (window column c is buffer column
@@ -259,24 +263,31 @@ def _update_columns(decision, seen_moving, age_s, moved, r, br, c0, c1, off_c, k
         if a0 >= a1:
             continue
         dec = decision[r, a0:a1]
-        seen = seen_moving[r, a0:a1]
         age = age_s[br, a0 + delta:a1 + delta]
         mv = moved[br, a0 + delta:a1 + delta]
         if kept:
-            _update_kept(dec, seen, age, mv, dt)
+            _update_kept(dec, from_decision, age, mv, dt)
         else:
-            _update_entered(dec, seen, age, mv)
+            _update_entered(dec, from_decision, age, mv)
 
 
-@numba.njit(cache=True, nogil=True)
-def _unmapped_pass(decision, labels, has_labels, seen_moving, age_s, moved, off_r, off_c,
-                   dr, dc, dt, max_width, min_age, relabel_unmapped, stopped_needs_road,
-                   cos, sin, mark, cells, stats, dec_words):  # pragma: no cover - compiled
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def _unmapped_pass(decision, labels, has_labels, from_decision, seen_cells, age_s, moved,
+                   off_r, off_c, dr, dc, dt, max_width, min_age, relabel_unmapped,
+                   stopped_needs_road, cos, sin, mark, cells, stats, dec_words, res
+                   ):  # pragma: no cover - compiled
     """The state update, then the components (module docstring). ``max_width`` in cells.
+    Seen moving: with ``from_decision`` the cells decided moving, else the flat window
+    cells ``seen_cells`` (their ``moved`` set after the update, which resets it where a
+    cell entered the window). Returns (−1, 0), changing nothing, if a seen cell is outside
+    the window. The stats' width and length are stored in metres (× ``res``).
     ``dec_words``: the first cells of ``decision`` as uint64 words (8 cells each; the
     scan for components skips the words without a cell decided static, stopped or
     unmapped). Returns (components, cells relabelled)."""
     rows, cols = decision.shape
+    for q in range(seen_cells.shape[0]):
+        if seen_cells[q] < 0 or seen_cells[q] >= rows * cols:
+            return -1, 0
     lo = min(max(-dc, 0), cols)  # window columns [lo, hi) were in the previous window
     hi = max(min(cols - dc, cols), lo)
     for r in range(rows):
@@ -284,14 +295,22 @@ def _unmapped_pass(decision, labels, has_labels, seen_moving, age_s, moved, off_
         br = br - rows if br >= rows else br
         row_lo, row_hi = (lo, hi) if 0 <= r + dr < rows else (0, 0)
         if row_lo > 0:
-            _update_columns(decision, seen_moving, age_s, moved, r, br, 0, row_lo, off_c,
+            _update_columns(decision, from_decision, age_s, moved, r, br, 0, row_lo, off_c,
                             False, dt)
         if row_hi > row_lo:
-            _update_columns(decision, seen_moving, age_s, moved, r, br, row_lo, row_hi,
+            _update_columns(decision, from_decision, age_s, moved, r, br, row_lo, row_hi,
                             off_c, True, dt)
         if cols > row_hi:
-            _update_columns(decision, seen_moving, age_s, moved, r, br, max(row_hi, row_lo),
+            _update_columns(decision, from_decision, age_s, moved, r, br, max(row_hi, row_lo),
                             cols, off_c, False, dt)
+    for q in range(seen_cells.shape[0]):
+        i = seen_cells[q]
+        r = i // cols
+        br = r + off_r
+        br = br - rows if br >= rows else br
+        bc = i - r * cols + off_c
+        bc = bc - cols if bc >= cols else bc
+        moved[br, bc] = 1
     flat = decision.reshape(-1)
     n_comp = 0
     n_cells = 0
@@ -405,8 +424,8 @@ def _unmapped_pass(decision, labels, has_labels, seen_moving, age_s, moved, off_
             stats[n_comp, 1] = road
             stats[n_comp, 2] = 1.0 if near_building else 0.0
             stats[n_comp, 3] = 1.0 if any_moved else 0.0
-            stats[n_comp, 4] = width
-            stats[n_comp, 5] = length
+            stats[n_comp, 4] = width * res
+            stats[n_comp, 5] = length * res
             unstopped = 0
             if stopped_needs_road and has_labels and road == 0 and not any_moved:
                 for q in range(first, n_cells):  # step 4: what step 3 left stopped

@@ -827,10 +827,13 @@ def test_count_codes_equals_bincount() -> None:
     from evperc.fusion.fused import count_codes
 
     rng = np.random.default_rng(5)
-    for shape in ((400, 400), (7, 3), (0, 5)):
+    for shape in ((400, 400), (7, 3), (0, 5), (1, 17), (3, 16)):  # sizes around 16 lanes
         decision = rng.integers(0, 7, shape).astype(np.uint8)
         np.testing.assert_array_equal(count_codes(decision, 7),
                                       np.bincount(decision.ravel(), minlength=7))
+    runs = np.repeat(rng.integers(0, 7, 300), rng.integers(1, 90, 300)).astype(np.uint8)
+    np.testing.assert_array_equal(count_codes(runs.reshape(1, -1), 7),
+                                  np.bincount(runs, minlength=7))  # long runs of one code
     with pytest.raises(ValueError, match="beyond 6"):
         count_codes(np.full((2, 2), 9, np.uint8), 7)
 

@@ -154,3 +154,33 @@ def test_compiled_fit_equals_numpy_fits_to_the_bit() -> None:
         cv, csigma = tracking._fits(t, xy, count, 0.25)
         assert v.tobytes() == cv.tobytes(), h
         assert sigma.tobytes() == csigma.tobytes(), h
+
+
+def test_compiled_distances_equal_numpy_within_the_gate() -> None:
+    """``_distances`` (predicted centroid to cluster centroid, in the kernel) against the
+    numpy formulas the tracker used (``np.hypot`` of the broadcast differences): the same
+    bits wherever numpy's distance is within the gate, and beyond it wherever numpy's is
+    (the kernel skips the hypot there: +inf); working-CRS-sized coordinates, clusters placed
+    around the gate's edge, a history index of 0 (numpy's wrap of −1)."""
+    rng = np.random.default_rng(8)
+    gate = 2.0
+    for n, m, width in ((1, 1, 1), (7, 300, 10), (80, 120, 3), (40, 5, 1)):
+        hist_xy = 3.8e5 + rng.normal(0.0, 30.0, (n, width, 2))
+        hist_n = rng.integers(0, width + 1, n)
+        velocity = rng.normal(0.0, 3.0, (n, 2)) * (rng.random((n, 1)) < 0.8)
+        dt = float(rng.choice([0.0, 0.1, 0.0999]))
+        last = hist_xy[np.arange(n), hist_n - 1]
+        px = last[:, 0] + velocity[:, 0] * dt
+        py = last[:, 1] + velocity[:, 1] * dt
+        angle = rng.uniform(0.0, 2 * np.pi, m)
+        near = rng.integers(0, n, m)
+        radius = gate + rng.normal(0.0, 0.3, m) * (rng.random(m) < 0.7) * 10.0 ** rng.integers(
+            -12, 1, m)
+        centroid = np.stack([px[near] + radius * np.cos(angle),
+                             py[near] + radius * np.sin(angle)], axis=1)
+        want = np.hypot(px[:, None] - centroid[None, :, 0], py[:, None] - centroid[None, :, 1])
+        got = tracking._distances(hist_xy, hist_n, velocity, dt, centroid, gate)
+        inside = want <= gate
+        assert np.array_equal(got <= gate, inside)
+        assert got[inside].tobytes() == want[inside].tobytes()
+        assert inside.any() and (~inside).any() or n * m == 1
