@@ -4,6 +4,8 @@ behaviours it exists for: a wall grazed free is never ever-free, a road is."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -14,8 +16,7 @@ from evperc.fusion.twin import FusionParams
 PARAMS = FusionParams(motion_gate="ever_free", gate_free_s=0.3, gate_revoke_s=0.5,
                       gate_gap_s=0.2, gate_min_free=0.5)
 #: the same with the re-hit revocation on (a return back 0.2–0.6 s after the previous one)
-REHIT = FusionParams(motion_gate="ever_free", gate_free_s=0.3, gate_revoke_s=0.5,
-                     gate_gap_s=0.2, gate_min_free=0.5, gate_rehit_s=0.6)
+REHIT = replace(PARAMS, gate_rehit_s=0.6)
 
 
 class Reference:

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from evperc.geo.window import Window
 from evperc.sensor import sensor_grid
+from evperc.sensor.ground import GROUND, OBSTACLE
 from tests.sensor.scenes import pose
 
 H = 1.73   # sensor height above the flat ground
@@ -143,9 +145,6 @@ def test_a_low_sensor_with_the_scan_fallback_keeps_its_sparse_ground_ground(para
     fallbacks); in the hidden sector 3 returns are too few and with the prior as fallback
     they are obstacles — the false ring of the simulated IBEO drives — while with the
     scan's median (the ring's height everywhere else) they are ground."""
-    from dataclasses import replace
-
-    from evperc.sensor.ground import GROUND, OBSTACLE
     ring = bumper_ring()
     t = pose(*SENSOR, 0.5)
     window = Window.centred_on(*SENSOR, 60.0, RES)
@@ -161,7 +160,6 @@ def test_a_low_sensor_with_the_scan_fallback_keeps_its_sparse_ground_ground(para
 def test_the_scan_fallback_keeps_a_box_an_obstacle(params):
     """The fallback moves no accepted estimate: the flat-ground-and-box scene splits the
     same with both fallbacks."""
-    from dataclasses import replace
     t = pose(*SENSOR, H)
     pts = world_to_sensor(np.vstack([ground_points(), box_points()]), t)
     window = Window.centred_on(*SENSOR, 60.0, RES)
