@@ -18,7 +18,8 @@ reset), four numbers:
 Per scan, with R(x) = [free_s(x) ≥ gate_free_s] after this scan's update and
 V(x) = [x's return this scan ends an occupied run of occ_s ≥ gate_revoke_s, or comes back
 after a gap: more than ``gate_gap_s`` and at most ``gate_rehit_s`` since x's previous
-return (a thin object seen through beam gaps; 0 = off)]:
+return (a thin object seen through beam gaps; 0 = off), with ``gate_rehit_gap`` "seen_free"
+only if x was seen free in that gap (free_s ≥ 0 before this scan's update)]:
 
     ever(x) ← 0                 if V(y) for some y in the 3 × 3 block around x
     ever(x) ← 1                 elif R(y) for every y in the 3 × 3 block around x
@@ -98,7 +99,8 @@ def gate_step(state: GateState, free: np.ndarray, occupied: np.ndarray, dt_s: fl
                int(offset[1]) % shape[1] if shape[1] else 0, int(shift[0]), int(shift[1]),
                free32, occ32, np.float32(max(dt_s, 0.0)), np.float32(params.gate_min_free),
                np.float32(params.gate_free_s), np.float32(params.gate_revoke_s),
-               np.float32(params.gate_gap_s), np.float32(params.gate_rehit_s), shut,
+               np.float32(params.gate_gap_s), np.float32(params.gate_rehit_s),
+               params.gate_rehit_gap == "seen_free", shut,
                closed is not None, out)
     return out
 
@@ -115,15 +117,17 @@ def _reset_cells(free_s, occ_s, quiet_s, ever):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _update_cells(free_s, occ_s, quiet_s, free, occ, dt, min_free, t_free, t_revoke, t_gap,
-                  t_rehit, marks):  # pragma: no cover - compiled
+                  t_rehit, rehit_free, marks):  # pragma: no cover - compiled
     """Pass 1 of a run of cells (1-d views: ``free``, ``occ``, ``marks`` in window order,
     the times in buffer order): each cell's times and its marks (bit 0: R, free long
     enough; bit 1: V, revoking). Selects, not branches, so that it vectorises."""
     zero, minus = np.float32(0.0), np.float32(-1.0)
+    any_gap = not rehit_free
     for k in range(marks.shape[0]):
         o = occ[k] > zero
         fr = free[k] >= min_free
         fs = free_s[k]
+        free_s_before = fs
         qs = quiet_s[k] + dt
         run = (occ_s[k] + qs) if qs <= t_gap + SLACK else zero
         run = run if o else occ_s[k]
@@ -134,13 +138,14 @@ def _update_cells(free_s, occ_s, quiet_s, free, occ, dt, min_free, t_free, t_rev
         free_s[k] = fs
         quiet_s[k] = zero if o else qs
         back = (qs > t_gap + SLACK) & (qs <= t_rehit + SLACK)  # a re-hit after a gap
+        back = back & ((free_s_before >= zero) | any_gap)  # ... seen free in it
         marks[k] = (np.uint8(2) if (o & ((run >= t_revoke - SLACK) | back)) else np.uint8(0)) \
             | (np.uint8(1) if fs >= t_free - SLACK else np.uint8(0))
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _times_row(free_s, occ_s, quiet_s, ever, free, occ, r, br, row_lo, row_hi, off_c, dt,
-               min_free, t_free, t_revoke, t_gap, t_rehit, marks):  # pragma: no cover
+               min_free, t_free, t_revoke, t_gap, t_rehit, rehit_free, marks):  # pragma: no cover
     """Pass 1 of window row ``r`` (buffer row ``br``): the cells that entered the window
     (window columns outside [row_lo, row_hi)) reset, then every cell's times and marks
     (:func:`_update_cells`) into ``marks`` (one row, window order), over the two parts of
@@ -158,7 +163,8 @@ def _times_row(free_s, occ_s, quiet_s, ever, free, occ, r, br, row_lo, row_hi, o
         if a0 < a1:
             _update_cells(free_s[br, a0 + delta:a1 + delta], occ_s[br, a0 + delta:a1 + delta],
                           quiet_s[br, a0 + delta:a1 + delta], free[r, a0:a1], occ[r, a0:a1],
-                          dt, min_free, t_free, t_revoke, t_gap, t_rehit, marks[a0:a1])
+                          dt, min_free, t_free, t_revoke, t_gap, t_rehit, rehit_free,
+                          marks[a0:a1])
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -213,7 +219,7 @@ def _ever_row(ever, up, mid, down, inner, r, br, off_c, shut, has_shut, gate
 
 @numba.njit(cache=True, nogil=True)
 def _gate_pass(times, ever, off_r, off_c, dr, dc, free, occ, dt, min_free, t_free,
-               t_revoke, t_gap, t_rehit, shut, has_shut, gate):  # pragma: no cover
+               t_revoke, t_gap, t_rehit, rehit_free, shut, has_shut, gate):  # pragma: no cover
     """One sweep down the window: pass 1 of row r (:func:`_times_row`), its row of the
     separable 3 × 3 block (:func:`_row_block`) into a ring of three row buffers, then the
     column pass, ``ever`` and the gate layer of row r − 1 (:func:`_ever_row`), which needs
@@ -234,7 +240,7 @@ def _gate_pass(times, ever, off_r, off_c, dr, dc, free, occ, dt, min_free, t_fre
         br = br - rows if br >= rows else br
         row_lo, row_hi = (lo, hi) if 0 <= r + dr < rows else (0, 0)
         _times_row(free_s, occ_s, quiet_s, ever, free, occ, r, br, row_lo, row_hi, off_c,
-                   dt, min_free, t_free, t_revoke, t_gap, t_rehit, marks)
+                   dt, min_free, t_free, t_revoke, t_gap, t_rehit, rehit_free, marks)
         _row_block(marks, ring[r % 3])
         if r >= 1:  # row r − 1 has both neighbours' row results now
             q = r - 1

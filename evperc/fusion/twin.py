@@ -60,6 +60,7 @@ class FusionParams:
     gate_revoke_s: float = 15.0
     gate_gap_s: float = 0.2
     gate_rehit_s: float = 0.0
+    gate_rehit_gap: str = "any"
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> FusionParams:
@@ -78,7 +79,8 @@ class FusionParams:
             motion_gate=fu["motion_gate"], gate_closed_target=fu["gate_closed_target"],
             building_conflict=fu["building_conflict"], gate_free_s=fu["gate_free_s"],
             gate_min_free=fu["gate_min_free"], gate_revoke_s=fu["gate_revoke_s"],
-            gate_gap_s=fu["gate_gap_s"], gate_rehit_s=fu["gate_rehit_s"])
+            gate_gap_s=fu["gate_gap_s"], gate_rehit_s=fu["gate_rehit_s"],
+            gate_rehit_gap=fu["gate_rehit_gap"])
 
     @property
     def gated(self) -> bool:
