@@ -91,6 +91,10 @@ def gate_step(state: GateState, free: np.ndarray, occupied: np.ndarray, dt_s: fl
         raise ValueError(f"sensor grid of shape {free32.shape}, the gate state is {shape}")
     if out is None:
         out = np.empty(shape, np.uint8)
+    elif out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be C-contiguous uint8 {shape}")
+    if not (state.times.flags.c_contiguous and state.ever.flags.c_contiguous):
+        raise ValueError("gate state arrays must be C-contiguous")
     if closed is not None and closed.shape != shape:
         raise ValueError(f"closed mask of shape {closed.shape}, the gate state is {shape}")
     shut = (_NO_CLOSED if closed is None
@@ -106,65 +110,70 @@ def gate_step(state: GateState, free: np.ndarray, occupied: np.ndarray, dt_s: fl
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _reset_cells(free_s, occ_s, quiet_s, ever):  # pragma: no cover - compiled
-    """Cells that entered the window start reset (1-d runs of one buffer row)."""
-    for k in range(ever.shape[0]):
-        free_s[k] = np.float32(-1.0)
-        occ_s[k] = np.float32(0.0)
-        quiet_s[k] = NEVER
-        ever[k] = 0
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _update_cells(free_s, occ_s, quiet_s, free, occ, dt, min_free, t_free, t_revoke, t_gap,
-                  t_rehit, rehit_free, marks):  # pragma: no cover - compiled
-    """Pass 1 of a run of cells (1-d views: ``free``, ``occ``, ``marks`` in window order,
-    the times in buffer order): each cell's times and its marks (bit 0: R, free long
-    enough; bit 1: V, revoking). Selects, not branches, so that it vectorises."""
+def _update_run(times, n, b0, w0, count, free, occ, dt, min_free, t_free, t_revoke, t_gap,
+                t_rehit, rehit_free, marks, m0):  # pragma: no cover - compiled
+    """Pass 1 of ``count`` cells that are contiguous in the circular buffer (flat buffer
+    index ``b0 + k``, window index ``w0 + k``, row mark ``m0 + k``; flat arrays, unsigned
+    indices, no views): each cell's times and its marks (bit 0: R, free long enough; bit 1:
+    V, revoking). Selects, not branches, so that it vectorises."""
     zero, minus = np.float32(0.0), np.float32(-1.0)
     any_gap = not rehit_free
-    for k in range(marks.shape[0]):
-        o = occ[k] > zero
-        fr = free[k] >= min_free
-        fs = free_s[k]
+    for k in range(count):
+        b = np.uint64(b0 + k)
+        w = np.uint64(w0 + k)
+        o = occ[w] > zero
+        fr = free[w] >= min_free
+        fs = times[b]
         free_s_before = fs
-        qs = quiet_s[k] + dt
-        run = (occ_s[k] + qs) if qs <= t_gap + SLACK else zero
-        run = run if o else occ_s[k]
+        occ_s = times[np.uint64(n) + b]
+        qs = times[np.uint64(2 * n) + b] + dt
+        run = (occ_s + qs) if qs <= t_gap + SLACK else zero
+        run = run if o else occ_s
         grown = zero if fs < zero else fs + dt
         fs = minus if o else (grown if fr else fs)
         qs = qs if qs < NEVER else NEVER
-        occ_s[k] = run
-        free_s[k] = fs
-        quiet_s[k] = zero if o else qs
+        times[np.uint64(n) + b] = run
+        times[b] = fs
+        times[np.uint64(2 * n) + b] = zero if o else qs
         back = (qs > t_gap + SLACK) & (qs <= t_rehit + SLACK)  # a re-hit after a gap
         back = back & ((free_s_before >= zero) | any_gap)  # ... seen free in it
-        marks[k] = (np.uint8(2) if (o & ((run >= t_revoke - SLACK) | back)) else np.uint8(0)) \
+        marks[np.uint64(m0 + k)] = (np.uint8(2) if (o & ((run >= t_revoke - SLACK) | back))
+                                    else np.uint8(0)) \
             | (np.uint8(1) if fs >= t_free - SLACK else np.uint8(0))
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _times_row(free_s, occ_s, quiet_s, ever, free, occ, r, br, row_lo, row_hi, off_c, dt,
-               min_free, t_free, t_revoke, t_gap, t_rehit, rehit_free, marks):  # pragma: no cover
+def _reset_run(times, ever, n, b0, count):  # pragma: no cover - compiled
+    """Cells that entered the window start reset (``count`` cells from flat buffer index
+    ``b0``)."""
+    for k in range(count):
+        b = np.uint64(b0 + k)
+        times[b] = np.float32(-1.0)
+        times[np.uint64(n) + b] = np.float32(0.0)
+        times[np.uint64(2 * n) + b] = NEVER
+        ever[b] = 0
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _times_row(times, ever, n, cols, free, occ, r, br, row_lo, row_hi, off_c, dt,
+               min_free, t_free, t_revoke, t_gap, t_rehit, rehit_free, marks
+               ):  # pragma: no cover - compiled
     """Pass 1 of window row ``r`` (buffer row ``br``): the cells that entered the window
     (window columns outside [row_lo, row_hi)) reset, then every cell's times and marks
-    (:func:`_update_cells`) into ``marks`` (one row, window order), over the two parts of
+    (:func:`_update_run`) into ``marks`` (one row, window order), over the two parts of
     the row that are contiguous in the circular buffer (window column c is buffer column
     c + off_c, less cols from ``cols - off_c`` on)."""
-    cols = marks.shape[0]
     for seg in range(2):
         a0 = 0 if seg == 0 else cols - off_c
         a1 = cols - off_c if seg == 0 else cols
         delta = off_c if seg == 0 else off_c - cols
+        base = br * cols + delta
         for e0, e1 in ((a0, min(a1, row_lo)), (max(a0, row_hi), a1)):  # entered: reset
             if e0 < e1:
-                _reset_cells(free_s[br, e0 + delta:e1 + delta], occ_s[br, e0 + delta:e1 + delta],
-                             quiet_s[br, e0 + delta:e1 + delta], ever[br, e0 + delta:e1 + delta])
+                _reset_run(times, ever, n, base + e0, e1 - e0)
         if a0 < a1:
-            _update_cells(free_s[br, a0 + delta:a1 + delta], occ_s[br, a0 + delta:a1 + delta],
-                          quiet_s[br, a0 + delta:a1 + delta], free[r, a0:a1], occ[r, a0:a1],
-                          dt, min_free, t_free, t_revoke, t_gap, t_rehit, rehit_free,
-                          marks[a0:a1])
+            _update_run(times, n, base + a0, r * cols + a0, a1 - a0, free, occ, dt, min_free,
+                        t_free, t_revoke, t_gap, t_rehit, rehit_free, marks, a0)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -183,74 +192,83 @@ def _row_block(marks, h):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _ever_cells(ever, up, mid, down, inner, gate):  # pragma: no cover - compiled
-    """The column pass of a run of cells (the 3 × 3 block's R and V from the row results
-    ``up``, ``mid``, ``down``; bit 0 only for an ``inner`` row), then ``ever`` (buffer order)
-    and the gate layer (window order); 1-d views."""
-    for k in range(gate.shape[0]):
-        a, b, d = up[k], mid[k], down[k]
+def _ever_run(ever, b0, ring, u0, m0, d0, c0, inner, gate, w0, shut, has_shut, count
+              ):  # pragma: no cover - compiled
+    """The column pass of ``count`` cells contiguous in the buffer (the 3 × 3 block's R and
+    V from the row results at ``ring[u0 + c]``, ``ring[m0 + c]``, ``ring[d0 + c]``, column
+    ``c = c0 + k``; bit 0 only for an ``inner`` row), then ``ever`` (flat buffer index
+    ``b0 + k``) and the gate layer (window index ``w0 + k``), 0 where ``shut`` (with
+    ``has_shut``)."""
+    for k in range(count):
+        c = np.uint64(c0 + k)
+        a, b, d = ring[np.uint64(u0) + c], ring[np.uint64(m0) + c], ring[np.uint64(d0) + c]
         m = (a & b & d & inner) | ((a | b | d) & np.uint8(2))
-        e = ever[k]
+        i = np.uint64(b0 + k)
+        e = ever[i]
         e = np.uint8(0) if m & np.uint8(2) else (np.uint8(1) if m & np.uint8(1) else e)
-        ever[k] = e
-        gate[k] = e
+        ever[i] = e
+        w = np.uint64(w0 + k)
+        gate[w] = (e & (shut[w] ^ np.uint8(1))) if has_shut else e
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _ever_row(ever, up, mid, down, inner, r, br, off_c, shut, has_shut, gate
+def _ever_row(ever, ring, u, m, d, inner, r, br, cols, off_c, shut, has_shut, gate
               ):  # pragma: no cover - compiled
     """Window row ``r`` (buffer row ``br``) of the column pass, its ``ever`` and its gate
-    layer (:func:`_ever_cells`; outside the window R is false: ``inner`` 0 on the first and
-    last rows), then 0 where ``shut`` (with ``has_shut``)."""
-    cols = mid.shape[0]
+    layer (:func:`_ever_run`; outside the window R is false: ``inner`` 0 on the first and
+    last rows), 0 where ``shut`` (with ``has_shut``)."""
     for seg in range(2):
         a0 = 0 if seg == 0 else cols - off_c
         a1 = cols - off_c if seg == 0 else cols
         delta = off_c if seg == 0 else off_c - cols
         if a0 < a1:
-            _ever_cells(ever[br, a0 + delta:a1 + delta], up[a0:a1], mid[a0:a1], down[a0:a1],
-                        inner, gate[r, a0:a1])
-    if has_shut:
-        g = gate[r]
-        s = shut[r]
-        for c in range(cols):
-            g[c] &= s[c] ^ np.uint8(1)
+            _ever_run(ever, br * cols + delta + a0, ring, u * cols, m * cols, d * cols, a0,
+                      inner, gate, r * cols + a0, shut, has_shut, a1 - a0)
 
 
 @numba.njit(cache=True, nogil=True)
 def _gate_pass(times, ever, off_r, off_c, dr, dc, free, occ, dt, min_free, t_free,
-               t_revoke, t_gap, t_rehit, rehit_free, shut, has_shut, gate):  # pragma: no cover
+               t_revoke, t_gap, t_rehit, rehit_free, shut, has_shut, gate
+               ):  # pragma: no cover - compiled
     """One sweep down the window: pass 1 of row r (:func:`_times_row`), its row of the
     separable 3 × 3 block (:func:`_row_block`) into a ring of three row buffers, then the
     column pass, ``ever`` and the gate layer of row r − 1 (:func:`_ever_row`), which needs
     the row results of r − 2, r − 1 and r; the last row after the sweep. Each window row's
-    cells are read and written once (the three-pass version wrote two window-sized scratch
-    layers and read them back); the same operations per cell, so the same bits. ``shut``:
-    uint8 window order, the cells whose gate layer is 0 (``has_shut``)."""
+    cells are read and written once, on flat arrays with unsigned indices (no array views
+    a row: no reference counts, no negative-index fix-ups); the same operations per cell,
+    so the same bits. ``shut``: uint8 window order, the cells whose gate layer is 0
+    (``has_shut``)."""
     rows, cols = ever.shape
     if rows == 0 or cols == 0:
         return
-    free_s, occ_s, quiet_s = times[0], times[1], times[2]
+    n = rows * cols
+    flat_times = times.reshape(3 * n)
+    flat_ever = ever.reshape(n)
+    flat_free = free.reshape(n)
+    flat_occ = occ.reshape(n)
+    flat_gate = gate.reshape(n)
+    flat_shut = shut.reshape(n) if has_shut else shut.reshape(shut.size)
     lo = min(max(-dc, 0), cols)  # window columns [lo, hi) were in the previous window
     hi = max(min(cols - dc, cols), lo)
     marks = np.empty(cols, np.uint8)
-    ring = np.empty((3, cols), np.uint8)
+    ring = np.empty(3 * cols, np.uint8)
     for r in range(rows):
         br = r + off_r
         br = br - rows if br >= rows else br
         row_lo, row_hi = (lo, hi) if 0 <= r + dr < rows else (0, 0)
-        _times_row(free_s, occ_s, quiet_s, ever, free, occ, r, br, row_lo, row_hi, off_c,
-                   dt, min_free, t_free, t_revoke, t_gap, t_rehit, rehit_free, marks)
-        _row_block(marks, ring[r % 3])
+        _times_row(flat_times, flat_ever, n, cols, flat_free, flat_occ, r, br, row_lo,
+                   row_hi, off_c, dt, min_free, t_free, t_revoke, t_gap, t_rehit, rehit_free,
+                   marks)
+        _row_block(marks, ring[(r % 3) * cols:(r % 3 + 1) * cols])
         if r >= 1:  # row r − 1 has both neighbours' row results now
             q = r - 1
             bq = q + off_r
             bq = bq - rows if bq >= rows else bq
             inner = np.uint8(1) if q > 0 else np.uint8(0)  # q < rows − 1 here
-            _ever_row(ever, ring[max(q - 1, 0) % 3], ring[q % 3], ring[r % 3], inner, q, bq,
-                      off_c, shut, has_shut, gate)
+            _ever_row(flat_ever, ring, max(q - 1, 0) % 3, q % 3, r % 3, inner, q, bq, cols,
+                      off_c, flat_shut, has_shut, flat_gate)
     q = rows - 1  # the last row: below it is outside the window (clamped, as R is masked)
     bq = q + off_r
     bq = bq - rows if bq >= rows else bq
-    _ever_row(ever, ring[max(q - 1, 0) % 3], ring[q % 3], ring[q % 3], np.uint8(0), q, bq,
-              off_c, shut, has_shut, gate)
+    _ever_row(flat_ever, ring, max(q - 1, 0) % 3, q % 3, q % 3, np.uint8(0), q, bq, cols,
+              off_c, flat_shut, has_shut, flat_gate)

@@ -350,6 +350,8 @@ def _decoder_for(path: Path, raw: RawMessage) -> Callable[[bytes], Any]:
             from mcap_ros2.decoder import DecoderFactory as Ros2Factory
 
             decoder = Ros2Factory().decoder_for(encoding, schema)
+            if decoder is not None:
+                decoder = _rosbags_cdr(schema, decoder)
         elif encoding == "ros1":
             from mcap_ros1.decoder import DecoderFactory as Ros1Factory
 
@@ -369,6 +371,42 @@ def _decoder_for(path: Path, raw: RawMessage) -> Callable[[bytes], Any]:
                        f"'{encoding}' with {schema_text}; supported: ROS 2 cdr with ros2msg "
                        "schemas, ROS 1 ros1 with ros1msg schemas, protobuf, json")
     return decoder
+
+
+def _rosbags_cdr(schema: Schema | None, fallback: Callable[[bytes], Any]
+                 ) -> Callable[[bytes], Any]:
+    """A ROS 2 CDR decoder for a ``ros2msg`` schema through rosbags' deserialiser (the one
+    that reads ROS 2 bags, :mod:`evperc.logs.rosbags_source`), ``fallback`` (mcap-ros2's)
+    for the messages it refuses and for schemas it cannot parse.
+
+    Why: mcap-ros2 reads a message field by field in Python, each float64 of an Odometry's
+    two 36-value covariances included (~31 µs a message, 5 a scan at 50 Hz, in the decode
+    thread that bounds a run); rosbags reads fixed-size arrays with one ``numpy.frombuffer``
+    (~10 µs). The values are the same bytes read as the same IEEE types; a ``uint8[]`` comes
+    as a numpy view of the message instead of a ``bytes`` copy (the point payload: one copy
+    of ~1.9 MB a scan fewer), which the adapters read alike
+    (:mod:`evperc.logs.mcap_messages`)."""
+    if schema is None or schema.encoding != "ros2msg":
+        return fallback
+    try:
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+        store = get_typestore(Stores.EMPTY)
+        store.register(get_types_from_msg(schema.data.decode(), schema.name))
+        name = schema.name
+        store.get_msgdef(name)
+    except Exception as err:  # a definition rosbags does not read: mcap-ros2 reads it
+        log.debug("%s: rosbags cannot parse the schema (%s); mcap-ros2 decodes it",
+                  schema.name, err)
+        return fallback
+    deserialize = store.deserialize_cdr
+
+    def decode(data: bytes) -> Any:
+        try:
+            return deserialize(memoryview(data), name)
+        except Exception:  # a message rosbags refuses: mcap-ros2's result or error
+            return fallback(data)
+    return decode
 
 
 def json_bytes(value: Any) -> bytes:

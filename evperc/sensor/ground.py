@@ -91,15 +91,29 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
     sector_start = (np.arange(n_az) * n_sector) // n_az * n_band
     hist[:] = 0
     inv_band = np.float32(1.0 / BAND_M)
+    cells = np.empty(z.shape[0], np.int32)  # each point's coarse cell (−1: dropped)
+    # successive points mostly fall in the same bin: counted in a register and added when
+    # the bin changes (one increment per point made each wait for the previous one's store)
+    last, run = np.int64(-1), np.int64(0)
     for i in range(z.shape[0]):
+        cell = np.int64(-1)
         if az_bin[i] >= 0:
             cell = sector_start[az_bin[i]] + min(np.int64(range_m[i] * inv_band), n_band - 1)
-            hist[cell * n_z + _z_bin(z[i] + sensor_height, n_z)] += 1
+            at = cell * n_z + _z_bin(z[i] + sensor_height, n_z)
+            if at == last:
+                run += 1
+            else:
+                if run:
+                    hist[last] += run
+                last, run = at, np.int64(1)
+        cells[i] = cell
+    if run:
+        hist[last] += run
     ground = _fill_ground(hist, n_sector, n_band, n_z, scan_fallback)
     for i in range(z.shape[0]):
         kind[i] = IGNORED
-        if az_bin[i] >= 0:
-            cell = sector_start[az_bin[i]] + min(np.int64(range_m[i] * inv_band), n_band - 1)
+        cell = cells[i]
+        if cell >= 0:
             d = (z[i] + sensor_height) - ground[cell]
             if d < threshold:
                 kind[i] = GROUND
@@ -109,13 +123,11 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _z_bin(height: np.float32, n_z: int) -> int:
-    """Histogram bin ``⌊(h + Z_SPAN_M)/Z_BIN_M⌋`` (float32), clipped to ``[0, n_z − 1]``."""
+    """Histogram bin ``⌊(h + Z_SPAN_M)/Z_BIN_M⌋`` (float32), clipped to ``[0, n_z − 1]``
+    (NaN: 0); selects, no branches."""
     v = (height + np.float32(Z_SPAN_M)) * np.float32(1.0 / Z_BIN_M)
-    if not v > 0:
-        return 0
-    if v >= n_z - 1:
-        return n_z - 1
-    return int(v)
+    top = np.float32(n_z - 1)
+    return int(v if v < top else top) if v > 0 else 0
 
 
 @numba.njit(cache=True, nogil=True)

@@ -1,0 +1,79 @@
+"""Whole `evperc run`s of workload (a) from several source trees, interleaved (issue 20's
+speed target: the run's frames/s against those of an older commit, measured in one run).
+
+    git worktree add /tmp/wt-old e996c3d    # a detached tree per commit to compare
+    python benchmarks/ab_run.py 14 old=/tmp/wt-old new=.
+
+Each round runs every tree once (``python -m evperc -q run`` on bench_run's (a) log, 200 m
+window, ``PYTHONPATH`` = the tree), in the order given and reversed every other round; the
+trees' numba caches are kept apart (``NUMBA_CACHE_DIR`` per tree, under bench-out/, so the
+first round also compiles: run one round first to warm them). It prints each run's
+frames/s and CPU ms per frame of each thread (the manifest summary, as bench_run reads it),
+then per tree the median and range, and for every pair of trees the median and range of
+the per-round ratios — on a shared machine the only figure that means something, since
+the host's speed changes from minute to minute. Raw summaries go to
+``bench-out/ab_run.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+import bench_run  # noqa: E402  (benchmarks/ is on sys.path)
+
+
+def run_tree(tree: Path, name: str, sim: Path, config: Path) -> dict:
+    """The manifest summary of one run of ``sim`` with the code of ``tree``."""
+    out = bench_run.CACHE / "runs" / f"ab-{name}"
+    env = {**os.environ, "PYTHONPATH": str(tree),
+           "NUMBA_CACHE_DIR": str(bench_run.CACHE / "numba" / name)}
+    subprocess.run([sys.executable, "-m", "evperc", "-q", "run", str(sim / "drive.mcap"),
+                    "--map", str(sim / "map.geojson"), "--config", str(config), "--out",
+                    str(out), "--overwrite"], env=env, check=True, cwd=tree,
+                   stdout=subprocess.DEVNULL)
+    return json.loads((out / "manifest.json").read_text())["summary"]
+
+
+def main(argv: list[str]) -> None:
+    rounds = int(argv[0])
+    trees = [(name, Path(path).resolve()) for name, path in (a.split("=", 1) for a in argv[1:])]
+    sim = bench_run.simulate("sim-hdl64-10s", "hdl64", 10)
+    config = bench_run.config_file("window200", bench_run.WINDOW_200)
+    runs: dict[str, list[dict]] = {name: [] for name, _ in trees}
+    print("load average before", os.getloadavg(), flush=True)
+    for k in range(rounds):
+        for name, tree in trees if k % 2 == 0 else trees[::-1]:
+            summary = run_tree(tree, name, sim, config)
+            runs[name].append(summary)
+            cpu = summary["cpu_ms_per_frame"]
+            print(k, name, f"{summary['frames_per_s']:.1f} frames/s, CPU ms/frame main / "
+                  f"decode / writer {cpu['main']:.2f} / {cpu['decode']:.2f} / "
+                  f"{cpu['writer']:.2f}", flush=True)
+    print("load average after", os.getloadavg())
+    for name, summaries in runs.items():
+        fps = [s["frames_per_s"] for s in summaries]
+        cpu = {t: statistics.median(s["cpu_ms_per_frame"][t] for s in summaries)
+               for t in ("main", "decode", "writer")}
+        print(f"{name}: median {statistics.median(fps):.1f} frames/s ({min(fps):.1f}-"
+              f"{max(fps):.1f}); CPU ms/frame main / decode / writer {cpu['main']:.2f} / "
+              f"{cpu['decode']:.2f} / {cpu['writer']:.2f}")
+    names = list(runs)
+    for i, a in enumerate(names):
+        for b in names[:i]:
+            ratios = [x["frames_per_s"] / y["frames_per_s"]
+                      for x, y in zip(runs[a], runs[b], strict=True)]
+            print(f"{a} / {b}: per-round ratio median {statistics.median(ratios):.3f} "
+                  f"({min(ratios):.3f}-{max(ratios):.3f}, {len(ratios)} rounds)")
+    (bench_run.CACHE / "ab_run.json").write_text(json.dumps(runs))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
