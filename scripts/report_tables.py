@@ -9,7 +9,9 @@
         --config configs/ablation/no_objects.toml --config configs/ablation/no_unmapped_cue.toml \\
         --config configs/ablation/no_stopped_needs_road.toml \\
         --config configs/ablation/no_footprint_completion.toml \\
-        --config configs/ablation/no_arrival_evidence.toml --config configs/ibeo4.toml
+        --config configs/ablation/no_arrival_evidence.toml --config configs/ibeo4.toml \\
+        --config configs/ablation/ground_prior.toml --config configs/ablation/no_rehit.toml \\
+        --config configs/ablation/rehit_any_gap.toml --config configs/ablation/speed_1.toml
     .venv/bin/python scripts/report_tables.py --work W
 
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
@@ -40,7 +42,11 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("stopped without the road rule", "configs/ablation/no_stopped_needs_road.toml"),
              ("no footprint completion", "configs/ablation/no_footprint_completion.toml"),
              ("no arrival evidence", "configs/ablation/no_arrival_evidence.toml"),
-             ("configs/ibeo4.toml (small moving groups static)", "configs/ibeo4.toml"))
+             ("configs/ibeo4.toml (small moving groups static)", "configs/ibeo4.toml"),
+             ("ground fallback on the prior plane", "configs/ablation/ground_prior.toml"),
+             ("no re-hit revocation, 3 free scans", "configs/ablation/no_rehit.toml"),
+             ("re-hit after any gap, 1.0 s", "configs/ablation/rehit_any_gap.toml"),
+             ("tracker speed floor 1.0 m/s", "configs/ablation/speed_1.toml"))
 
 
 #: the scores of the headline and ablation rows, in column order
