@@ -151,7 +151,10 @@ def main() -> int:
 KITTI_CONFIGS = (("**defaults**", "default"), ("paper's method", "kurdej2013"),
                  ("no motion gate", "no_gate"), ("with the free margin", "free_margin"),
                  ("no object stage", "no_objects"),
-                 ("configs/semantickitti.toml (clusters on all returns)", "semantickitti"))
+                 ("configs/semantickitti.toml before 2026-12-03 (all returns only)",
+                  "semantickitti_before"),
+                 ("**configs/semantickitti.toml** (all returns + small moving groups static)",
+                  "semantickitti"))
 
 
 def kitti_table(folder: Path) -> int:
