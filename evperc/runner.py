@@ -91,6 +91,9 @@ class FrameInputs:
     #: cells holding any obstacle return of the scan (bool), with objects.cluster_on =
     #: "all_returns" only (:func:`evperc.sensor.sensor_grid`, ``hits_out``)
     hits: np.ndarray | None = None
+    #: each cell's highest return above the local ground (float32), with
+    #: objects.moving_min_height_m only (:func:`evperc.sensor.sensor_grid`, ``heights_out``)
+    heights: np.ndarray | None = None
 
 
 def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
@@ -353,6 +356,8 @@ class Pipeline:
         self.cluster_on = (config["objects"].get("cluster_on", "first_returns")
                            if self.objects is not None else "first_returns")
         self.cluster_all_returns = self.cluster_on != "first_returns"
+        #: objects.moving_min_height_m: the sensor grid also gives each cell's highest return
+        self.top_heights = self.objects is not None and self.objects.moving_min_height > 0
         self.unmapped = (UnmappedCue(UnmappedParams.from_config(config), probe.shape,
                                      self.resolution) if unmapped_enabled(config) else None)
         self._warm_up()
@@ -485,12 +490,14 @@ class Pipeline:
         scan = inputs.scan
         kinds = np.empty(len(scan.points), np.uint8) if self.request.point_labels else None
         hits = np.empty(inputs.window.shape, np.bool_) if self.cluster_all_returns else None
+        heights = np.empty(inputs.window.shape, np.float32) if self.top_heights else None
         free, occupied = sensor_grid(scan.points, scan.planar, inputs.t_crs, inputs.window,
-                                     self.sensor_params, kinds_out=kinds, hits_out=hits)
+                                     self.sensor_params, kinds_out=kinds, hits_out=hits,
+                                     heights_out=heights)
         seconds = {**inputs.seconds, "sensor": time.perf_counter() - t0}
         labelling = (scan, inputs.t_crs, kinds) if kinds is not None else None
         return replace(inputs, free=free, occupied=occupied, seconds=seconds, scan=None,
-                       t_crs=None, labelling=labelling, hits=hits)
+                       t_crs=None, labelling=labelling, hits=hits, heights=heights)
 
     def inputs(self, after_index: int, defer: threading.Event | None = None
                ) -> Iterator[tuple[int, FrameInputs]]:
@@ -551,7 +558,7 @@ class Pipeline:
                 occupied_now[inputs.hits & (occupied_now == 0)] = JOINS_ANY
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
-                inputs.stamp_ns, occupied_now=occupied_now)
+                inputs.stamp_ns, occupied_now=occupied_now, heights=inputs.heights)
             if self.footprint.frames > 0:  # motion-compensated footprints (objects/footprint.py)
                 if state.footprints is None:
                     state.footprints = FootprintState()

@@ -93,14 +93,17 @@ def record(drive: Path, out: Path, config: Path | None = None) -> Path:
 
     def hooked(self: Any, state: Any, decision: np.ndarray, betp_moving: np.ndarray,
                conflict_fo: np.ndarray, window: Window, stamp_ns: int,
-               occupied_now: np.ndarray | None = None) -> Any:
+               occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None
+               ) -> Any:
         if decision.shape[0] >= 20:  # not the runner's warm-up on a tiny window
             frames.append((int(stamp_ns), window.row0, window.col0, decision.copy(),
                            betp_moving.copy(), conflict_fo.copy(),
                            np.packbits(np.asarray(occupied_now, bool).reshape(-1)),
-                           np.packbits(speaks.pop(int(stamp_ns)).reshape(-1))))
+                           np.packbits(speaks.pop(int(stamp_ns)).reshape(-1)),
+                           np.zeros(decision.shape, np.float16) if heights is None
+                           else heights.astype(np.float16)))
         return original(self, state, decision, betp_moving, conflict_fo, window, stamp_ns,
-                        occupied_now)
+                        occupied_now, heights)
 
     stage_mod.ObjectStage.step = hooked  # type: ignore[method-assign]
     runner_mod.Pipeline.sensor_grid = pipeline_hooked  # type: ignore[method-assign]
@@ -119,7 +122,8 @@ def record(drive: Path, out: Path, config: Path | None = None) -> Path:
         origin=np.array([(f[1], f[2]) for f in frames], np.int64),
         decision=np.stack([f[3] for f in frames]), betp_moving=np.stack([f[4] for f in frames]),
         conflict_fo=np.stack([f[5] for f in frames]),
-        occupied=np.stack([f[6] for f in frames]), speaks=np.stack([f[7] for f in frames]))
+        occupied=np.stack([f[6] for f in frames]), speaks=np.stack([f[7] for f in frames]),
+        heights=np.stack([f[8] for f in frames]))
     return path
 
 
@@ -150,7 +154,7 @@ class ReplayRun:
 
 
 StepFn = Callable[[ObjectStage, TrackerState, np.ndarray, np.ndarray, np.ndarray, Window, int,
-                   np.ndarray], tuple[np.ndarray, np.ndarray]]
+                   np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray]]
 
 
 def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> ReplayRun:
@@ -160,8 +164,9 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
     run = load(out)
     data = np.load(out / INPUTS)
     stamps, origins = data["stamp_ns"], data["origin"]
-    if "speaks" not in data.files:
-        raise SystemExit(f"{out / INPUTS}: recorded before the scan's cells; delete it")
+    if "speaks" not in data.files or "heights" not in data.files:
+        raise SystemExit(f"{out / INPUTS}: recorded before the scan's cells or heights; "
+                         "delete it")
     decisions, betps, conflicts, occs = (data["decision"], data["betp_moving"],
                                          data["conflict_fo"], data["occupied"])
     shape = decisions.shape[1:]
@@ -176,7 +181,11 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
         window = Window(res, shape[0], shape[1], int(origins[k, 0]), int(origins[k, 1]))
         decision = decisions[k].copy()
         occ = np.unpackbits(occs[k])[:shape[0] * shape[1]].reshape(shape).astype(bool)
-        args = (state, decision, betps[k], conflicts[k], window, int(stamps[k]), occ)
+        # heights as float16 (the bound is 0.4 m: 1e-3 m steps there); None when the
+        # recorded run did not compute them (all zero: no return is that low)
+        top = data["heights"][k].astype(np.float32)
+        args = (state, decision, betps[k], conflicts[k], window, int(stamps[k]), occ,
+                top if top.any() else None)
         objects, cells = step(stage, *args) if step is not None else stage.step(*args)
         if fp_params.frames > 0:
             speaks = np.unpackbits(data["speaks"][k])[:occ.size].reshape(shape).astype(bool)

@@ -29,6 +29,13 @@ def test_semantickitti_config_is_the_measured_one() -> None:
     objects = load_config(CONFIGS / "semantickitti.toml")["objects"]
     defaults = load_config()["objects"]
     assert objects["cluster_on"] == "all_returns_join" != defaults["cluster_on"]
-    assert objects["moving_min_cluster_cells"] == 3 != defaults["moving_min_cluster_cells"]
+    assert objects["moving_min_cluster_cells"] == 3
+    assert objects["moving_min_height_m"] == 0.0 != defaults["moving_min_height_m"]
     changed = {k for k in objects if objects[k] != defaults[k]}
-    assert changed == {"cluster_on", "moving_min_cluster_cells"}
+    assert changed == {"cluster_on", "moving_min_height_m"}
+
+
+def test_ibeo4_config_keeps_every_small_group() -> None:
+    # docs/evaluation.md measured configs/ibeo4.toml with the rule on every small group
+    objects = load_config(CONFIGS / "ibeo4.toml")["objects"]
+    assert objects["moving_min_cluster_cells"] == 3 and objects["moving_min_height_m"] == 0.0

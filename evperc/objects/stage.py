@@ -36,6 +36,13 @@ def moving_min_cluster_cells(config: dict[str, Any]) -> int:
     return int(config["objects"].get("moving_min_cluster_cells", 0))
 
 
+def moving_min_height_m(config: dict[str, Any]) -> float:
+    """``objects.moving_min_height_m`` (0: off, and without the small-group rule)."""
+    if moving_min_cluster_cells(config) <= 0:
+        return 0.0
+    return float(config["objects"].get("moving_min_height_m", 0.0))
+
+
 def fills_decision(config: dict[str, Any]) -> bool:
     """Whether the moving objects' cells are decided ``moving`` (``objects.fill_moving``)."""
     return objects_enabled(config) and bool(config["objects"].get("fill_moving", False))
@@ -54,20 +61,32 @@ class ObjectStage:
         #: flat window cells decided moving whose cluster is smaller than moving_min_cells,
         #: of the last :meth:`step` (empty when off)
         self.small_moving = np.zeros(0, np.int64)
+        #: objects.moving_min_height_m: only the small groups whose highest return of the
+        #: scan is lower than this above the local ground are listed; 0 = every small group
+        self.moving_min_height = moving_min_height_m(config)
 
     def step(self, state: TrackerState, decision: np.ndarray, betp_moving: np.ndarray,
              conflict_fo: np.ndarray, window: Window, stamp_ns: int,
-             occupied_now: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+             occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
         """The frame's reported objects and their cells (:func:`track_step`); ``state``
         is updated in place. ``occupied_now``: (rows, cols) bool, the cells holding a
-        return of this scan."""
+        return of this scan; ``heights``: (rows, cols) float32, each cell's highest return
+        above the local ground (``sensor_grid(heights_out=)``), for
+        ``objects.moving_min_height_m`` (None: no height condition)."""
         seeds = footprint_seeds(state, window)
         clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds,
                                            occupied_now)
-        if self.moving_min_cells > 0:  # every group of the same flood fill, unfiltered
-            self.small_moving = small_moving_cells(*self.clusterer.groups(), decision,
-                                                   self.moving_min_cells)
+        self.list_small_moving(decision, heights)
         return track_step(state, clusters, window, stamp_ns, self.tracking_params, decision)
+
+    def list_small_moving(self, decision: np.ndarray, heights: np.ndarray | None) -> None:
+        """:attr:`small_moving` of the frame whose clusters were just made (every group of
+        the same flood fill, unfiltered; nothing when the rule is off)."""
+        if self.moving_min_cells > 0:
+            self.small_moving = small_moving_cells(
+                *self.clusterer.groups(), decision, self.moving_min_cells,
+                heights if self.moving_min_height > 0 else None, self.moving_min_height)
 
     def history(self) -> int:
         return self.tracking_params.history_frames
@@ -85,12 +104,40 @@ def fill_moving(decision: np.ndarray, moving_cells: np.ndarray) -> int:
     return changed
 
 
+def block_max_at(layer: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """The largest value of the 3 × 3 block of each of ``cells`` (flat indices of
+    ``layer``; neighbours outside the grid left out): a cell the sensor model marks
+    occupied holds the return that made it or lies next to it (a polar cell spans about a
+    window cell)."""
+    rows, cols = layer.shape
+    r, c = np.divmod(cells, cols)
+    out = np.full(cells.shape, -np.inf, np.float32)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            rr, cc = r + dr, c + dc
+            inside = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+            np.maximum(out, np.where(inside, layer[np.clip(rr, 0, rows - 1),
+                                                   np.clip(cc, 0, cols - 1)], -np.inf),
+                       out=out)
+    return out
+
+
 def small_moving_cells(group_cells: np.ndarray, sizes: np.ndarray, decision: np.ndarray,
-                       min_cells: int) -> np.ndarray:
+                       min_cells: int, heights: np.ndarray | None = None,
+                       min_height: float = 0.0) -> np.ndarray:
     """The flat window cells decided ``moving`` in the groups of fewer than ``min_cells``
     cells (``group_cells``, ``sizes``: every group of the frame, no size or extent filter,
-    :meth:`evperc.objects.clusters.Clusterer.groups`)."""
-    small = np.repeat(sizes < min_cells, sizes)
+    :meth:`evperc.objects.clusters.Clusterer.groups`). With ``heights`` (each cell's highest
+    return above the local ground), only the groups whose highest return within one cell of
+    their cells (:func:`block_max_at`) is lower than ``min_height``: a ground point the ground
+    split called an obstacle, not a person."""
+    small = sizes < min_cells
+    if heights is not None and small.any():
+        kept = sizes[small]
+        tops = block_max_at(heights, group_cells[np.repeat(small, sizes)])
+        starts = np.concatenate(([0], np.cumsum(kept)[:-1]))
+        small[small] = np.maximum.reduceat(tops, starts) < min_height
+    small = np.repeat(small, sizes)
     cells = group_cells[small]
     return cells[decision.reshape(-1)[cells] == MOVING]
 

@@ -19,13 +19,14 @@ from evperc.sensor.beams import (
 )
 from evperc.sensor.conservative import conservative_free
 from evperc.sensor.evidence import beam_extents
-from evperc.sensor.ground import OBSTACLE, classify_points, histogram_shape
+from evperc.sensor.ground import NO_HEIGHTS, OBSTACLE, classify_points, histogram_shape
 from evperc.sensor.params import SensorParams
 from evperc.sensor.projection import (
     rasterise,
     scatter_all_hits,
     scatter_free_polar_cells,
     scatter_hits,
+    scatter_top_heights,
 )
 
 log = logging.getLogger(__name__)
@@ -51,7 +52,8 @@ _scratch = _Scratch()
 
 def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, window: Window,
                 params: SensorParams, kinds_out: np.ndarray | None = None,
-                hits_out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                hits_out: np.ndarray | None = None, heights_out: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
     """``(free, occupied)``: float32 ``window.shape`` arrays of m({F}) and m({O}) for one scan;
     m(Ω_SG) = 1 − free − occupied and a cell has at most one of the two nonzero.
 
@@ -74,6 +76,10 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
     least one OBSTACLE point of the scan — all its returns in range and in the height band,
     not only the first per azimuth bin that the sensor model marks occupied (the object
     stage's ``objects.cluster_on = "all_returns"``; the masses do not depend on it).
+    ``heights_out`` (float32 ``window.shape``, optional) is overwritten with the height above
+    the local ground of each cell's highest OBSTACLE point of the scan (0 where none; +inf
+    for a ``planar`` scan's cells with a return: no ground), for
+    ``objects.moving_min_height_m``; the masses do not depend on it either.
     """
     layout = PolarLayout.build(params.azimuth_resolution_deg,
                                params.range_bin_m or window.resolution_m,
@@ -95,10 +101,12 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
                layout.inv_range_bin32, az_bin, range_bin)
     hist = _scratch.take("ground_histogram", math.prod(histogram_shape(layout.max_range_m)),
                          np.int32)
+    height = (_scratch.take("height", n, np.float32) if heights_out is not None
+              else NO_HEIGHTS)
     classify_points(z, range_m, az_bin, layout.n_az, layout.max_range_m, bool(planar),
                     np.float32(params.sensor_height_m), np.float32(params.ground_threshold_m),
                     np.float32(params.max_obstacle_height_m), hist, kind,
-                    params.ground_fallback == "scan")
+                    params.ground_fallback == "scan", height)
     if kinds_out is not None:
         kinds_out[:] = kind
 
@@ -116,6 +124,12 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
                              f"{hits_out.shape}")
         hits_out.fill(False)
         scatter_all_hits(hits_out, window, sensor_xy, x, y, kind)
+    if heights_out is not None:
+        if heights_out.shape != window.shape or heights_out.dtype != np.float32:
+            raise ValueError(f"heights_out must be float32 {window.shape}, got "
+                             f"{heights_out.dtype} {heights_out.shape}")
+        heights_out.fill(0.0)
+        scatter_top_heights(heights_out, window, sensor_xy, x, y, kind, height)
     if log.isEnabledFor(logging.DEBUG):
         log.debug("sensor grid: %d points kept, %d obstacle", int((az_bin >= 0).sum()),
                   int((kind == OBSTACLE).sum()))

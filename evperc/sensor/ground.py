@@ -67,11 +67,16 @@ def histogram_shape(max_range_m: float) -> tuple[int, int, int]:
             int(round(2 * Z_SPAN_M / Z_BIN_M)))
 
 
+#: the ``height`` argument of :func:`classify_points` when no heights are asked for
+NO_HEIGHTS = np.zeros(0, np.float32)
+
+
 @numba.njit(cache=True, nogil=True)
 def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az: int,
                     max_range_m: float, planar: bool, sensor_height: np.float32,
                     threshold: np.float32, max_height: np.float32, hist: np.ndarray,
-                    kind: np.ndarray, scan_fallback: bool = False) -> None:
+                    kind: np.ndarray, scan_fallback: bool = False,
+                    height: np.ndarray = NO_HEIGHTS) -> None:
     """Write into ``kind`` the GROUND / OBSTACLE / IGNORED kind of each point.
 
     ``z``: levelled height above the sensor; ``range_m``: horizontal range; ``az_bin``:
@@ -81,10 +86,15 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
     the module docstring for the ground estimate. ``planar``: every kept point is an
     obstacle. ``hist``: int32 work array of ``n_sector · n_band · n_z`` elements
     (:func:`histogram_shape`). ``scan_fallback``: step 4's fallback is the median of the
-    scan's accepted estimates instead of the prior."""
+    scan's accepted estimates instead of the prior. ``height`` (float32, optional: when it
+    has one element a point) receives each OBSTACLE point's ``d`` (+inf for a planar scan,
+    which has no ground; NaN for the other points)."""
+    heights = height.shape[0] == z.shape[0] and z.shape[0] > 0
     if planar:
         for i in range(z.shape[0]):
             kind[i] = OBSTACLE if az_bin[i] >= 0 else IGNORED
+            if heights:
+                height[i] = np.inf if az_bin[i] >= 0 else np.nan
         return
     n_sector, n_band, n_z = histogram_shape(max_range_m)
     # sector·n_band of each azimuth bin: no division per point
@@ -113,12 +123,16 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
     for i in range(z.shape[0]):
         kind[i] = IGNORED
         cell = cells[i]
+        if heights:
+            height[i] = np.nan
         if cell >= 0:
             d = (z[i] + sensor_height) - ground[cell]
             if d < threshold:
                 kind[i] = GROUND
             elif d <= max_height:
                 kind[i] = OBSTACLE
+                if heights:
+                    height[i] = d
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

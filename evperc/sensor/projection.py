@@ -73,6 +73,17 @@ def scatter_all_hits(mask: np.ndarray, window: Window, sensor_xy: tuple[float, f
                       window.col0, sensor_xy[0], sensor_xy[1], x, y, kind)
 
 
+def scatter_top_heights(top: np.ndarray, window: Window, sensor_xy: tuple[float, float],
+                        x: np.ndarray, y: np.ndarray, kind: np.ndarray,
+                        height: np.ndarray) -> None:
+    """Raise each cell of ``top`` (float32 ``window.shape``, not cleared here) to the height
+    above the local ground of the highest OBSTACLE point in it (``height``:
+    :func:`evperc.sensor.ground.classify_points`' per-point ``d``) — every return, not only
+    the first of its azimuth bin. Not part of the sensor grid."""
+    _scatter_top_heights(top, float(window.resolution_m), window.row0, window.col0,
+                         sensor_xy[0], sensor_xy[1], x, y, kind, height)
+
+
 def rasterise(state: np.ndarray, window: Window, sensor_xy: tuple[float, float],
               heading_rad: float, layout: PolarLayout, obstacle_bin: np.ndarray,
               free_end: np.ndarray, mu_free: float, mu_occupied: float,
@@ -128,6 +139,18 @@ def _scatter_all_hits(mask, res, row0, col0, sx, sy, x, y, kind) -> None:
         if kind[i] == OBSTACLE:
             _mark(mask, res, row0, col0, sx + np.float64(x[i]), sy + np.float64(y[i]),
                   np.uint8(1))
+
+
+@numba.njit(cache=True, nogil=True)
+def _scatter_top_heights(top, res, row0, col0, sx, sy, x, y, kind, height) -> None:
+    """See :func:`scatter_top_heights` (cells as :func:`_mark`)."""
+    rows, cols = top.shape
+    for i in range(x.shape[0]):
+        if kind[i] == OBSTACLE:
+            r = math.floor((sy + np.float64(y[i])) / res) - row0
+            c = math.floor((sx + np.float64(x[i])) / res) - col0
+            if 0 <= r < rows and 0 <= c < cols and height[i] > top[r, c]:
+                top[r, c] = height[i]
 
 
 @numba.njit(cache=True, nogil=True)
