@@ -371,7 +371,8 @@ class Pipeline:
         tiny = Window(self.resolution, 2, 2, 0, 0)
         points = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, -1.5]], np.float32)
         free, occupied = sensor_grid(points, False, np.eye(4), tiny, self.sensor_params,
-                                     hits_out=np.empty(tiny.shape, np.bool_))
+                                     hits_out=np.empty(tiny.shape, np.bool_),
+                                     heights_out=np.empty(tiny.shape, np.float32))
         state = FusionState.fresh(tiny)
         out = StoredOutputs.empty(tiny.shape)
         gate = gate_step(state.gate, free, occupied, 0.1, self.params,

@@ -11,7 +11,8 @@
         --config configs/ablation/no_footprint_completion.toml \\
         --config configs/ablation/no_arrival_evidence.toml --config configs/ibeo4.toml \\
         --config configs/ablation/ground_prior.toml --config configs/ablation/no_rehit.toml \\
-        --config configs/ablation/rehit_any_gap.toml --config configs/ablation/speed_1.toml
+        --config configs/ablation/rehit_any_gap.toml --config configs/ablation/speed_1.toml \\
+        --config configs/ablation/no_low_groups.toml
     .venv/bin/python scripts/report_tables.py --work W
 
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
@@ -46,7 +47,9 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("ground fallback on the prior plane", "configs/ablation/ground_prior.toml"),
              ("no re-hit revocation, 3 free scans", "configs/ablation/no_rehit.toml"),
              ("re-hit after any gap, 1.0 s", "configs/ablation/rehit_any_gap.toml"),
-             ("tracker speed floor 1.0 m/s", "configs/ablation/speed_1.toml"))
+             ("tracker speed floor 1.0 m/s", "configs/ablation/speed_1.toml"),
+             ("no low-group rule (small moving groups kept)",
+              "configs/ablation/no_low_groups.toml"))
 
 
 #: the scores of the headline and ablation rows, in column order

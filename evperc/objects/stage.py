@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numba
 import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
@@ -104,21 +105,22 @@ def fill_moving(decision: np.ndarray, moving_cells: np.ndarray) -> int:
     return changed
 
 
-def block_max_at(layer: np.ndarray, cells: np.ndarray) -> np.ndarray:
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def block_max_at(layer: np.ndarray, cells: np.ndarray) -> np.ndarray:  # pragma: no cover
     """The largest value of the 3 × 3 block of each of ``cells`` (flat indices of
     ``layer``; neighbours outside the grid left out): a cell the sensor model marks
     occupied holds the return that made it or lies next to it (a polar cell spans about a
-    window cell)."""
+    window cell). Compiled: a few hundred cells a frame, where numpy's per-call cost
+    dominated (0.37 ms a frame of workload (a))."""
     rows, cols = layer.shape
-    r, c = np.divmod(cells, cols)
-    out = np.full(cells.shape, -np.inf, np.float32)
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            rr, cc = r + dr, c + dc
-            inside = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
-            np.maximum(out, np.where(inside, layer[np.clip(rr, 0, rows - 1),
-                                                   np.clip(cc, 0, cols - 1)], -np.inf),
-                       out=out)
+    out = np.empty(cells.shape[0], np.float32)
+    for k in range(cells.shape[0]):
+        r, c = divmod(cells[k], cols)
+        top = -np.inf
+        for rr in range(max(r - 1, 0), min(r + 2, rows)):
+            for cc in range(max(c - 1, 0), min(c + 2, cols)):
+                top = max(top, layer[rr, cc])
+        out[k] = top
     return out
 
 
@@ -131,15 +133,38 @@ def small_moving_cells(group_cells: np.ndarray, sizes: np.ndarray, decision: np.
     return above the local ground), only the groups whose highest return within one cell of
     their cells (:func:`block_max_at`) is lower than ``min_height``: a ground point the ground
     split called an obstacle, not a person."""
-    small = sizes < min_cells
-    if heights is not None and small.any():
-        kept = sizes[small]
-        tops = block_max_at(heights, group_cells[np.repeat(small, sizes)])
-        starts = np.concatenate(([0], np.cumsum(kept)[:-1]))
-        small[small] = np.maximum.reduceat(tops, starts) < min_height
-    small = np.repeat(small, sizes)
-    cells = group_cells[small]
-    return cells[decision.reshape(-1)[cells] == MOVING]
+    use_heights = heights is not None
+    top = heights if use_heights else _NO_HEIGHTS
+    return _small_moving(group_cells, sizes, decision.reshape(-1), int(min_cells),
+                         np.ascontiguousarray(top, np.float32), use_heights,
+                         np.float32(min_height), MOVING)
+
+
+_NO_HEIGHTS = np.zeros((1, 1), np.float32)
+
+
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def _small_moving(group_cells, sizes, decision, min_cells, heights, use_heights, min_height,
+                  moving):  # pragma: no cover - compiled
+    """:func:`small_moving_cells` in one pass over the groups (numpy's per-call cost was
+    0.1 ms a frame of workload (a) for a few hundred cells)."""
+    out = np.empty(group_cells.shape[0], np.int64)
+    n = 0
+    start = 0
+    for g in range(sizes.shape[0]):
+        size = sizes[g]
+        if size < min_cells:
+            low = True
+            if use_heights:
+                top = block_max_at(heights, group_cells[start:start + size].astype(np.int64))
+                low = top.max() < min_height
+            if low:
+                for k in range(start, start + size):
+                    if decision[group_cells[k]] == moving:
+                        out[n] = group_cells[k]
+                        n += 1
+        start += size
+    return out[:n].copy()
 
 
 def unfill_small(decision: np.ndarray, small_cells: np.ndarray,
