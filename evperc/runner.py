@@ -387,6 +387,8 @@ class Pipeline:
                 TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0,
                 occupied_now=occupied > 0)
             warm_up_footprints(self.footprint)
+            if self.objects.moving_min_cells > 0:
+                unfill_small(out.decision.copy(), np.zeros(1, np.int64), None)
         if self.unmapped is not None:
             UnmappedCue(self.unmapped.params, tiny.shape, self.resolution).step(
                 UnmappedState.fresh(tiny.shape), out.decision, None, 0.1)
