@@ -2,13 +2,13 @@
 """What the static points decided moving are, on a SemanticKITTI slice (issue 20).
 
 For a run made with ``evperc run SEQ --no-map --point-labels`` and its sequence folder:
-every point that the run labels moving (251) and SemanticKITTI labels static (a class other
-than 0 unlabeled, 1 outlier and 252–259 moving), from scan ``--warmup`` on (the scans
-``evperc evaluate --semantickitti`` scores), counted by its SemanticKITTI class, with the
-quartiles of its horizontal range and of its height in the lidar frame (the sensor is
-about 1.73 m above the road). Then the run's decided-``moving`` cells of those scans, and
-how many of them a reported moving object holds (the rest the fusion decided moving with no
-object).
+every point that the run labels moving and SemanticKITTI labels static — the false
+positives exactly as ``evperc.eval.semantickitti.confusion`` counts them —, from scan
+``--warmup`` on (the scans ``evperc evaluate --semantickitti`` scores), counted by its
+SemanticKITTI class, with the quartiles of its horizontal range and of its height in the
+lidar frame (the sensor is about 1.73 m above the road). Then the run's decided-``moving``
+cells of those scans, and how many of them a reported moving object holds (the rest the
+fusion decided moving with no object).
 
     python scripts/kitti_false_moving.py RUN ../shared/data/semantickitti/09
 """
@@ -26,7 +26,12 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 import evperc  # noqa: E402
-from evperc.eval.semantickitti import read_label_file  # noqa: E402
+from evperc.eval.semantickitti import (  # noqa: E402
+    IGNORED_CLASSES,
+    MOVING_CLASSES,
+    MOVING_LABEL,
+    read_label_file,
+)
 from evperc.fusion.twin import DECISION_CODES  # noqa: E402
 from evperc.output.objects import moving_object_cells  # noqa: E402
 
@@ -36,7 +41,6 @@ CLASSES = {10: "car", 11: "bicycle", 13: "bus", 15: "motorcycle", 16: "on-rails"
            44: "parking", 48: "sidewalk", 49: "other-ground", 50: "building", 51: "fence",
            52: "other-structure", 60: "lane-marking", 70: "vegetation", 71: "trunk",
            72: "terrain", 80: "pole", 81: "traffic-sign", 99: "other-object"}
-MOVING_LABEL = 251
 
 
 def false_points(run: Path, seq: Path, warmup: int) -> tuple[collections.Counter, np.ndarray]:
@@ -44,10 +48,13 @@ def false_points(run: Path, seq: Path, warmup: int) -> tuple[collections.Counter
     classes: collections.Counter = collections.Counter()
     rows = []
     for path in sorted((run / "labels").glob("*.label"))[warmup:]:
-        predicted = read_label_file(path)
+        predicted = read_label_file(path) & 0xFFFF
         truth = read_label_file(seq / "labels" / path.name) & 0xFFFF
         points = np.fromfile(seq / "velodyne" / (path.stem + ".bin"), np.float32).reshape(-1, 4)
-        false = (predicted == MOVING_LABEL) & (truth > 1) & ((truth < 252) | (truth > 259))
+        # the scorer's own reading (evperc.eval.semantickitti.confusion): said moving,
+        # labelled, not moving
+        said = (predicted == MOVING_LABEL) | np.isin(predicted, MOVING_CLASSES)
+        false = said & ~np.isin(truth, IGNORED_CLASSES) & ~np.isin(truth, MOVING_CLASSES)
         for c, n in zip(*np.unique(truth[false], return_counts=True), strict=True):
             classes[CLASSES.get(int(c), str(int(c)))] += int(n)
         p = points[false]

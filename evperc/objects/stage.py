@@ -156,7 +156,7 @@ def _small_moving(group_cells, sizes, decision, min_cells, heights, use_heights,
         if size < min_cells:
             low = True
             if use_heights:
-                top = block_max_at(heights, group_cells[start:start + size].astype(np.int64))
+                top = block_max_at(heights, group_cells[start:start + size])
                 low = top.max() < min_height
             if low:
                 for k in range(start, start + size):

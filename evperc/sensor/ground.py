@@ -89,7 +89,7 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
     scan's accepted estimates instead of the prior. ``height`` (float32, optional: when it
     has one element a point) receives each OBSTACLE point's ``d`` (+inf for a planar scan,
     which has no ground; NaN for the other points)."""
-    heights = height.shape[0] == z.shape[0] and z.shape[0] > 0
+    heights = height.shape[0] == z.shape[0]
     if planar:
         for i in range(z.shape[0]):
             kind[i] = OBSTACLE if az_bin[i] >= 0 else IGNORED
