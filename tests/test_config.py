@@ -175,3 +175,12 @@ def test_object_evidence_keys_are_validated(tmp_path: Path) -> None:
         load_config(write(tmp_path, "[objects]\nfragment_extent_m = 0.0\n"))
     config = load_config(write(tmp_path, '[objects]\nseeds = "moving"\nfill_moving = false\n'))
     assert config["objects"]["seeds"] == "moving" and config["objects"]["fill_moving"] is False
+
+
+def test_the_local_ground_step_is_validated(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"sensor.ground_local_raise_m = -0.1 is outside"):
+        load_config(write(tmp_path, "[sensor]\nground_local_raise_m = -0.1\n"))
+    with pytest.raises(ConfigError, match=r"sensor.ground_local_raise_m"):
+        load_config(write(tmp_path, '[sensor]\nground_local_raise_m = "high"\n'))
+    assert load_config(write(tmp_path, "[sensor]\nground_local_raise_m = 0.3\n"))[
+        "sensor"]["ground_local_raise_m"] == 0.3

@@ -33,6 +33,8 @@ def test_semantickitti_config_is_the_measured_one() -> None:
     assert objects["moving_min_height_m"] == 0.0 != defaults["moving_min_height_m"]
     changed = {k for k in objects if objects[k] != defaults[k]}
     assert changed == {"cluster_on", "moving_min_height_m"}
+    # the sensor model is the defaults'
+    assert load_config(CONFIGS / "semantickitti.toml")["sensor"] == load_config()["sensor"]
 
 
 def test_ibeo4_config_keeps_every_small_group() -> None:

@@ -19,7 +19,14 @@ from evperc.sensor.beams import (
 )
 from evperc.sensor.conservative import conservative_free
 from evperc.sensor.evidence import beam_extents
-from evperc.sensor.ground import NO_HEIGHTS, OBSTACLE, classify_points, histogram_shape
+from evperc.sensor.ground import (
+    NO_HEIGHTS,
+    NO_LOCAL,
+    OBSTACLE,
+    classify_points,
+    histogram_shape,
+    local_grid_side,
+)
 from evperc.sensor.params import SensorParams
 from evperc.sensor.projection import (
     rasterise,
@@ -103,10 +110,14 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
                          np.int32)
     height = (_scratch.take("height", n, np.float32) if heights_out is not None
               else NO_HEIGHTS)
+    local = params.ground_local_raise_m > 0 and not planar
+    local_min = (_scratch.take("local_min", local_grid_side(layout.max_range_m) ** 2, np.float32)
+                 if local else NO_LOCAL)
     classify_points(z, range_m, az_bin, layout.n_az, layout.max_range_m, bool(planar),
                     np.float32(params.sensor_height_m), np.float32(params.ground_threshold_m),
                     np.float32(params.max_obstacle_height_m), hist, kind,
-                    params.ground_fallback == "scan", height)
+                    params.ground_fallback == "scan", height,
+                    np.float32(params.ground_local_raise_m if local else 0.0), x, y, local_min)
     if kinds_out is not None:
         kinds_out[:] = kind
 

@@ -21,6 +21,24 @@ azimuth × bands of ``BAND_M`` horizontal range):
    view's edge) the prior then makes them obstacles, a ring of false returns where the
    lowest layer meets the road. The scan's other sectors know better.
 
+5. Optional local step (``sensor.ground_local_raise_m`` = Δ > 0; 0 in the paper's model):
+   the estimate of step 2 is one height per 10° × 2 m cell, so terrain rising beside the
+   road, a sidewalk behind its kerb or a slope within the cell stand a few tenths of a metre
+   above it — just above the threshold, and such cells flicker between ground and obstacle
+   from scan to scan (the false motion of the real slices, evaluation.md). A point whose
+   height d above the estimate g lies in ``[threshold, threshold + Δ)`` takes as its ground
+   ``max(lowest, g)``, ``lowest`` the lowest return with d < Δ (near the coarse ground) within
+   ``LOCAL_CELLS`` cells of ``LOCAL_CELL_M`` around its own (a 1.5 m square, cells aligned on
+   the sensor); with no such return there its estimate stands. So a point turns ground only
+   within Δ above the threshold, and only where returns near the coarse ground are in sight
+   (a lowest return higher than g + Δ, from a neighbouring coarse cell's estimate, changes
+   nothing more: the point is ground either way): a slope's
+   returns lie 0.1–0.3 m above their lower neighbours and become ground, an object keeps the
+   ground visible beside it, and an object with nothing near the ground in sight (its base
+   hidden) keeps its coarse split. A 4-layer scanner's lowest layer meets an object's face
+   anywhere from its mount height down to the road, so its face returns can pass for ground
+   (the simulated IBEO loses moving recall). Off by default: docs/method.md §3.
+
 A point is *ground* if its height above the estimate is below ``ground_threshold_m``
 (points below the estimate, e.g. in a ditch or multipath echoes, count as ground), an
 *obstacle* if it is between the threshold and ``max_obstacle_height_m``, and *ignored* above
@@ -53,6 +71,9 @@ Z_BIN_M = 0.05
 Z_SPAN_M = 3.0
 BASE_TOLERANCE_M = 0.5
 MAX_SLOPE = 0.1
+#: step 5: cell edge of the lowest-return grid and the half-width (in cells) of its block
+LOCAL_CELL_M = 0.5
+LOCAL_CELLS = 1
 
 #: point kinds written by :func:`classify_points` (and read by :mod:`.evidence`)
 IGNORED = np.uint8(0)
@@ -69,6 +90,15 @@ def histogram_shape(max_range_m: float) -> tuple[int, int, int]:
 
 #: the ``height`` argument of :func:`classify_points` when no heights are asked for
 NO_HEIGHTS = np.zeros(0, np.float32)
+#: the ``x`` / ``y`` / ``local_min`` arguments of :func:`classify_points` without step 5
+NO_LOCAL = np.zeros(0, np.float32)
+
+
+@numba.njit(cache=True, nogil=True)
+def local_grid_side(max_range_m: float) -> int:
+    """Cells per side of step 5's square grid of ``LOCAL_CELL_M`` cells centred on the sensor
+    (``±max_range_m`` plus a border of ``LOCAL_CELLS`` so that every block stays inside)."""
+    return 2 * (int(math.ceil(max_range_m / LOCAL_CELL_M)) + LOCAL_CELLS) + 1
 
 
 @numba.njit(cache=True, nogil=True)
@@ -76,7 +106,9 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
                     max_range_m: float, planar: bool, sensor_height: np.float32,
                     threshold: np.float32, max_height: np.float32, hist: np.ndarray,
                     kind: np.ndarray, scan_fallback: bool = False,
-                    height: np.ndarray = NO_HEIGHTS) -> None:
+                    height: np.ndarray = NO_HEIGHTS, local_raise: float = 0.0,
+                    x: np.ndarray = NO_LOCAL, y: np.ndarray = NO_LOCAL,
+                    local_min: np.ndarray = NO_LOCAL) -> None:
     """Write into ``kind`` the GROUND / OBSTACLE / IGNORED kind of each point.
 
     ``z``: levelled height above the sensor; ``range_m``: horizontal range; ``az_bin``:
@@ -88,7 +120,9 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
     (:func:`histogram_shape`). ``scan_fallback``: step 4's fallback is the median of the
     scan's accepted estimates instead of the prior. ``height`` (float32, optional: when it
     has one element a point) receives each OBSTACLE point's ``d`` (+inf for a planar scan,
-    which has no ground; NaN for the other points)."""
+    which has no ground; NaN for the other points). ``local_raise`` > 0: step 5 with Δ =
+    ``local_raise``, on the points' levelled offsets ``x``, ``y`` from the sensor and the
+    float32 work array ``local_min`` of ``local_grid_side(max_range_m)²`` elements."""
     heights = height.shape[0] == z.shape[0]
     if planar:
         for i in range(z.shape[0]):
@@ -120,6 +154,12 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
     if run:
         hist[last] += run
     ground = _fill_ground(hist, n_sector, n_band, n_z, scan_fallback)
+    refine = local_raise > 0
+    if refine:
+        side = local_grid_side(max_range_m)
+        local_min[:side * side] = np.inf
+        candidates = np.empty(z.shape[0], np.int32)
+    n_candidates = 0
     for i in range(z.shape[0]):
         kind[i] = IGNORED
         cell = cells[i]
@@ -127,12 +167,45 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
             height[i] = np.nan
         if cell >= 0:
             d = (z[i] + sensor_height) - ground[cell]
+            if refine and d < local_raise:  # near the coarse ground: may be a block's lowest
+                at = _local_cell(x[i], y[i], max_range_m, side)
+                local_min[at] = min(local_min[at], z[i] + sensor_height)
             if d < threshold:
                 kind[i] = GROUND
             elif d <= max_height:
                 kind[i] = OBSTACLE
                 if heights:
                     height[i] = d
+                if refine and d < threshold + local_raise:
+                    candidates[n_candidates] = i
+                    n_candidates += 1
+    for k in range(n_candidates):
+        i = candidates[k]
+        at = _local_cell(x[i], y[i], max_range_m, side)
+        h = z[i] + sensor_height
+        base = ground[cells[i]]
+        lowest = np.float32(np.inf)
+        for dr in range(-LOCAL_CELLS, LOCAL_CELLS + 1):
+            for dc in range(-LOCAL_CELLS, LOCAL_CELLS + 1):
+                lowest = min(lowest, local_min[at + dr * side + dc])
+        if lowest == np.inf:
+            continue  # no return near the coarse ground in the block: the estimate stands
+        d = h - max(lowest, base)
+        if d < threshold:
+            kind[i] = GROUND
+            if heights:
+                height[i] = np.nan
+        elif heights:
+            height[i] = d
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _local_cell(x: np.float32, y: np.float32, max_range_m: float, side: int) -> int:
+    """Flat index of the step-5 grid cell holding the offset ``(x, y)`` (|x|, |y| <
+    ``max_range_m``: a kept point)."""
+    inv = np.float32(1.0 / LOCAL_CELL_M)
+    half = np.float32(max_range_m) * inv + np.float32(LOCAL_CELLS)
+    return int(y * inv + half) * side + int(x * inv + half)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

@@ -29,6 +29,7 @@ class SensorParams:
     free_margin_m: float = 0.0
     free_erosion_m: float = 0.0
     ground_fallback: str = "prior"
+    ground_local_raise_m: float = 0.0
 
     @staticmethod
     def from_config(sensor: Mapping[str, Any], cell_size_m: float) -> SensorParams:
@@ -46,4 +47,5 @@ class SensorParams:
             free_margin_m=float(sensor["free_margin_m"]),
             free_erosion_m=float(sensor["free_erosion_m"]),
             ground_fallback=str(sensor["ground_fallback"]),
+            ground_local_raise_m=float(sensor["ground_local_raise_m"]),
         )
