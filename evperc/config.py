@@ -93,6 +93,7 @@ RULES: dict[str, tuple] = {
     "objects.moving_speed_m_per_s": ("range", 0.0, 100.0, False, False),
     "objects.motion_test": ("range", 0.0, 1e6, False, False),
     "objects.centroid_sigma_m": ("range", 0.0, 100.0, True, False),
+    "objects.centroid_sigma_per_m": ("range", 0.0, 1.0, False, False),
     "objects.seeds": ("choice", "occupied", "moving"),
     "objects.cluster_on": ("choice", "first_returns", "all_returns", "all_returns_join"),
     "objects.motion_evidence_frames": ("range", 0, 10_000, False, False),

@@ -184,3 +184,10 @@ def test_the_local_ground_step_is_validated(tmp_path: Path) -> None:
         load_config(write(tmp_path, '[sensor]\nground_local_raise_m = "high"\n'))
     assert load_config(write(tmp_path, "[sensor]\nground_local_raise_m = 0.3\n"))[
         "sensor"]["ground_local_raise_m"] == 0.3
+
+
+def test_the_range_dependent_centroid_noise_is_validated(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"objects.centroid_sigma_per_m = -0.01 is outside"):
+        load_config(write(tmp_path, "[objects]\ncentroid_sigma_per_m = -0.01\n"))
+    assert load_config(write(tmp_path, "[objects]\ncentroid_sigma_per_m = 0.02\n"))[
+        "objects"]["centroid_sigma_per_m"] == 0.02

@@ -94,6 +94,9 @@ class TrackingParams:
     #: objects.arrival_share: a frame in which at least this share of the cluster's cells is
     #: decided moving is the whole evidence at once (0: off; :func:`track_step`)
     arrival_share: float = 0.0
+    #: objects.centroid_sigma_per_m: the centroid noise floor grows with the object's range r
+    #: from the ego (the window's centre cell): σ₀ = max(centroid_sigma_m, this · r); 0 = off
+    centroid_sigma_per_m: float = 0.0
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> TrackingParams:
@@ -109,7 +112,8 @@ class TrackingParams:
             conflict_cells=int(o["conflict_cells"]), vacated_frames=int(o["vacated_frames"]),
             vacated_share=float(o["vacated_share"]),
             evidence_every_frame=bool(o.get("evidence_every_frame", False)),
-            arrival_share=float(o.get("arrival_share", 0.0)))
+            arrival_share=float(o.get("arrival_share", 0.0)),
+            centroid_sigma_per_m=float(o.get("centroid_sigma_per_m", 0.0)))
 
 
 @dataclass
@@ -550,8 +554,8 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                   fp, evidence, past_n, past, dt, cells, offsets, centroid, seeds, row0,
                   col0, rows, cols, decision, has_decision, stamp_ns, next_id, gate,
                   history, confirm, max_missed, speed2_min, motion_test, sigma0, need,
-                  conflict_cells, vacated_frames, share_min, every_frame, arrival_share
-                  ):  # pragma: no cover - compiled
+                  conflict_cells, vacated_frames, share_min, every_frame, arrival_share,
+                  sigma_per_m, centre_x, centre_y):  # pragma: no cover - compiled
     """One frame of the tracker (:func:`track_step`, the module docstring) on the state's
     arrays; returns the new arrays, the next id, and the reported (track row, cluster)."""
     n_old = ids.shape[0]
@@ -714,7 +718,11 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                     t_row[q] = 0.0
                     x_row[q] = 0.0
                     y_row[q] = 0.0
-            vx, vy, sg = _fit(t_row, x_row, y_row, m_new, sigma0, scratch)
+            s0 = sigma0
+            if sigma_per_m > 0:
+                s0 = max(sigma0, sigma_per_m * math.hypot(centroid[c, 0] - centre_x,
+                                                          centroid[c, 1] - centre_y))
+            vx, vy, sg = _fit(t_row, x_row, y_row, m_new, s0, scratch)
             o_velocity[j, 0] = vx
             o_velocity[j, 1] = vy
             o_sigma[j] = sg
@@ -824,6 +832,14 @@ def _fill_records(rows, cl, ids, flags, hits, velocity, sigma, cells, offsets, c
 _NO_DECISION = np.zeros(0, np.uint8)
 
 
+def ego_cell_centre(window: Window) -> tuple[float, float]:
+    """(x, y) m of the centre of the window's centre cell, the one that holds the ego
+    (:meth:`~evperc.geo.window.Window.centred_on`): the origin of the range in
+    ``objects.centroid_sigma_per_m``."""
+    return ((window.col0 + window.cols // 2 + 0.5) * window.resolution_m,
+            (window.row0 + window.rows // 2 + 0.5) * window.resolution_m)
+
+
 def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns: int,
                params: TrackingParams, decision: np.ndarray | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -860,7 +876,8 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
         float(params.motion_test), float(params.centroid_sigma_m),
         int(params.motion_evidence_frames), int(params.conflict_cells),
         int(params.vacated_frames), float(params.vacated_share),
-        bool(params.evidence_every_frame), float(params.arrival_share))
+        bool(params.evidence_every_frame), float(params.arrival_share),
+        float(params.centroid_sigma_per_m), *ego_cell_centre(window))
     (state.id, state.hits, state.missed, state.flags, state.hist_n, state.hist_t,
      state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
      state.past_n, state.past, state.next_id, rows, cl) = out

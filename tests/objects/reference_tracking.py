@@ -115,8 +115,8 @@ def velocity_fit(t_s: Sequence[float], xy: Sequence[Sequence[float]], sigma0: fl
     return (vx, vy), math.sqrt(var / s)
 
 
-def velocity_fits(t_s: np.ndarray, xy: np.ndarray, count: np.ndarray, sigma0: float
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def velocity_fits(t_s: np.ndarray, xy: np.ndarray, count: np.ndarray,
+                  sigma0: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`velocity_fit` of many tracks at once: ``t_s`` (n, H) and ``xy`` (n, H, 2), of
     which the first ``count[i]`` columns of row i are the track's (the rest ignored);
     returns v (n, 2) and the standard deviation (n,), ``inf`` (and v = 0) where count < 2 or
@@ -358,7 +358,16 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
         hist_t[k, :m] = [(ns - stamp_ns) * 1e-9 for ns in t.t_ns]
         hist_xy[k, :m] = t.xy
     # one vectorised fit for the frame's tracks (velocity_fit is its per-track reference)
-    fit_v, fit_sigma = velocity_fits(hist_t, hist_xy, count, params.centroid_sigma_m)
+    sigma0 = params.centroid_sigma_m
+    if params.centroid_sigma_per_m > 0:  # the noise floor grows with the range from the ego
+        # np.hypot is libm's, as numba's math.hypot (Python's own math.hypot rounds otherwise)
+        ex = (window.col0 + window.cols // 2 + 0.5) * window.resolution_m
+        ey = (window.row0 + window.rows // 2 + 0.5) * window.resolution_m
+        sigma0 = np.array([
+            max(params.centroid_sigma_m, params.centroid_sigma_per_m * np.hypot(
+                float(clusters.centroid_m[c, 0]) - ex, float(clusters.centroid_m[c, 1]) - ey))
+            for _, _, c in associated], np.float64)
+    fit_v, fit_sigma = velocity_fits(hist_t, hist_xy, count, sigma0)
     fit_of = {i: k for k, (i, _, _) in enumerate(associated)}
     for i, t in enumerate(tracks):
         c = of_track.get(i)

@@ -193,3 +193,25 @@ def test_vectorised_fits_equal_the_per_track_fit():
             assert math.isinf(sigma[i])
         else:
             assert sigma[i] == pytest.approx(ref_sigma, rel=1e-9)
+
+
+def test_the_noise_floor_grows_with_the_range_from_the_ego():
+    """objects.centroid_sigma_per_m: σ₀ = max(centroid_sigma_m, k · r), r from the centre of
+    the window's centre cell — here (rows 20, cols 60, origin 0): x = (30 + 0.5) · 0.5 =
+    15.25, y = (10 + 0.5) · 0.5 = 5.25. The block of the test above at frame 2: centroid
+    (x, y) = (6.75, 3.0) (cols 12..14, rows 5..6), r = hypot(8.5, 2.25) = 8.793 m."""
+    k = 0.05  # σ₀ = 0.440 m: s = 0.440 / sqrt(0.02) = 3.11 m/s, |v|²/s² = 25 / 9.67 = 2.6 < 4
+    run = Run(TrackingParams(centroid_sigma_per_m=k))
+    reported = [run.step(_frame([(5, 10 + j)]))[0] for j in range(10)]
+    r2 = reported[2]
+    assert len(r2) == 0  # confirmed but not moving yet, never moved: not reported
+    # frame 3: n = 4, S = 0.05, x = 7.25, r = hypot(8.0, 2.25) = 8.310, σ₀ = 0.416:
+    # s = 1.858, |v|²/s² = 7.24 >= 4: moving
+    r3 = reported[3]
+    assert len(r3) == 1 and r3["state"][0] == OBJECT_STATES["moving"]
+    sigma3 = k * math.hypot(15.25 - 7.25, 2.25) / math.sqrt(0.05)
+    assert r3["speed_sigma_m_per_s"][0] == pytest.approx(sigma3, rel=1e-6)
+    # the floor wins where k · r is smaller: k = 0.01 gives 0.093 < 0.25, the test above
+    run = Run(TrackingParams(centroid_sigma_per_m=0.01))
+    reported = [run.step(_frame([(5, 10 + j)]))[0] for j in range(3)]
+    assert reported[2]["speed_sigma_m_per_s"][0] == pytest.approx(0.25 / math.sqrt(0.02))

@@ -76,7 +76,8 @@ def _params(rng: np.random.Generator) -> TrackingParams:
         vacated_frames=int(rng.integers(1, 5)),
         vacated_share=float(rng.choice([0.1, 0.3, 0.6])),
         evidence_every_frame=bool(rng.random() < 0.5),
-        arrival_share=float(rng.choice([0.0, 0.0, 0.3, 0.5, 1.0])))
+        arrival_share=float(rng.choice([0.0, 0.0, 0.3, 0.5, 1.0])),
+        centroid_sigma_per_m=float(rng.choice([0.0, 0.0, 0.01, 0.05])))
 
 
 def _assert_same_state(new: TrackerState, old: ref.TrackerState) -> None:
