@@ -26,12 +26,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 import evperc  # noqa: E402
-from evperc.eval.semantickitti import (  # noqa: E402
-    IGNORED_CLASSES,
-    MOVING_CLASSES,
-    MOVING_LABEL,
-    read_label_file,
-)
+from evperc.eval.semantickitti import point_masks, read_label_file  # noqa: E402
 from evperc.fusion.twin import DECISION_CODES  # noqa: E402
 from evperc.output.objects import moving_object_cells  # noqa: E402
 
@@ -53,8 +48,8 @@ def false_points(run: Path, seq: Path, warmup: int) -> tuple[collections.Counter
         points = np.fromfile(seq / "velodyne" / (path.stem + ".bin"), np.float32).reshape(-1, 4)
         # the scorer's own reading (evperc.eval.semantickitti.confusion): said moving,
         # labelled, not moving
-        said = (predicted == MOVING_LABEL) | np.isin(predicted, MOVING_CLASSES)
-        false = said & ~np.isin(truth, IGNORED_CLASSES) & ~np.isin(truth, MOVING_CLASSES)
+        said, labelled, moving = point_masks(predicted, truth)
+        false = said & labelled & ~moving
         for c, n in zip(*np.unique(truth[false], return_counts=True), strict=True):
             classes[CLASSES.get(int(c), str(int(c)))] += int(n)
         p = points[false]

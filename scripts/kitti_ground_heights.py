@@ -28,12 +28,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from evperc.config import load_config  # noqa: E402
-from evperc.eval.semantickitti import (  # noqa: E402
-    IGNORED_CLASSES,
-    MOVING_CLASSES,
-    MOVING_LABEL,
-    read_label_file,
-)
+from evperc.eval.semantickitti import point_masks, read_label_file  # noqa: E402
 from evperc.logs.kitti import KittiLog  # noqa: E402
 from evperc.sensor.beams import PolarLayout, level_points, polar_bins, sensor_heading  # noqa: E402
 from evperc.sensor.ground import OBSTACLE, classify_points, histogram_shape  # noqa: E402
@@ -107,9 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         if scan.source_index is not None:
             predicted, truth = predicted[scan.source_index], truth[scan.source_index]
         x, y, h, kind, d, kept = split(scan.points, scan.T_world_sensor, params)
-        said = (predicted == MOVING_LABEL) | np.isin(predicted, MOVING_CLASSES)
-        labelled = ~np.isin(truth, IGNORED_CLASSES)
-        moving = np.isin(truth, MOVING_CLASSES)
+        said, labelled, moving = point_masks(predicted, truth)
         static_obstacles = np.flatnonzero(labelled & ~moving & (kind == OBSTACLE))
         chosen = {"false moving": np.flatnonzero(said & labelled & ~moving),
                   "moving obstacles": np.flatnonzero(moving & (kind == OBSTACLE)),

@@ -50,13 +50,20 @@ def read_label_file(path: Path) -> np.ndarray:
     return np.frombuffer(data, "<u4")
 
 
+def point_masks(pred: np.ndarray, truth: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per point of one scan (bool): ``said`` moving by the run (the moving label or a
+    moving class), ``labelled`` (not an ignored class) and truly ``moving`` (module doc);
+    instance ids (the upper 16 bits) are dropped."""
+    cls = truth & 0xFFFF
+    p = pred & 0xFFFF
+    return ((p == MOVING_LABEL) | np.isin(p, MOVING_CLASSES), ~np.isin(cls, IGNORED_CLASSES),
+            np.isin(cls, MOVING_CLASSES))
+
+
 def confusion(pred: np.ndarray, truth: np.ndarray) -> dict[str, int]:
     """Moving-class counts ``tp, fp, fn, tn`` and ``ignored`` of one scan (module doc)."""
-    cls = truth & 0xFFFF
-    labelled = ~np.isin(cls, IGNORED_CLASSES)
-    moving = np.isin(cls, MOVING_CLASSES)
-    p = pred & 0xFFFF
-    said = (p == MOVING_LABEL) | np.isin(p, MOVING_CLASSES)
+    said, labelled, moving = point_masks(pred, truth)
     tp = int((said & moving).sum())
     fp = int((said & labelled & ~moving).sum())
     fn = int((~said & moving).sum())
