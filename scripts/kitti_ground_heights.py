@@ -53,15 +53,16 @@ def split(points: np.ndarray, pose: np.ndarray, params: SensorParams):
                np.float32(params.min_range_m), np.float32(params.max_range_m),
                layout.inv_range_bin32, az_bin, range_bin)
     hist = np.empty(math.prod(histogram_shape(layout.max_range_m)), np.int32)
-    kind, d = np.empty(n, np.uint8), np.empty(n, np.float32)
+    kind, every, d = np.empty(n, np.uint8), np.empty(n, np.uint8), np.empty(n, np.float32)
+    scan_fallback = params.ground_fallback == "scan"
+    classify_points(z, r, az_bin, layout.n_az, layout.max_range_m, False,
+                    np.float32(params.sensor_height_m), np.float32(params.ground_threshold_m),
+                    np.float32(params.max_obstacle_height_m), hist, kind, scan_fallback)
     # threshold -10 m: every kept point an obstacle, so d is every point's coarse height
     classify_points(z, r, az_bin, layout.n_az, layout.max_range_m, False,
                     np.float32(params.sensor_height_m), np.float32(-10.0), np.float32(100.0),
-                    hist, kind, params.ground_fallback == "scan", d)
-    coarse_kind = np.where(az_bin < 0, 0, np.where(d < params.ground_threshold_m, 1,
-                                                   np.where(d <= params.max_obstacle_height_m,
-                                                            OBSTACLE, 0)))
-    return x, y, z + np.float32(params.sensor_height_m), coarse_kind, d, az_bin >= 0
+                    hist, every, scan_fallback, d)
+    return x, y, z + np.float32(params.sensor_height_m), kind, d, az_bin >= 0
 
 
 def local_heights(x, y, h, kept, index) -> np.ndarray:
