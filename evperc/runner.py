@@ -357,7 +357,7 @@ class Pipeline:
                            if self.objects is not None else "first_returns")
         self.cluster_all_returns = self.cluster_on != "first_returns"
         #: objects.moving_min_height_m: the sensor grid also gives each cell's highest return
-        self.top_heights = self.objects is not None and self.objects.moving_min_height > 0
+        self.top_heights = self.objects is not None and self.objects.needs_heights
         self.unmapped = (UnmappedCue(UnmappedParams.from_config(config), probe.shape,
                                      self.resolution) if unmapped_enabled(config) else None)
         self._warm_up()

@@ -24,6 +24,12 @@ bounding box is at most ``max_extent_m`` on each side (a false seed at a wall gr
 the wall, far beyond any vehicle); with ``keep_tracked_small``, a cluster grown from a cell
 that a track which has moved held in the previous frame is kept whatever its size (the
 track has shown it is an object: a car seen through a gap, a pedestrian of one cell).
+With ``isolated_min_cells`` > 0, a cluster of at least that many cells but fewer than
+``min_cells`` is kept too when it is *isolated*: no cell within ``isolated_clearance_m``
+(Chebyshev, centre to centre) of one of its cells, outside it, is decided ``static``,
+``stopped``, ``unmapped`` or ``infrastructure``. A walking person is 1–3 cells off every
+remembered obstacle; a small group at the edge of a remembered one is its spill (a return
+of a façade, a parked car or a pole in the cell beside the ones it usually hits).
 
 The growth is one compiled pass (numba): a scan of the window for seeds, then a flood fill
 from each seed not yet in a cluster, touching only the clusters' cells and their
@@ -31,6 +37,7 @@ neighbours; the scratch marks are cleared cell by cell afterwards."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -63,6 +70,17 @@ class ClusterParams:
     #: objects.keep_tracked_small: a cluster grown from an extra seed (a cell a track that
     #: has moved held in the previous frame) is kept whatever its size
     keep_tracked_small: bool = False
+    #: objects.isolated_min_cells: a cluster of at least this many cells but fewer than
+    #: min_cells is kept when isolated (module docstring); 0 = off
+    isolated_min_cells: int = 0
+    #: objects.isolated_clearance_m: how far (m, Chebyshev, cell centre to centre) from an
+    #: isolated cluster's cells no cell may be decided static, stopped, unmapped or
+    #: infrastructure
+    isolated_clearance_m: float = 1.0
+    #: objects.isolated_min_height_m: ... and whose highest return within one cell is at
+    #: least this high above the local ground (a ground point the ground split called an
+    #: obstacle is no person); 0 = no height condition
+    isolated_min_height_m: float = 0.0
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> ClusterParams:
@@ -71,7 +89,10 @@ class ClusterParams:
                              max_extent_m=float(o["max_cluster_extent_m"]),
                              seed_conflict_fo=float(o["seed_conflict_fo"]),
                              seeds=str(o["seeds"]),
-                             keep_tracked_small=bool(o.get("keep_tracked_small", False)))
+                             keep_tracked_small=bool(o.get("keep_tracked_small", False)),
+                             isolated_min_cells=int(o.get("isolated_min_cells", 0)),
+                             isolated_clearance_m=float(o.get("isolated_clearance_m", 1.0)),
+                             isolated_min_height_m=float(o.get("isolated_min_height_m", 0.0)))
 
 
 @dataclass(frozen=True)
@@ -100,6 +121,11 @@ def _grow_lut() -> np.ndarray:
 
 
 _GROWS = _grow_lut()
+#: decisions that make a small cluster next to them spill, not an isolated object
+STILL = ("static", "stopped", "unmapped", "infrastructure")
+_STILL = np.zeros(256, np.bool_)
+_STILL[[DECISION_CODES[n] for n in STILL]] = True
+_NO_HEIGHTS = np.zeros((0, 0), np.float32)
 _MOVING = DECISION_CODES["moving"]
 _UNKNOWN = DECISION_CODES["unknown"]
 #: ``now`` value of a cell holding only returns behind the first one of their azimuth bin
@@ -247,20 +273,67 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_
 
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def block_max_at(layer: np.ndarray, cells: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """The largest value of the 3 × 3 block of each of ``cells`` (flat indices of
+    ``layer``; neighbours outside the grid left out): a cell the sensor model marks
+    occupied holds the return that made it or lies next to it (a polar cell spans about a
+    window cell). Compiled: a few hundred cells a frame, where numpy's per-call cost
+    dominated (0.37 ms a frame of workload (a))."""
+    rows, cols = layer.shape
+    out = np.empty(cells.shape[0], np.float32)
+    for k in range(cells.shape[0]):
+        r, c = divmod(cells[k], cols)
+        top = -np.inf
+        for rr in range(max(r - 1, 0), min(r + 2, rows)):
+            for cc in range(max(c - 1, 0), min(c + 2, cols)):
+                top = max(top, layer[rr, cc])
+        out[k] = top
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _isolated(cells, decision, cols, reach, still, heights, min_height
+              ):  # pragma: no cover - compiled
+    """Whether no cell within ``reach`` cells (Chebyshev) of one of ``cells`` (a small
+    cluster's flat window cells), other than ``cells`` themselves, is decided ``still``,
+    and (``heights`` not empty) the highest return within one cell of them
+    (:func:`block_max_at`) is at least ``min_height`` above the ground."""
+    if heights.size > 0 and block_max_at(heights, cells).max() < min_height:
+        return False
+    rows = decision.shape[0] // cols
+    for i in cells:
+        r = i // cols
+        c = i - r * cols
+        for rr in range(max(r - reach, 0), min(r + reach + 1, rows)):
+            for cc in range(max(c - reach, 0), min(c + reach + 1, cols)):
+                j = rr * cols + cc
+                if still[decision[j]] and not (cells == j).any():
+                    return False
+    return True
+
+
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_extent,
-               tracked):  # pragma: no cover - compiled
+               tracked, iso_min, decision, cols, reach, still, heights, min_height
+               ):  # pragma: no cover - compiled
     """The kept clusters of :func:`_flood`'s ``n`` (:class:`Clusters`' arrays, the
     formulas of :meth:`Clusterer.clusters` op for op): at least ``min_cells`` cells (or
-    ``tracked[k]``, if ``tracked`` is not empty) and a bounding box at most ``max_extent``
-    (m, slack included) on each side."""
+    ``tracked[k]``, if ``tracked`` is not empty, or at least ``iso_min`` > 0 cells and
+    :func:`_isolated` within ``reach`` cells of ``decision``) and a bounding box at most
+    ``max_extent`` (m, slack included) on each side."""
     keep = np.zeros(n, np.bool_)
     n_kept = 0
     n_cells = 0
+    first = 0
     for k in range(n):
         count = stats[k, 0]
         span_r = (stats[k, 5] - stats[k, 4] + 1) * res
         span_c = (stats[k, 7] - stats[k, 6] + 1) * res
         big_enough = count >= min_cells or (tracked.shape[0] > 0 and tracked[k])
+        if not big_enough and 0 < iso_min <= count:
+            big_enough = _isolated(all_cells[first:first + count], decision, cols, reach,
+                                   still, heights, min_height)
+        first += count
         if big_enough and span_r <= max_extent and span_c <= max_extent:
             keep[k] = True
             n_kept += 1
@@ -297,6 +370,12 @@ def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_e
     return cells, offsets, centroid, bbox, seeds, mean_m
 
 
+def isolated_reach(clearance_m: float, resolution_m: float) -> int:
+    """``objects.isolated_clearance_m`` in cells: the Chebyshev distances d (cells, centre
+    to centre) with d · resolution ≤ clearance (1.0 m at 0.5 m cells: 2)."""
+    return int(math.floor(clearance_m / resolution_m + 1e-9))
+
+
 def tracked_clusters(first_cells: np.ndarray, extra_seeds: np.ndarray) -> np.ndarray:
     """(n,) bool: the clusters grown from an extra seed. The extra seeds are grown first, so
     a cluster holds a (growable) extra seed exactly when its first cell is one."""
@@ -323,16 +402,22 @@ class Clusterer:
 
     def clusters(self, decision: np.ndarray, betp_moving: np.ndarray, conflict_fo: np.ndarray,
                  window: Window, extra_seeds: np.ndarray | None = None,
-                 occupied_now: np.ndarray | None = None) -> Clusters:
+                 occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None
+                 ) -> Clusters:
         """The kept clusters of one frame. ``decision`` (rows, cols) uint8 codes;
         ``betp_moving`` and ``conflict_fo``: betP(M) and ∅_FO as stored (uint8, ×255);
         ``extra_seeds``: flat window indices that seed too if occupied now (a track's
         cells of the previous frame); ``occupied_now``: (rows, cols) bool, the cells holding
-        a return of this scan (required with ``seeds = "occupied"``, unused otherwise)."""
+        a return of this scan (required with ``seeds = "occupied"``, unused otherwise);
+        ``heights``: (rows, cols) float32, each cell's highest return above the local ground
+        (``sensor_grid(heights_out=)``), for ``isolated_min_height_m`` (None: no height
+        condition)."""
         if decision.shape != self.shape:
             raise ValueError(f"window {decision.shape}, the clusterer's is {self.shape}")
         extra = (np.zeros(0, np.int64) if extra_seeds is None
                  else np.ascontiguousarray(extra_seeds, np.int64))
+        top = (_NO_HEIGHTS if heights is None or self.params.isolated_min_height_m <= 0
+               else np.ascontiguousarray(heights, np.float32))
         seed_all = self.params.seeds == "occupied"
         if seed_all:
             if occupied_now is None or occupied_now.shape != self.shape:
@@ -363,7 +448,11 @@ class Clusterer:
         return Clusters(*_summarise(self._cells, self._stats, n, betp_moving.reshape(-1),
                                     window.row0, window.col0, float(window.resolution_m),
                                     self.params.min_cells, self.params.max_extent_m + 1e-9,
-                                    tracked))
+                                    tracked, self.params.isolated_min_cells, flat,
+                                    self.shape[1],
+                                    isolated_reach(self.params.isolated_clearance_m,
+                                                   window.resolution_m), _STILL, top,
+                                    np.float32(self.params.isolated_min_height_m)))
 
     def groups(self) -> tuple[np.ndarray, np.ndarray]:
         """Every 8-connected group of the last :meth:`clusters` call, before the size and

@@ -17,7 +17,7 @@ import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
-from evperc.objects.clusters import Clusterer, ClusterParams
+from evperc.objects.clusters import Clusterer, ClusterParams, block_max_at
 from evperc.objects.tracking import TrackerState, TrackingParams, footprint_seeds, track_step
 
 MOVING = DECISION_CODES["moving"]
@@ -65,6 +65,15 @@ class ObjectStage:
         #: objects.moving_min_height_m: only the small groups whose highest return of the
         #: scan is lower than this above the local ground are listed; 0 = every small group
         self.moving_min_height = moving_min_height_m(config)
+        #: objects.isolated_min_height_m, where the isolated-cluster rule is on (else 0)
+        p = self.cluster_params
+        self.isolated_min_height = (p.isolated_min_height_m if p.isolated_min_cells > 0
+                                    else 0.0)
+
+    @property
+    def needs_heights(self) -> bool:
+        """Whether :meth:`step` uses the cells' highest returns (``heights``)."""
+        return self.moving_min_height > 0 or self.isolated_min_height > 0
 
     def step(self, state: TrackerState, decision: np.ndarray, betp_moving: np.ndarray,
              conflict_fo: np.ndarray, window: Window, stamp_ns: int,
@@ -77,7 +86,7 @@ class ObjectStage:
         ``objects.moving_min_height_m`` (None: no height condition)."""
         seeds = footprint_seeds(state, window)
         clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds,
-                                           occupied_now)
+                                           occupied_now, heights)
         self.list_small_moving(decision, heights)
         return track_step(state, clusters, window, stamp_ns, self.tracking_params, decision)
 
@@ -103,25 +112,6 @@ def fill_moving(decision: np.ndarray, moving_cells: np.ndarray) -> int:
     changed = int(np.count_nonzero(flat[moving_cells] != MOVING))
     flat[moving_cells] = MOVING
     return changed
-
-
-@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
-def block_max_at(layer: np.ndarray, cells: np.ndarray) -> np.ndarray:  # pragma: no cover
-    """The largest value of the 3 × 3 block of each of ``cells`` (flat indices of
-    ``layer``; neighbours outside the grid left out): a cell the sensor model marks
-    occupied holds the return that made it or lies next to it (a polar cell spans about a
-    window cell). Compiled: a few hundred cells a frame, where numpy's per-call cost
-    dominated (0.37 ms a frame of workload (a))."""
-    rows, cols = layer.shape
-    out = np.empty(cells.shape[0], np.float32)
-    for k in range(cells.shape[0]):
-        r, c = divmod(cells[k], cols)
-        top = -np.inf
-        for rr in range(max(r - 1, 0), min(r + 2, rows)):
-            for cc in range(max(c - 1, 0), min(c + 2, cols)):
-                top = max(top, layer[rr, cc])
-        out[k] = top
-    return out
 
 
 def small_moving_cells(group_cells: np.ndarray, sizes: np.ndarray, decision: np.ndarray,

@@ -219,6 +219,19 @@ class Clusterer:
         big_enough = count >= self.params.min_cells
         if self.params.keep_tracked_small and len(extra):
             big_enough |= tracked_clusters(self._cells[offsets[:-1]], extra)
+        iso = self.params.isolated_min_cells
+        if iso > 0:  # added with objects.isolated_min_cells (not in d379f5e): per cluster
+            reach = int(np.floor(self.params.isolated_clearance_m / window.resolution_m + 1e-9))
+            still = np.isin(decision, [DECISION_CODES[n] for n in
+                                       ("static", "stopped", "unmapped", "infrastructure")])
+            for k in np.flatnonzero(~big_enough & (count >= iso)):
+                own = np.zeros(self.shape, bool).reshape(-1)
+                own[self._cells[offsets[k]:offsets[k + 1]]] = True
+                own = own.reshape(self.shape)
+                near = np.zeros(self.shape, bool)
+                for r, c in zip(*np.nonzero(own), strict=True):
+                    near[max(r - reach, 0):r + reach + 1, max(c - reach, 0):c + reach + 1] = True
+                big_enough[k] = not (near & still & ~own).any()
         keep = (big_enough & (span_r <= self.params.max_extent_m + 1e-9)
                 & (span_c <= self.params.max_extent_m + 1e-9))
         kept = np.flatnonzero(keep)

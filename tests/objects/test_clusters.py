@@ -115,3 +115,96 @@ def test_against_scipy_labelling_on_random_grids():
         expected = {frozenset(np.flatnonzero(labels.ravel() == k)) for k in seeded}
         found = {frozenset(c) for c in (got.cells_of(k) for k in range(len(got)))}
         assert found == expected
+
+
+def test_isolated_small_cluster_kept_unless_an_obstacle_is_within_the_clearance():
+    # a walking person: 2 cells decided moving at rows 5, cols 5-6, in the open (free /
+    # unknown around); min_cells 3 drops it, isolated_min_cells 2 keeps it
+    dec, betp_m, fo = _grids()
+    dec[5, 5:7] = D["moving"]
+    iso = ClusterParams(isolated_min_cells=2, isolated_clearance_m=1.0)  # 1.0 m = 2 cells
+    dec[0:2, :] = D["unknown"]
+    assert len(_cluster(dec, betp_m, fo)) == 0
+    c = _cluster(dec, betp_m, fo, iso)
+    assert len(c) == 1 and sorted(c.cells_of(0).tolist()) == [5 * 12 + 5, 5 * 12 + 6]
+    # a remembered obstacle 2 cells (1.0 m, centre to centre) below: spill, dropped
+    for code in ("static", "stopped", "unmapped", "infrastructure"):
+        d = dec.copy()
+        d[3, 8] = D[code]              # Chebyshev distance to (5, 6): max(2, 2) = 2
+        assert len(_cluster(d, betp_m, fo, iso)) == 0, code
+    # 3 cells away (1.5 m): beyond the clearance, kept; and within 1.5 m, dropped
+    d = dec.copy()
+    d[2, 6] = D["static"]              # distance 3
+    assert len(_cluster(d, betp_m, fo, iso)) == 1
+    assert len(_cluster(d, betp_m, fo, ClusterParams(isolated_min_cells=2,
+                                                     isolated_clearance_m=1.5))) == 0
+    # one cell is under isolated_min_cells = 2; isolated_min_cells = 1 keeps it
+    d = dec.copy()
+    d[5, 6] = D["free"]
+    assert len(_cluster(d, betp_m, fo, iso)) == 0
+    assert len(_cluster(d, betp_m, fo, ClusterParams(isolated_min_cells=1))) == 1
+
+
+def test_isolated_small_cluster_needs_a_return_above_the_height_bound():
+    dec, betp_m, fo = _grids()
+    dec[5, 5:7] = D["moving"]
+    now = np.zeros(dec.shape, bool)
+    heights = np.full(dec.shape, -np.inf, np.float32)   # no return
+    heights[5, 5:7] = 0.35                              # ground points 0.35 m up
+    params = ClusterParams(isolated_min_cells=2, isolated_min_height_m=0.4)
+    clusterer = Clusterer(params, dec.shape)
+    assert len(clusterer.clusters(dec, betp_m, fo, WIN, None, now, heights)) == 0
+    assert len(clusterer.clusters(dec, betp_m, fo, WIN, None, now, None)) == 1  # no heights
+    heights[4, 7] = 0.4               # a return at the bound, diagonal to (5, 6): kept
+    assert len(clusterer.clusters(dec, betp_m, fo, WIN, None, now, heights)) == 1
+    heights[4, 7] = 1.2
+    heights[5, 5:7] = 0.1
+    dec[5, 7] = D["static"]           # 3 cells: the size test, no height condition
+    heights[4, 7] = 0.0
+    assert len(clusterer.clusters(dec, betp_m, fo, WIN, None, now, heights)) == 1
+
+
+def test_isolated_clusters_against_scipy_labelling_and_dilation():
+    """The kept clusters of a random grid against an independent computation: scipy's
+    8-connected components of the occupied decisions seeded by a moving cell, kept if
+    they have min_cells cells, or isolated_min_cells, no still decision (static,
+    stopped, unmapped, infrastructure) outside them in their dilation by a
+    (2 reach + 1)-square, and a 3 × 3 maximum filter of the heights reaching the height
+    bound on one of their cells."""
+    ndimage = pytest.importorskip("scipy.ndimage")
+    rng = np.random.default_rng(11)
+    codes = np.array([D["free"], D["unknown"], D["moving"], D["static"], D["stopped"],
+                      D["infrastructure"], D["unmapped"]], np.uint8)
+    still = [D["static"], D["stopped"], D["unmapped"], D["infrastructure"]]
+    kept_small = 0
+    for trial in range(30):
+        dec = codes[rng.choice(7, size=(40, 50), p=[.6, .2, .06, .06, .03, .03, .02])]
+        z = np.zeros_like(dec)
+        res = float(rng.choice([0.2, 0.5]))
+        clearance = float(rng.choice([0.5, 1.0, 1.5]))
+        iso = int(rng.integers(1, 3))
+        w = Window(res, 40, 50, 0, 0)
+        heights = rng.uniform(-0.5, 1.0, dec.shape).astype(np.float32)
+        min_height = float(rng.choice([0.0, 0.4, 0.8]))
+        got = Clusterer(ClusterParams(min_cells=3, max_extent_m=1e3, isolated_min_cells=iso,
+                                      isolated_clearance_m=clearance,
+                                      isolated_min_height_m=min_height), dec.shape).clusters(
+            dec, z, z, w, None, None, heights)
+        top = ndimage.maximum_filter(heights, size=3, mode="constant", cval=-np.inf)
+        occupied = np.isin(dec, [D["moving"], D["static"], D["stopped"], D["unmapped"]])
+        labels, _ = ndimage.label(occupied, structure=np.ones((3, 3)))
+        reach = int(round(clearance / res))   # the test's values divide exactly
+        box = np.ones((2 * reach + 1, 2 * reach + 1), bool)
+        expected = set()
+        for k in np.unique(labels[dec == D["moving"]]):
+            own = labels == k
+            size = int(own.sum())
+            near = ndimage.binary_dilation(own, structure=box)
+            alone = not (near & ~own & np.isin(dec, still)).any()
+            alone &= min_height <= 0 or bool(top[own].max() >= np.float32(min_height))
+            if size >= 3 or (size >= iso and alone):
+                expected.add(frozenset(np.flatnonzero(own.ravel())))
+                kept_small += size < 3
+        found = {frozenset(c) for c in (got.cells_of(k) for k in range(len(got)))}
+        assert found == expected, trial
+    assert kept_small > 10  # the rule was exercised, not only the size test

@@ -39,7 +39,9 @@ def test_clusters_equal_the_reference(seed: int) -> None:
                                max_extent_m=float(rng.choice([1.0, 3.0, 20.0])),
                                seed_conflict_fo=float(rng.choice([0.0, 0.3, 0.8])),
                                seeds=seeds_mode,
-                               keep_tracked_small=bool(rng.random() < 0.5))
+                               keep_tracked_small=bool(rng.random() < 0.5),
+                               isolated_min_cells=int(rng.choice([0, 1, 2, 3])),
+                               isolated_clearance_m=float(rng.choice([0.3, 0.5, 1.0, 2.0])))
         new = Clusterer(params, shape)
         old = ref_clusters.Clusterer(ref_clusters.ClusterParams(**params.__dict__), shape)
         for _ in range(5):

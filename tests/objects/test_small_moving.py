@@ -134,3 +134,16 @@ def test_block_max_at_is_the_largest_of_each_cells_3x3_block() -> None:
             block = layer[max(r - 1, 0):r + 2, max(c - 1, 0):c + 2]
             assert got[k] == block.max()
     assert block_max_at(layer, np.zeros(0, np.int64)).size == 0
+
+
+def test_the_stage_asks_for_heights_for_either_height_bound():
+    """The run computes each cell's highest return (``sensor_grid(heights_out=)``) when
+    the small-group rule or the isolated-cluster rule has a height bound, not otherwise."""
+    def needs(**overrides):
+        keys = {f"objects.{k}": v for k, v in overrides.items()}
+        return ObjectStage(load_config(overrides=keys), (4, 4)).needs_heights
+    assert needs()                                                      # the defaults: both
+    assert needs(moving_min_cluster_cells=0)                            # isolated only
+    assert needs(isolated_min_cells=0)                                  # small groups only
+    assert not needs(moving_min_cluster_cells=0, isolated_min_height_m=0.0)
+    assert not needs(moving_min_cluster_cells=0, isolated_min_cells=0)
