@@ -356,7 +356,8 @@ class Pipeline:
         self.cluster_on = (config["objects"].get("cluster_on", "first_returns")
                            if self.objects is not None else "first_returns")
         self.cluster_all_returns = self.cluster_on != "first_returns"
-        #: objects.moving_min_height_m: the sensor grid also gives each cell's highest return
+        #: objects.moving_min_height_m / isolated_min_height_m: the sensor grid also gives
+        #: each cell's highest return
         self.top_heights = self.objects is not None and self.objects.needs_heights
         self.unmapped = (UnmappedCue(UnmappedParams.from_config(config), probe.shape,
                                      self.resolution) if unmapped_enabled(config) else None)

@@ -83,7 +83,8 @@ class ObjectStage:
         is updated in place. ``occupied_now``: (rows, cols) bool, the cells holding a
         return of this scan; ``heights``: (rows, cols) float32, each cell's highest return
         above the local ground (``sensor_grid(heights_out=)``), for
-        ``objects.moving_min_height_m`` (None: no height condition)."""
+        ``objects.moving_min_height_m`` and ``isolated_min_height_m`` (None: no height
+        condition)."""
         seeds = footprint_seeds(state, window)
         clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds,
                                            occupied_now, heights)
