@@ -126,7 +126,10 @@ def small_moving_cells(group_cells: np.ndarray, sizes: np.ndarray, decision: np.
     split called an obstacle, not a person."""
     use_heights = heights is not None
     top = heights if use_heights else _NO_HEIGHTS
-    return _small_moving(group_cells, sizes, decision.reshape(-1), int(min_cells),
+    # contiguous whatever the group count (a column of the clusterer's stats is contiguous
+    # only for 0 or 1 group): one compiled signature, loaded by the warm-up, not frame 1
+    return _small_moving(group_cells, np.ascontiguousarray(sizes), decision.reshape(-1),
+                         int(min_cells),
                          np.ascontiguousarray(top, np.float32), use_heights,
                          np.float32(min_height), MOVING)
 

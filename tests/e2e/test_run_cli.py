@@ -294,3 +294,39 @@ def test_warm_up_pays_the_first_frames_one_off_costs_and_changes_nothing(
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     hits = warm.rasteriser.stats["tile_hits"]
     assert hits > 0  # the first frame found its tiles ready
+
+
+def test_warm_up_loads_every_kernel_the_frame_loop_calls(tmp_path: Path,
+                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """Pipeline._warm_up (before the run's clock starts) calls each compiled pass with the
+    argument types of the frame loop, so no frame loads or compiles a kernel: no numba
+    function of evperc gains a signature during the run. A pass called with another array
+    layout (e.g. a strided column) than in the warm-up compiles a second version on the first
+    frame that meets it — 7 ms charged to the object stage of workload (a)'s first frame."""
+    import sys
+
+    from numba.core.registry import CPUDispatcher
+
+    from evperc.runner import Pipeline
+
+    def signatures() -> dict[str, int]:
+        return {f"{name}.{attr}": len(value.signatures)
+                for name, module in list(sys.modules.items()) if name.startswith("evperc")
+                for attr, value in vars(module).items() if isinstance(value, CPUDispatcher)}
+
+    after_warm_up: dict[str, int] = {}
+    warm_up = Pipeline._warm_up
+
+    def recording_warm_up(self: Pipeline) -> None:
+        warm_up(self)
+        after_warm_up.update(signatures())
+
+    monkeypatch.setattr(Pipeline, "_warm_up", recording_warm_up)
+    root = Path(__file__).resolve().parents[2] / "sample_data"
+    run(RunRequest(log_path=root / "drive.mcap", out_dir=tmp_path / "out",
+                   config=load_config(), map_path=root / "map.geojson", end_s=4.0),
+        progress=False)
+    assert after_warm_up  # the kernels were listed
+    gained = {name: count for name, count in signatures().items()
+              if count > after_warm_up.get(name, 0)}
+    assert not gained, f"compiled in the frame loop, not in the warm-up: {gained}"
