@@ -28,6 +28,7 @@ from evperc.geo.window import Window
 from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
+from evperc.objects.backfill import Backfill, HeldFrame, backfill_frames, candidates
 from evperc.objects.clusters import JOINS_ANY
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints
 from evperc.objects.footprint import warm_up as warm_up_footprints
@@ -351,6 +352,9 @@ class Pipeline:
         self.objects = (ObjectStage(config, probe.shape) if objects_enabled(config) else None)
         self.fill_moving = fills_decision(config)
         self.footprint = FootprintParams.from_config(config)
+        #: objects.backfill_frames: frames are handed to the output this many frames late,
+        #: with the tracks reported moving since filled in (evperc.objects.backfill); 0 = off
+        self.backfill_frames = backfill_frames(config)
         #: objects.cluster_on = "all_returns": clusters grow through the cells holding any
         #: obstacle return of the scan, not only those the sensor model marks occupied
         self.cluster_on = (config["objects"].get("cluster_on", "first_returns")
@@ -583,18 +587,33 @@ class Pipeline:
             self.unmapped.step(state.unmapped, out.decision, inputs.labels, dt_s,
                                moving_cells=moving_cells, offset=state.offset, shift=shift)
             clock.lap("unmapped")
+        frame["window"] = window
+        if inputs.labelling is not None:
+            scan = inputs.labelling[0]
+            frame["labelling"] = (*inputs.labelling, scan.number if scan.number is not None
+                                  else state.frames - 1)
+        if self.backfill_frames == 0:
+            self.finish_frame(state, frame, out)
+        return frame
+
+    def finish_frame(self, state: FusionState, frame: dict[str, Any], out: StoredOutputs
+                     ) -> None:
+        """The passes that read the frame's final decision (``out.decision``): its counts
+        (added to ``state.decision_counts``) and, with ``--point-labels``, the points' labels
+        (``frame["point_labels"]``). Run by :meth:`step`, or with ``objects.backfill_frames``
+        when the frame leaves the backfill (:func:`run`)."""
         # counted after every pass that changes the decision: the counts match the stored one
         frame["decision_counts"] = counts = count_codes(out.decision, len(state.decision_counts))
         state.decision_counts += counts
-        if inputs.labelling is not None:  # a separate pass over the points, after the step
-            scan, t_crs, kinds = inputs.labelling
+        window = frame.pop("window")
+        labelling = frame.pop("labelling", None)
+        if labelling is not None:  # a separate pass over the points, after the step
+            scan, t_crs, kinds, number = labelling
             labels = point_labels(scan.points, kinds, t_crs, window, out.decision,
                                   scan.source_count, scan.source_index,
                                   **self._object_reach(frame))
-            number = scan.number if scan.number is not None else state.frames - 1
             frame["point_labels"] = (number, labels)
-            clock.lap("point_labels")
-        return frame
+            self.clock.lap("point_labels")
 
     def _object_reach(self, frame: dict[str, Any]) -> dict[str, Any]:
         """The object-reach arguments of :func:`point_labels` for ``frame`` (its moving
@@ -660,12 +679,13 @@ def run(request: RunRequest, resume: bool = False,
     if not pipeline.warm_up_inputs() and not resume:
         raise nothing_fused(request, pipeline.reader.stats)
     if resume:
-        writer = RunWriter.resume(out_dir)
+        writer = RunWriter.resume(out_dir, hold_frames=pipeline.backfill_frames)
         done = writer.manifest["frame_count"]
         if done:
             state = FusionState.load(checkpoint_path(out_dir, done))
     else:
-        writer = RunWriter(out_dir, request.config, pipeline.meta(), overwrite=request.overwrite)
+        writer = RunWriter(out_dir, request.config, pipeline.meta(), overwrite=request.overwrite,
+                           hold_frames=pipeline.backfill_frames)
 
     def discard_if_empty() -> None:
         """A new run that fails before its manifest lists a frame leaves no output (there
@@ -680,12 +700,30 @@ def run(request: RunRequest, resume: bool = False,
     finishing = [False]  # the last chunk needs no checkpoint: close() completes the run
     every = int(request.config["output"].get("checkpoint_frames", 1))  # 1: runs before it
 
+    # objects.backfill_frames: a frame reaches the writer that many frames after it was
+    # fused, so the state of a chunk's checkpoint is taken when its last frame is fused
+    # (its decision counts when that frame is written); frames not yet written are not in
+    # it and are fused again on resume
+    backfill = (Backfill.from_config(request.config) if pipeline.backfill_frames > 0
+                else None)
+    snapshots: dict[int, FusionState] = {}
+    first_frame = state.frames  # the writer's chunks count from here (resume: a chunk end)
+
     def on_chunk(frames: int) -> Callable[[], None] | None:
-        if finishing[0] or frames - last_checkpoint[0] < every:
+        if backfill is not None:
+            taken = snapshots.pop(frames, None)
+            for stale in [n for n in snapshots if n < frames]:
+                del snapshots[stale]
+            if finishing[0] or taken is None:
+                return None
+            taken.decision_counts = state.decision_counts.copy()
+            snapshot, path = taken, checkpoint_path(out_dir, frames)
+        elif finishing[0] or frames - last_checkpoint[0] < every:
             return None
-        last_checkpoint[0] = frames
-        snapshot, path = state.snapshot(into=spare[0]), checkpoint_path(out_dir, frames)
-        spare[0] = snapshot
+        else:
+            last_checkpoint[0] = frames
+            snapshot, path = state.snapshot(into=spare[0]), checkpoint_path(out_dir, frames)
+            spare[0] = snapshot
 
         def commit() -> None:
             snapshot.save(path)
@@ -710,22 +748,66 @@ def run(request: RunRequest, resume: bool = False,
     bar = progress_bar(scans, total=pipeline.expected_frames(), desc=request.log_path.name,
                        initial=state.frames, enabled=progress)
     clock = pipeline.clock
+    # the held frames' layers: the writer's own slots where it can hold them (its ring of
+    # per-frame deflation), else buffers of their own copied into its slot when released
+    held_in_writer = backfill is not None and writer.can_hold
+    free_outputs: list[StoredOutputs] = []
+
+    def hand_over(frame: dict[str, Any], out: StoredOutputs) -> None:
+        """A finished frame to the point labels, ``on_frame`` and the writer."""
+        labelled = frame.pop("point_labels", None)
+        if labelled is not None:  # before the manifest counts the frame (resume redoes it)
+            write_labels(out_dir, *labelled)
+            clock.lap("point_labels")
+        if on_frame is not None:
+            on_frame({**frame, **frame_arrays(out)})
+            clock.lap("on_frame")
+        writer.commit_frame(**frame)
+        clock.lap("write")
+
+    def release(held: list[HeldFrame]) -> None:
+        """Frames leaving the backfill: their layers into the writer's slots, finished."""
+        for h in held:
+            frame, layers = h.payload
+            frame["objects"], frame["object_cells"] = h.objects, h.object_cells
+            if held_in_writer:
+                slot = layers  # the oldest slot held: the one commit_frame commits
+            else:
+                slot = writer.frame_slot()
+                layers.copy_to(slot)
+                free_outputs.append(layers)
+            pipeline.finish_frame(state, frame, slot)
+            hand_over(frame, slot)
+
     clock.restart()
     try:
         for index, inputs in bar:
-            out = writer.frame_slot()
+            if backfill is None:
+                out = writer.frame_slot()
+            elif held_in_writer:
+                out = writer.reserve_slot()
+            else:
+                out = (free_outputs.pop() if free_outputs
+                       else StoredOutputs.empty(tuple(state.pg.shape[1:])))
             frame = pipeline.step(state, inputs, out)
-            labelled = frame.pop("point_labels", None)
-            if labelled is not None:  # before the manifest counts the frame (resume redoes it)
-                write_labels(out_dir, *labelled)
-                clock.lap("point_labels")
             state.scan_index = index
             new_frames += 1
-            if on_frame is not None:
-                on_frame({**frame, **frame_arrays(out)})
-                clock.lap("on_frame")
-            writer.commit_frame(**frame)
-            clock.lap("write")
+            if backfill is None:
+                hand_over(frame, out)
+                continue
+            if ((state.frames - first_frame) % writer.chunk_frames == 0
+                    and state.frames - last_checkpoint[0] >= every):
+                last_checkpoint[0] = state.frames  # this frame ends a chunk that checkpoints
+                snapshots[state.frames] = state.snapshot()
+                clock.lap("write")  # the checkpoint's copy (the causal run's is in the write)
+            objects = frame["objects"]
+            released = backfill.push(HeldFrame(
+                frame["window"], out.decision, out.betp[4], objects, frame["object_cells"],
+                candidates(state.tracks, objects), payload=(frame, out)))
+            clock.lap("objects")
+            release(released)
+        if backfill is not None:  # the log's end: the frames still held
+            release(backfill.flush())
     except BaseException:
         writer.abort()
         discard_if_empty()

@@ -140,6 +140,11 @@ def _track_view(t: Any, window: Any) -> dict[str, Any]:
 
 
 def run_recorded(seq: Path, config: dict[str, Any], out_dir: Path) -> Recorder:
+    """The run of ``seq`` with its per-frame passes recorded, with
+    ``objects.backfill_frames`` = 0: the hooks collect a frame's passes in the order the
+    frame loop calls them, which the backfill changes (a frame's point labels come L frames
+    later); the reasons are those of the causal frame (docs/method.md §8 step 8)."""
+    config = {**config, "objects": {**config["objects"], "backfill_frames": 0}}
     rec = Recorder()
     saved = rec.install()
     try:

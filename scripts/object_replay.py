@@ -40,6 +40,7 @@ from evperc.eval.metrics import evaluate  # noqa: E402
 from evperc.fusion.twin import DECISION_CODES  # noqa: E402
 from evperc.geo.window import Window  # noqa: E402
 from evperc.objects import stage as stage_mod  # noqa: E402
+from evperc.objects.backfill import Backfill, HeldFrame, candidates  # noqa: E402
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints  # noqa: E402,E501
 from evperc.objects.stage import ObjectStage, fill_moving, unfill_small  # noqa: E402
 from evperc.objects.tracking import TrackerState  # noqa: E402
@@ -177,6 +178,7 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
     stored = {f.stamp_ns: f for f in run.frames}
     frames = []
     fill = stage_mod.fills_decision(config)
+    backfill = Backfill.from_config(config)
     for k in range(len(stamps)):
         window = Window(res, shape[0], shape[1], int(origins[k, 0]), int(origins[k, 1]))
         decision = decisions[k].copy()
@@ -200,10 +202,24 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
         if f is not None:  # the unmapped cue's cells, where the replay did not decide moving
             relabel = (np.asarray(f.decision) == _UNMAPPED) & (decision != _MOVING)
             decision[relabel] = _UNMAPPED
-        frames.append(ReplayFrame(k, int(stamps[k]), None if f is None else f.pose,
-                                  (int(origins[k, 0]), int(origins[k, 1])), decision, objects,
-                                  cells))
+        frame = ReplayFrame(k, int(stamps[k]), None if f is None else f.pose,
+                            (int(origins[k, 0]), int(origins[k, 1])), decision, objects, cells)
+        if backfill.frames > 0:  # the frames L behind, with the moving tracks filled in
+            frames.extend(_released(backfill.push(HeldFrame(
+                window, decision, betps[k], objects, cells, candidates(state, objects),
+                payload=frame))))
+        else:
+            frames.append(frame)
+    frames.extend(_released(backfill.flush()))
     return ReplayRun(run, frames)
+
+
+def _released(held: list[HeldFrame]) -> list[ReplayFrame]:
+    """The replayed frames of ``held`` with the backfill's objects (the decision is the
+    frame's own array, filled in place)."""
+    for h in held:
+        h.payload.objects, h.payload.object_cells = h.objects, h.object_cells
+    return [h.payload for h in held]
 
 
 def parse_set(text: str) -> dict[str, Any]:

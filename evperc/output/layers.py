@@ -49,6 +49,14 @@ class StoredOutputs:
         return (self.mass_runs, self.tile_masks, self.mass_length, self.betp, self.conflict,
                 self.zeta, self.decision)
 
+    def copy_to(self, other: StoredOutputs) -> None:
+        """Copy these layers into ``other`` (same window shape; the mass runs only as far
+        as written)."""
+        used = int(self.mass_length[0])
+        other.mass_runs[:used] = self.mass_runs[:used]
+        for name in ("tile_masks", "mass_length", "betp", "conflict", "zeta", "decision"):
+            np.copyto(getattr(other, name), getattr(self, name))
+
     def masses(self) -> np.ndarray:
         """The masses as dense uint8 planes ``(32, rows, cols)``."""
         runs = self.mass_runs[:int(self.mass_length[0])]

@@ -22,6 +22,7 @@ import os
 import shutil
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -228,8 +229,11 @@ class RunWriter:
     """Streams frames into ``out_dir/frames/chunk_NNNNN.npz`` and keeps the manifest."""
 
     def __init__(self, out_dir: str | Path, config: dict[str, Any], meta: dict[str, Any],
-                 overwrite: bool = False) -> None:
+                 overwrite: bool = False, hold_frames: int = 0) -> None:
         self.out_dir = Path(out_dir)
+        #: frames whose slots the caller may hold (:meth:`reserve_slot`) before it commits
+        #: the oldest (the object list's backfill); the ring grows by as many slots
+        self.hold_frames = int(hold_frames)
         prepare_output_dir(self.out_dir, overwrite)
         self.chunk_frames = chunk_frames_for(config, (int(meta["rows"]), int(meta["cols"])))
         self.compress = bool(config["output"]["compress"])
@@ -256,13 +260,13 @@ class RunWriter:
         # changed
         self._streaming = self.compress and member_writer_supported()
         if self._streaming:
-            ring = _Layers(RING_SLOTS, shape)
+            ring = _Layers(self.ring_slots, shape)
             layers = [ring, ring]
         else:
             layers = [_Layers(self.chunk_frames, shape) for _ in range(2)]
-        self._ring_free = threading.Semaphore(RING_SLOTS)  # slots the writer has deflated
+        self._ring_free = threading.Semaphore(self.ring_slots)  # slots the writer deflated
         self._next_slot = 0
-        self._reserved: int | None = None  # the slot frame_slot() handed out
+        self._reserved: deque[int] = deque()  # the slots handed out, oldest first
         self._buffers = [_Chunk(self.chunk_frames, n_codes, layer) for layer in layers]
         for chunk in self._buffers:
             chunk.reset(self._streaming)
@@ -283,8 +287,18 @@ class RunWriter:
         #: commit (a resume redoes it) or at close()
         self.on_chunk: Callable[[int], Callable[[], None] | None] | None = None
 
+    @property
+    def ring_slots(self) -> int:
+        return RING_SLOTS + self.hold_frames
+
+    @property
+    def can_hold(self) -> bool:
+        """Whether :meth:`reserve_slot` may hold ``hold_frames`` slots (the layers deflated
+        frame by frame from a ring; not with whole chunks deflated at once)."""
+        return self._streaming
+
     @classmethod
-    def resume(cls, out_dir: str | Path) -> RunWriter:
+    def resume(cls, out_dir: str | Path, hold_frames: int = 0) -> RunWriter:
         """Reopen an interrupted run: keep the chunks the manifest lists, drop the rest."""
 
         out_dir = Path(out_dir)
@@ -295,6 +309,7 @@ class RunWriter:
                               "be resumed, run it again with --overwrite")
         writer = cls.__new__(cls)
         writer.out_dir = out_dir
+        writer.hold_frames = int(hold_frames)
         writer.manifest = manifest
         writer.chunk_frames = int(manifest["chunk_frames"])
         writer.compress = bool(manifest["config"]["output"]["compress"])
@@ -314,14 +329,25 @@ class RunWriter:
         """Views of the next frame's layers. Fill them (the fused step quantises straight
         into them), then call :meth:`commit_frame`. Waits while the writer thread has not
         yet deflated the frames that used the ring's slots before."""
-        if self._reserved is None:
-            if self._streaming:
-                self._ring_free.acquire()
-                self._reserved = self._next_slot
-                self._next_slot = (self._next_slot + 1) % RING_SLOTS
-            else:
-                self._reserved = self._chunk.count
-        return self._chunk.layers.view(self._reserved)
+        if not self._reserved:
+            return self.reserve_slot()
+        return self._chunk.layers.view(self._reserved[-1])
+
+    def reserve_slot(self) -> StoredOutputs:
+        """A new slot, after those already handed out (:meth:`commit_frame` commits the
+        oldest): with :attr:`can_hold`, up to ``hold_frames`` + 1 may be out at once."""
+        if self._streaming:
+            if len(self._reserved) > self.hold_frames:
+                raise RuntimeError("more frame slots held than hold_frames")
+            self._ring_free.acquire()
+            slot = self._next_slot
+            self._next_slot = (self._next_slot + 1) % self.ring_slots
+        else:
+            if self._reserved:
+                raise RuntimeError("one frame slot at a time when chunks are deflated whole")
+            slot = self._chunk.count
+        self._reserved.append(slot)
+        return self._chunk.layers.view(slot)
 
     def commit_frame(self, stamp_ns: int, pose: np.ndarray, origin: tuple[int, int],
                      decision_counts: np.ndarray | None = None,
@@ -331,7 +357,7 @@ class RunWriter:
         to the writer thread (then returns True). ``objects``, ``object_cells``: the frame's
         object list (:mod:`evperc.output.objects`; kept, not copied), given for every frame
         of a run or for none."""
-        if self._reserved is None:
+        if not self._reserved:
             raise RuntimeError("commit_frame() without frame_slot()")
         c = self._chunk
         k = c.count
@@ -343,7 +369,7 @@ class RunWriter:
             if k == 0:
                 c.objects = []
             c.objects.append((objects, object_cells))
-        slot, self._reserved = self._reserved, None
+        slot = self._reserved.popleft()
         c.slots[k] = slot
         c.mass_bytes[k] = c.layers.mass_bytes[slot]
         c.stamp_ns[k] = int(stamp_ns)

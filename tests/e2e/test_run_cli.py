@@ -111,15 +111,20 @@ def _all_frames(out: Path) -> list:
     return list(evperc.load(out).frames)
 
 
-@pytest.mark.parametrize(("checkpoint_frames", "stop_at", "committed", "on_disk"),
-                         [(1, 25, 20, 2), (15, 38, 20, 3)])
+@pytest.mark.parametrize(("checkpoint_frames", "stop_at", "committed", "on_disk", "lag"),
+                         [(1, 25, 20, 2, 6), (15, 38, 20, 3, 6), (1, 25, 20, 2, 12),
+                          (1, 25, 20, 2, 0)])
 def test_interrupted_run_resumes_identically(drive: Path, tmp_path: Path, checkpoint_frames: int,
-                                             stop_at: int, committed: int, on_disk: int) -> None:
+                                             stop_at: int, committed: int, on_disk: int,
+                                             lag: int) -> None:
     """Chunks of 10 frames; a checkpoint at the first chunk end >= checkpoint_frames frames
     after the last: with 15, at frame 20 but not 30; the chunk of frames 20-29 is on disk,
-    not in the manifest, and is redone by the resume."""
+    not in the manifest, and is redone by the resume. ``lag``: objects.backfill_frames (the
+    frames reach the writer, and ``on_frame``, that many frames after they were fused; 12:
+    longer than a chunk, so two chunk ends' states are held at once; 0: the causal run)."""
     config = load_config(overrides={"grid.window_size_m": 40.0, "output.chunk_frames": 10,
-                                    "output.checkpoint_frames": checkpoint_frames})
+                                    "output.checkpoint_frames": checkpoint_frames,
+                                    "objects.backfill_frames": lag})
     full = tmp_path / "full"
     run(RunRequest(log_path=drive, out_dir=full, config=config, map_path=None))
 

@@ -1,0 +1,265 @@
+"""The object list's fixed-lag backfill (``objects.backfill_frames`` = L; docs/method.md §8
+step 8): a frame is handed to the output L frames after it was fused, and a track reported
+``moving`` now is also reported ``moving`` in the held frames in which it was associated with
+a cluster but not yet reported — the frames it spent being confirmed (``confirm_frames``),
+passing the velocity test and gathering the grid's motion evidence.
+
+Why: a track is reported only after ``confirm_frames`` associations, a velocity fit over
+them and ``motion_evidence_frames`` frames of evidence, so the first frames of every moving
+object are missed by construction (on the tuning drives, 557 of hdl64's 843 missed
+agent-frames and 179 of ibeo4's 582: ``scripts/trace_missed.py``). A log is processed after
+the fact: what is known at frame t + L about frame t may be written into frame t, as a
+fixed-lag smoother does. The output of frame t then depends on the scans up to t + L (0: the
+causal output, each frame from the scans up to itself).
+
+Per held frame, the candidates are the tracks associated in it and not reported in it
+(their cells: the tracker's footprint of that association, :attr:`TrackerState.fp`). When a
+later frame (within L) reports a candidate ``moving``, the held frame gets a record for it —
+its cells there, their centroid, box and mean betP(M), its age then, and the velocity of the
+report — and its cells are decided ``moving`` (a decision, like the fill: the masses are not
+changed). A candidate is filled once; a track reported ``stopped`` in the held frame is not
+a candidate (it moved before and stood there)."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from evperc.fusion.twin import DECISION_CODES
+from evperc.geo.window import Window
+from evperc.objects.stage import fills_decision, objects_enabled
+from evperc.objects.tracking import TrackerState
+from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
+
+MOVING = DECISION_CODES["moving"]
+_STATE_MOVING = OBJECT_STATES["moving"]
+
+
+def backfill_frames(config: dict[str, Any]) -> int:
+    """``objects.backfill_frames`` (0: off, and without the object stage)."""
+    if not objects_enabled(config):
+        return 0
+    return int(config["objects"].get("backfill_frames", 0))
+
+
+@dataclass
+class HeldFrame:
+    """A fused frame not yet handed to the output. ``decision`` (uint8 codes) and
+    ``betp_moving`` (uint8, ×255) are the frame's own arrays (the decision is changed in
+    place); ``objects`` / ``object_cells`` are replaced when a record is added; ``payload``
+    is whatever the caller hands on at release."""
+
+    window: Window
+    decision: np.ndarray
+    betp_moving: np.ndarray
+    objects: np.ndarray
+    object_cells: np.ndarray
+    #: the tracks it may get (:func:`candidates`), each taken once
+    candidates: Candidates = field(default_factory=lambda: Candidates.from_dict({}))
+    payload: Any = None
+    #: cells decided moving by the backfill (for the counts of the caller)
+    filled: int = 0
+    #: the track ids the backfill added, in the order added
+    added: list[int] = field(default_factory=list)
+
+
+class Candidates:
+    """A held frame's candidates: tracks (ids ascending) with their cells of the frame's
+    association (global lattice (iy, ix)) and age; each may be taken once (:meth:`pop`)."""
+
+    def __init__(self, ids: np.ndarray, starts: np.ndarray, counts: np.ndarray,
+                 cells: np.ndarray, ages: np.ndarray) -> None:
+        self.ids, self.starts, self.counts = ids, starts, counts
+        self.cells, self.ages = cells, ages
+        self.taken = np.zeros(len(ids), np.bool_)
+
+    def _find(self, track: int) -> int:
+        k = int(np.searchsorted(self.ids, track))
+        return k if k < len(self.ids) and self.ids[k] == track and not self.taken[k] else -1
+
+    def __contains__(self, track: int) -> bool:
+        return self._find(track) >= 0
+
+    @staticmethod
+    def from_dict(tracks: dict[int, tuple[np.ndarray, int]]) -> Candidates:
+        """From track id -> (cells (n, 2), age)."""
+        ids = sorted(tracks)
+        counts = np.array([len(tracks[t][0]) for t in ids], np.int64)
+        cells = (np.concatenate([np.asarray(tracks[t][0], np.int64).reshape(-1, 2)
+                                 for t in ids]) if ids else np.zeros((0, 2), np.int64))
+        return Candidates(np.array(ids, np.int64), np.cumsum(counts) - counts, counts, cells,
+                          np.array([tracks[t][1] for t in ids], np.int64))
+
+    def matching(self, tracks: np.ndarray) -> np.ndarray:
+        """The indices of the candidates not yet taken whose ids are in ``tracks``."""
+        if len(self.ids) == 0 or len(tracks) == 0:
+            return np.zeros(0, np.int64)
+        return np.flatnonzero(np.isin(self.ids, tracks) & ~self.taken)
+
+    def pop(self, track: int, default: Any = None) -> Any:
+        """(cells, age) of ``track``, taken (``default`` if not a candidate or taken)."""
+        k = self._find(track)
+        if k < 0:
+            return default
+        self.taken[k] = True
+        a = int(self.starts[k])
+        return self.cells[a:a + int(self.counts[k])], int(self.ages[k])
+
+
+def candidates(state: TrackerState, objects: np.ndarray) -> Candidates:
+    """The tracks of ``state`` (just stepped) associated in this frame and absent from its
+    reported ``objects``, with their cells of this association (global lattice) and age."""
+    ends = np.cumsum(state.fp_n)
+    keep = (state.missed == 0) & (state.fp_n > 0)
+    if len(objects):  # the reported ids, sorted (records are in id order)
+        reported = objects["track_id"].astype(np.int64)
+        at = np.minimum(np.searchsorted(reported, state.id), len(reported) - 1)
+        keep &= reported[at] != state.id
+    return Candidates(state.id[keep], (ends - state.fp_n)[keep], state.fp_n[keep],
+                      state.fp.copy(), state.hits[keep])
+
+
+class Backfill:
+    """Holds the last ``frames`` frames (:meth:`push`) and fills them (module docstring)."""
+
+    def __init__(self, frames: int, gap_cells: int = 0, extent_m: float = np.inf,
+                 fill_decision: bool = True) -> None:
+        self.frames = int(frames)
+        #: objects.fill_moving: the added records' cells are decided moving
+        self.fill_decision = bool(fill_decision)
+        #: objects.fragment_gap_cells: a candidate this close to a moving record joins it ...
+        self.gap_cells = int(gap_cells)
+        #: objects.fragment_extent_m: ... unless their joined box is longer along x or y
+        self.extent_m = float(extent_m)
+        self.held: deque[HeldFrame] = deque()
+
+    @staticmethod
+    def from_config(config: dict[str, Any]) -> Backfill:
+        o = config["objects"]
+        return Backfill(backfill_frames(config), int(o.get("fragment_gap_cells", 0)),
+                        float(o.get("fragment_extent_m", np.inf)), fills_decision(config))
+
+    def push(self, frame: HeldFrame) -> list[HeldFrame]:
+        """Fill the held frames from ``frame``'s moving records, hold ``frame``; returns the
+        frames now older than the lag, oldest first (to hand to the output)."""
+        moving = frame.objects[frame.objects["state"] == _STATE_MOVING]
+        if len(moving) and self.held:
+            ids = moving["track_id"].astype(np.int64)
+            for held in self.held:
+                for k in held.candidates.matching(ids):
+                    track = int(held.candidates.ids[k])
+                    cells, age = held.candidates.pop(track)
+                    fill(held, track, cells, age, moving[int(np.flatnonzero(ids == track)[0])],
+                         self.gap_cells, self.extent_m, self.fill_decision)
+        self.held.append(frame)
+        released = []
+        while len(self.held) > self.frames:
+            released.append(self.held.popleft())
+        return released
+
+    def flush(self) -> list[HeldFrame]:
+        """Every held frame, oldest first (the log's end)."""
+        released = list(self.held)
+        self.held.clear()
+        return released
+
+
+def fill(held: HeldFrame, track: int, lattice: np.ndarray, age: int,
+         report: np.ndarray, gap_cells: int = 0, extent_m: float = np.inf,
+         fill_decision: bool = True) -> None:
+    """Add ``track`` to ``held`` as ``moving`` on its cells ``lattice`` (global (iy, ix)),
+    with the velocity of ``report`` (its record in the frame that reported it moving), and
+    decide those cells ``moving``. Records stay in track id order. With ``gap_cells`` > 0,
+    cells within that many cells (Chebyshev) of a moving record of the frame join that
+    record instead (a fragment of an object already reported there, as the fragment merge
+    joins them, :func:`evperc.objects.footprint.merge_fragments`), unless the joined cells'
+    box is longer than ``extent_m`` along x or y. ``fill_decision`` false
+    (``objects.fill_moving = false``): the record only, the decision as it was."""
+    w = held.window
+    r = lattice[:, 0] - w.row0
+    c = lattice[:, 1] - w.col0
+    inside = (r >= 0) & (r < w.rows) & (c >= 0) & (c < w.cols)
+    r, c = r[inside], c[inside]
+    if r.size == 0:
+        return
+    cells = (r * w.cols + c).astype(np.int64)
+    if fill_decision:
+        flat = held.decision.reshape(-1)
+        held.filled += int(np.count_nonzero(flat[cells] != MOVING))
+        flat[cells] = MOVING
+    objects = held.objects
+    counts = objects["cell_count"].astype(np.int64)
+    ends = np.cumsum(counts)
+    old_cells = np.asarray(held.object_cells)
+    dtype = old_cells.dtype if old_cells.size else np.uint32
+    into = (_touching(objects, old_cells, ends, counts, r, c, w, gap_cells,
+                      int(np.floor(extent_m / w.resolution_m + 1e-9)))
+            if gap_cells > 0 and len(objects) else -1)
+    if into >= 0:  # a fragment: its cells join the record beside it
+        a, b = int(ends[into] - counts[into]), int(ends[into])
+        joined = np.union1d(old_cells[a:b].astype(np.int64), cells)
+        record = objects[into:into + 1].copy()
+        _set_geometry(record, held, joined)
+        objects = objects.copy()
+        objects[into] = record[0]
+        held.objects = objects
+        held.object_cells = np.concatenate([old_cells[:a], joined.astype(dtype),
+                                            old_cells[b:]])
+        return
+    record = np.zeros(1, OBJECT_DTYPE)
+    record["track_id"] = track
+    record["state"] = _STATE_MOVING
+    record["age_frames"] = age
+    record["velocity_m_per_s"] = report["velocity_m_per_s"]
+    record["speed_sigma_m_per_s"] = report["speed_sigma_m_per_s"]
+    _set_geometry(record, held, cells)
+    at = int(np.searchsorted(objects["track_id"], track))  # records stay in id order
+    offset = int(ends[at - 1]) if at else 0
+    held.objects = np.concatenate([objects[:at], record, objects[at:]])
+    held.object_cells = np.concatenate([old_cells[:offset], cells.astype(dtype),
+                                        old_cells[offset:]])
+    held.added.append(track)
+
+
+def _touching(objects: np.ndarray, cells: np.ndarray, ends: np.ndarray, counts: np.ndarray,
+              r: np.ndarray, c: np.ndarray, w: Window, gap: int, span: int) -> int:
+    """The first moving record (in record order) with a cell within ``gap`` cells
+    (Chebyshev) of a cell (``r``, ``c``) and whose cells joined with those span at most
+    ``span`` cells along rows and columns, or -1. Records whose boxes are farther than
+    ``gap`` from those cells' box are passed over without looking at their cells."""
+    res = w.resolution_m
+    box = np.rint(objects["bbox_m"] / res).astype(np.int64)  # outer edges, in cells
+    c0, r0 = box[:, 0] - w.col0, box[:, 1] - w.row0
+    c1, r1 = box[:, 2] - w.col0 - 1, box[:, 3] - w.row0 - 1
+    near = ((objects["state"] == _STATE_MOVING) & (counts > 0)
+            & (r0 - r.max() <= gap) & (r.min() - r1 <= gap)
+            & (c0 - c.max() <= gap) & (c.min() - c1 <= gap))
+    for k in np.flatnonzero(near):
+        mine = cells[ends[k] - counts[k]:ends[k]].astype(np.int64)
+        rr, cc = mine // w.cols, mine % w.cols
+        d = np.maximum(np.abs(rr[:, None] - r[None, :]), np.abs(cc[:, None] - c[None, :]))
+        if d.min() > gap:
+            continue
+        rows = max(rr.max(), r.max()) - min(rr.min(), r.min()) + 1
+        width = max(cc.max(), c.max()) - min(cc.min(), c.min()) + 1
+        if rows <= span and width <= span:
+            return int(k)
+    return -1
+
+
+def _set_geometry(record: np.ndarray, held: HeldFrame, cells: np.ndarray) -> None:
+    """``record``'s cell count, centroid, box, extent and mean betP(M) from its flat window
+    ``cells`` in ``held`` (as the cluster summary computes them)."""
+    w, res = held.window, held.window.resolution_m
+    r, c = cells // w.cols, cells % w.cols
+    record["cell_count"] = cells.size
+    record["centroid_m"] = [(w.col0 + c.mean() + 0.5) * res, (w.row0 + r.mean() + 0.5) * res]
+    box = [(w.col0 + c.min()) * res, (w.row0 + r.min()) * res,
+           (w.col0 + c.max() + 1) * res, (w.row0 + r.max() + 1) * res]
+    record["bbox_m"] = box
+    record["extent_m"] = [box[2] - box[0], box[3] - box[1]]
+    record["mean_betp_moving"] = np.float32(
+        int(held.betp_moving.reshape(-1)[cells].astype(np.int64).sum()) / cells.size / 255.0)

@@ -1,0 +1,274 @@
+"""The object list's fixed-lag backfill (objects.backfill_frames, evperc/objects/backfill.py):
+hand-built frames with the records worked out by hand, the candidates read from a tracker
+state, and whole runs with and without it compared frame by frame — the rule checked on the
+outputs alone (the backfill does not change what the tracker does, so every record it adds
+must be a track the causal run reports moving within the lag, absent from that frame)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import evperc
+from evperc.config import ConfigError, load_config
+from evperc.fusion.twin import DECISION_CODES as D
+from evperc.geo.window import Window
+from evperc.objects.backfill import (
+    Backfill,
+    Candidates,
+    HeldFrame,
+    backfill_frames,
+    candidates,
+)
+from evperc.objects.tracking import TrackerState
+from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES, empty_objects, object_labels
+from evperc.runner import RunRequest, run
+
+MOVING = OBJECT_STATES["moving"]
+W = Window(0.5, 10, 10, 100, 200)  # rows 100-109, cols 200-209 of the lattice
+
+
+def _frame(candidates: dict, objects: np.ndarray | None = None,
+           cells: np.ndarray | None = None, betp: int = 51) -> HeldFrame:
+    decision = np.full(W.shape, D["free"], np.uint8)
+    return HeldFrame(W, decision, np.full(W.shape, betp, np.uint8),
+                     empty_objects() if objects is None else objects,
+                     np.zeros(0, np.uint32) if cells is None else cells,
+                     Candidates.from_dict({k: (np.array(v, np.int64), age)
+                                           for k, (v, age) in candidates.items()}))
+
+
+def _record(track: int, state: int = MOVING, cells: int = 1,
+            velocity: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    r = np.zeros(1, OBJECT_DTYPE)
+    r["track_id"], r["state"], r["cell_count"] = track, state, cells
+    r["velocity_m_per_s"], r["speed_sigma_m_per_s"] = velocity, 0.125
+    return r
+
+
+def test_a_track_reported_moving_later_is_filled_into_the_held_frames() -> None:
+    """Lag 2. Track 7 is a candidate in frames 0 and 1 (associated, not reported), reported
+    moving in frame 2: frames 0 and 1 get its record and their cells decided moving; track
+    9 (frame 0, never reported) and cells outside the window get nothing; frame 3 reports
+    7 again and adds nothing twice."""
+    backfill = Backfill(2)
+    f0 = _frame({7: ([[101, 202], [101, 203]], 1), 9: ([[105, 205]], 4)})
+    f1 = _frame({7: ([[101, 203], [101, 204], [100, 199]], 2)},  # (100, 199): outside
+                objects=_record(12), cells=np.array([55], np.uint32), betp=102)
+    assert backfill.push(f0) == [] and backfill.push(f1) == []
+    report = _record(7, cells=1, velocity=(1.5, -0.25))
+    f2 = _frame({}, objects=report, cells=np.array([14], np.uint32))
+    assert backfill.push(f2) == [f0]
+    # frame 0: cells (1, 2), (1, 3) of the window
+    assert np.flatnonzero(f0.decision.reshape(-1) == D["moving"]).tolist() == [12, 13]
+    (r,) = f0.objects
+    assert (r["track_id"], r["state"], r["cell_count"], r["age_frames"]) == (7, MOVING, 2, 1)
+    # centre of cells (101, 202) and (101, 203): x = (202.5 + 0.5) * 0.5, y = 101.5 * 0.5
+    np.testing.assert_allclose(r["centroid_m"], [101.5, 50.75])
+    np.testing.assert_allclose(r["bbox_m"], [101.0, 50.5, 102.0, 51.0])
+    np.testing.assert_allclose(r["extent_m"], [1.0, 0.5])
+    np.testing.assert_allclose(r["velocity_m_per_s"], [1.5, -0.25])
+    assert r["speed_sigma_m_per_s"] == np.float32(0.125)
+    assert r["mean_betp_moving"] == np.float32(51 / 255)
+    assert f0.object_cells.tolist() == [12, 13] and f0.added == [7] and f0.filled == 2
+    assert 9 in f0.candidates and 7 not in f0.candidates
+    # frame 1: the record joins track 12's, in id order, cells reordered with it
+    assert f1.objects["track_id"].tolist() == [7, 12]
+    assert f1.object_cells.tolist() == [13, 14, 55]
+    assert f1.objects["cell_count"].tolist() == [2, 1]
+    assert f1.objects[0]["mean_betp_moving"] == np.float32(102 / 255)
+    labels = object_labels(f1.objects, f1.object_cells, W.shape).reshape(-1)
+    assert labels[13] == labels[14] == 7 and labels[55] == 12
+    f3 = _frame({}, objects=_record(7), cells=np.array([15], np.uint32))
+    assert backfill.push(f3) == [f1]
+    assert f1.objects["track_id"].tolist() == [7, 12]  # filled once
+    assert backfill.flush() == [f2, f3] and backfill.flush() == []
+    assert len(f2.objects) == 1  # the reporting frame itself is unchanged
+
+
+def test_a_fragment_beside_a_moving_record_joins_it() -> None:
+    """Gap 2 cells, extent 3 m: track 5's cells two cells from track 3's moving record join
+    it (track 3's id, age and velocity kept, its geometry recomputed over the union); a
+    candidate three cells away, or one whose joined box would pass 3 m, is a record of its
+    own."""
+    existing = _record(3, cells=2, velocity=(2.0, 0.0))
+    existing["age_frames"] = 9
+    existing["bbox_m"] = [100.5, 50.5, 101.5, 51.0]  # its cells (101, 201), (101, 202)
+    backfill = Backfill(1, gap_cells=2, extent_m=3.0)
+    f0 = _frame({5: ([[101, 204]], 1), 6: ([[105, 205]], 1)}, objects=existing,
+                cells=np.array([11, 12], np.uint32))  # (1, 1), (1, 2) of the window
+    backfill.push(f0)
+    backfill.push(_frame({}, objects=np.concatenate([_record(5), _record(6)]),
+                         cells=np.array([1, 2], np.uint32)))
+    assert f0.objects["track_id"].tolist() == [3, 6] and f0.added == [6]
+    joined = f0.objects[0]
+    assert (joined["cell_count"], joined["age_frames"]) == (3, 9)
+    np.testing.assert_allclose(joined["velocity_m_per_s"], [2.0, 0.0])
+    assert f0.object_cells[:3].tolist() == [11, 12, 14]
+    # cells (1, 1), (1, 2), (1, 4): x = 200 + cols + 0.5, mean col 2.333
+    np.testing.assert_allclose(joined["centroid_m"], [(200 + 7 / 3 + 0.5) * 0.5, 50.75])
+    np.testing.assert_allclose(joined["bbox_m"], [100.5, 50.5, 102.5, 51.0])
+    assert np.flatnonzero(f0.decision.reshape(-1) == D["moving"]).tolist() == [14, 55]
+    far = Backfill(1, gap_cells=2, extent_m=3.0)
+    f1 = _frame({5: ([[101, 205]], 1)}, objects=existing.copy(),  # three cells away
+                cells=np.array([11, 12], np.uint32))
+    far.push(f1)
+    far.push(_frame({}, objects=_record(5), cells=np.array([1], np.uint32)))
+    assert f1.objects["track_id"].tolist() == [3, 5]
+    long = Backfill(1, gap_cells=2, extent_m=1.5)  # joined box 2 m > 1.5 m
+    f2 = _frame({5: ([[101, 204]], 1)}, objects=existing.copy(),
+                cells=np.array([11, 12], np.uint32))
+    long.push(f2)
+    long.push(_frame({}, objects=_record(5), cells=np.array([1], np.uint32)))
+    assert f2.objects["track_id"].tolist() == [3, 5]
+
+
+def test_stopped_reports_and_frames_beyond_the_lag_are_not_filled() -> None:
+    """A track reported ``stopped`` fills nothing; a frame already released (older than the
+    lag) is not filled by a later report."""
+    backfill = Backfill(1)
+    f0 = _frame({4: ([[102, 202]], 1)})
+    f1 = _frame({4: ([[102, 203]], 2)})
+    backfill.push(f0)
+    assert backfill.push(f1) == [f0]
+    stopped = _frame({}, objects=_record(4, state=OBJECT_STATES["stopped"]),
+                     cells=np.array([1], np.uint32))
+    assert backfill.push(stopped) == [f1]
+    assert len(f1.objects) == 0 and not (f1.decision == D["moving"]).any()
+    moving = _frame({}, objects=_record(4), cells=np.array([2], np.uint32))
+    backfill.push(moving)  # fills `stopped` (no candidate there), not f0 / f1
+    assert len(f0.objects) == len(f1.objects) == 0
+
+
+def test_candidates_are_the_associated_unreported_tracks() -> None:
+    """Rows with ``missed == 0`` (associated in this frame) and cells, not in the records;
+    their cells are their slice of the pooled ``fp``."""
+    state = TrackerState()
+    state.id = np.array([3, 4, 5, 6])
+    state.missed = np.array([0, 0, 1, 0])
+    state.hits = np.array([2, 5, 4, 1])
+    state.fp_n = np.array([2, 1, 3, 0])
+    state.fp = np.arange(12, dtype=np.int64).reshape(6, 2)
+    got = candidates(state, _record(4))
+    assert got.ids.tolist() == [3] and 3 in got and 4 not in got and 5 not in got
+    cells, age = got.pop(3)
+    assert cells.tolist() == [[0, 1], [2, 3]] and age == 2
+    assert got.pop(3) is None and 3 not in got  # taken once
+    assert len(candidates(TrackerState(), empty_objects()).ids) == 0
+
+
+def test_the_key_is_off_without_objects_and_checked() -> None:
+    assert backfill_frames(load_config()) == 0  # off by default (docs/performance.md)
+    assert backfill_frames(load_config(overrides={"objects.backfill_frames": 6})) == 6
+    assert backfill_frames(load_config(overrides={"objects.enabled": False,
+                                                  "objects.backfill_frames": 6})) == 0
+    with pytest.raises(ConfigError, match="backfill_frames"):
+        load_config(overrides={"objects.backfill_frames": -1})
+
+
+@pytest.fixture(scope="module")
+def sample_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, list]:
+    """The sample drive (8 s, with its map) causal and with lags 3 and 6; chunks of 7
+    frames, a checkpoint at each chunk end (the backfill's snapshots taken); -6: lag 6 with
+    the chunks stored uncompressed (the writer cannot hold slots: the held frames' own
+    buffers are copied into its slot)."""
+    root = Path(__file__).resolve().parents[2] / "sample_data"
+    tmp = tmp_path_factory.mktemp("backfill")
+    frames = {}
+    for lag, compress in ((0, True), (3, True), (6, True), (-6, False)):
+        config = load_config(overrides={"objects.backfill_frames": abs(lag),
+                                        "output.chunk_frames": 7,
+                                        "output.checkpoint_frames": 1,
+                                        "output.compress": compress})
+        out = tmp / f"lag{lag}"
+        run(RunRequest(log_path=root / "drive.mcap", out_dir=out, config=config,
+                       map_path=root / "map.geojson", end_s=8.0), progress=False)
+        frames[lag] = list(evperc.load(out).frames)
+    return frames
+
+
+@pytest.mark.parametrize("lag", [3, 6])
+def test_a_run_with_the_backfill_adds_only_what_the_rule_allows(
+        sample_runs: dict[int, list], lag: int) -> None:
+    """Against the causal run, frame by frame: the layers other than the decision are equal;
+    every record of the causal frame is kept (same track, state, age, velocity) on a
+    superset of its cells (a fragment joined); each added record is a track absent from
+    the causal frame and reported moving by the causal run in one of the next ``lag``
+    frames; the decision differs only on cells the lagged frame's moving records hold and
+    the causal one's do not, now ``moving``; and the backfill added something (the sample
+    drive's agents are confirmed over 3+ frames)."""
+    causal, lagged = sample_runs[0], sample_runs[lag]
+    assert len(causal) == len(lagged) > 50
+    moving_ids = [set(f.objects["track_id"][f.objects["state"] == MOVING].tolist())
+                  for f in causal]
+    added_total = 0
+    for k, (a, b) in enumerate(zip(causal, lagged, strict=True)):
+        for layer in ("masses", "betp", "conflict", "zeta"):
+            np.testing.assert_array_equal(getattr(a, layer), getattr(b, layer))
+        la, lb = a.object_labels(), b.object_labels()
+        kept = np.isin(b.objects["track_id"], a.objects["track_id"])
+        assert kept.sum() == len(a.objects)
+        for ra, rb in zip(a.objects, b.objects[kept], strict=True):
+            for name in ("track_id", "state", "age_frames", "velocity_m_per_s"):
+                np.testing.assert_array_equal(ra[name], rb[name])
+            assert (lb[la == ra["track_id"]] == ra["track_id"]).all()  # cells kept
+        added = b.objects[~kept]
+        later = set().union(*moving_ids[k + 1:k + 1 + lag])
+        assert set(added["track_id"].tolist()) <= later
+        assert (added["state"] == MOVING).all()
+        moving_b = np.isin(lb, b.objects["track_id"][b.objects["state"] == MOVING]) & (lb > 0)
+        new_cells = moving_b & (la == 0)
+        changed = a.decision != b.decision
+        assert not (changed & ~new_cells).any()
+        assert (b.decision[new_cells] == D["moving"]).all()
+        assert (lb[(la == 0) & (lb > 0)] > 0).all()
+        assert not ((la == 0) & (lb > 0) & ~moving_b).any()  # only moving records grow
+        for r in b.objects:
+            assert (lb == r["track_id"]).sum() == r["cell_count"] > 0
+        added_total += len(added)
+    assert added_total > 0
+    counts_a = sum(np.bincount(f.decision.ravel(), minlength=8) for f in causal)
+    counts_b = sum(np.bincount(f.decision.ravel(), minlength=8) for f in lagged)
+    assert counts_b[D["moving"]] > counts_a[D["moving"]]
+
+
+def test_the_writer_holds_slots_and_commits_the_oldest(tmp_path: Path) -> None:
+    """RunWriter(hold_frames=2): three slots out at once (the ring grows by two), each
+    commit takes the oldest, so the frames are stored in the order reserved with the layers
+    written into them; a fourth held slot is refused rather than waiting forever."""
+    from evperc.output.writer import RunWriter
+
+    config = load_config(overrides={"output.chunk_frames": 4})
+    meta = {"rows": 4, "cols": 4, "decision_codes": D}
+    writer = RunWriter(tmp_path / "w", config, meta, hold_frames=2)
+    if not writer.can_hold:
+        pytest.skip("this zipfile cannot deflate frame by frame (chunks deflated whole)")
+    slots = [writer.reserve_slot() for _ in range(3)]
+    with pytest.raises(RuntimeError, match="hold_frames"):
+        writer.reserve_slot()
+    for k in range(5):
+        slot = slots[k] if k < 3 else writer.reserve_slot()
+        slot.tile_masks[...] = 0
+        slot.mass_length[0] = 0
+        for layer in (slot.betp, slot.conflict, slot.zeta):
+            layer[...] = 0
+        slot.decision[...] = k + 1
+        writer.commit_frame(stamp_ns=k, pose=np.zeros(3), origin=(0, 0))
+    writer.close({"frames": 5})
+    stored = [np.load(tmp_path / "w" / "frames" / f"chunk_0000{i}.npz") for i in (0, 1)]
+    assert np.concatenate([c["stamp_ns"] for c in stored]).tolist() == [0, 1, 2, 3, 4]
+    decisions = np.concatenate([c["decision"] for c in stored])
+    assert decisions[:, 0, 0].tolist() == [1, 2, 3, 4, 5]
+
+
+def test_held_in_the_writer_or_copied_the_frames_are_the_same(
+        sample_runs: dict[int, list]) -> None:
+    held, copied = sample_runs[6], sample_runs[-6]
+    assert len(held) == len(copied)
+    for a, b in zip(held, copied, strict=True):
+        for layer in ("masses", "betp", "conflict", "zeta", "decision"):
+            np.testing.assert_array_equal(getattr(a, layer), getattr(b, layer))
+        assert a.objects.tobytes() == b.objects.tobytes()
+        np.testing.assert_array_equal(a.object_cells, b.object_cells)
