@@ -29,6 +29,7 @@ from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
 from evperc.objects.backfill import Backfill, HeldFrame, backfill_frames, candidates
+from evperc.objects.backfill import warm_up as warm_up_backfill
 from evperc.objects.clusters import JOINS_ANY
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints
 from evperc.objects.footprint import warm_up as warm_up_footprints
@@ -38,7 +39,9 @@ from evperc.objects.stage import (
     fill_moving,
     fills_decision,
     objects_enabled,
+    small_moving_cells,
     unfill_small,
+    unfill_unconfirmed,
 )
 from evperc.objects.tracking import TrackerState
 from evperc.objects.unmapped import UnmappedCue, UnmappedParams, UnmappedState, unmapped_enabled
@@ -351,6 +354,9 @@ class Pipeline:
         probe = Window.centred_on(0.0, 0.0, self.window_size, self.resolution)
         self.objects = (ObjectStage(config, probe.shape) if objects_enabled(config) else None)
         self.fill_moving = fills_decision(config)
+        #: objects.moving_needs_object: a cell stays moving only in a moving object
+        self.moving_needs_object = (objects_enabled(config)
+                                    and bool(config["objects"]["moving_needs_object"]))
         self.footprint = FootprintParams.from_config(config)
         #: objects.backfill_frames: frames are handed to the output this many frames late,
         #: with the tracks reported moving since filled in (evperc.objects.backfill); 0 = off
@@ -392,8 +398,10 @@ class Pipeline:
                 TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0,
                 occupied_now=occupied > 0)
             warm_up_footprints(self.footprint)
-            if self.objects.moving_min_cells > 0:
+            if self.objects.moving_min_cells > 0 or self.moving_needs_object:
                 unfill_small(out.decision.copy(), np.zeros(1, np.int64), None)
+            if self.backfill_frames > 0:
+                warm_up_backfill()
         if self.unmapped is not None:
             UnmappedCue(self.unmapped.params, tiny.shape, self.resolution).step(
                 UnmappedState.fresh(tiny.shape), out.decision, None, 0.1)
@@ -578,6 +586,10 @@ class Pipeline:
                 fill_moving(out.decision, moving_cells)
             if self.objects.moving_min_cells > 0:  # small clusters' moving cells: static
                 unfill_small(out.decision, self.objects.small_moving, moving_cells)
+                if self.moving_needs_object:  # the small groups left moving: their own rule
+                    frame["small_moving"] = small_moving_cells(
+                        *self.objects.clusterer.groups(), out.decision,
+                        self.objects.moving_min_cells)
             clock.lap("objects")
         else:
             moving_cells = None
@@ -602,6 +614,9 @@ class Pipeline:
         (added to ``state.decision_counts``) and, with ``--point-labels``, the points' labels
         (``frame["point_labels"]``). Run by :meth:`step`, or with ``objects.backfill_frames``
         when the frame leaves the backfill (:func:`run`)."""
+        if self.moving_needs_object:  # the fusion's moving cells no moving object holds
+            unfill_unconfirmed(out.decision, moving_object_cells(
+                frame["objects"], frame["object_cells"]), frame.pop("small_moving", None))
         # counted after every pass that changes the decision: the counts match the stored one
         frame["decision_counts"] = counts = count_codes(out.decision, len(state.decision_counts))
         state.decision_counts += counts

@@ -211,6 +211,10 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
         else:
             frames.append(frame)
     frames.extend(_released(backfill.flush()))
+    if config["objects"].get("moving_needs_object", False):  # on the final object lists
+        for frame in frames:
+            stage_mod.unfill_unconfirmed(frame.decision,
+                                         moving_object_cells(frame.objects, frame.object_cells))
     return ReplayRun(run, frames)
 
 

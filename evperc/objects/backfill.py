@@ -26,6 +26,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
@@ -97,7 +98,9 @@ class Candidates:
         """The indices of the candidates not yet taken whose ids are in ``tracks``."""
         if len(self.ids) == 0 or len(tracks) == 0:
             return np.zeros(0, np.int64)
-        return np.flatnonzero(np.isin(self.ids, tracks) & ~self.taken)
+        at = np.minimum(np.searchsorted(self.ids, tracks), len(self.ids) - 1)
+        found = at[self.ids[at] == tracks]
+        return np.unique(found[~self.taken[found]])
 
     def pop(self, track: int, default: Any = None) -> Any:
         """(cells, age) of ``track``, taken (``default`` if not a candidate or taken)."""
@@ -114,12 +117,18 @@ def candidates(state: TrackerState, objects: np.ndarray) -> Candidates:
     reported ``objects``, with their cells of this association (global lattice) and age."""
     ends = np.cumsum(state.fp_n)
     keep = (state.missed == 0) & (state.fp_n > 0)
-    if len(objects):  # the reported ids, sorted (records are in id order)
-        reported = objects["track_id"].astype(np.int64)
-        at = np.minimum(np.searchsorted(reported, state.id), len(reported) - 1)
-        keep &= reported[at] != state.id
+    keep &= ~_in_sorted(state.id, objects["track_id"].astype(np.int64))  # records: id order
+    # the tracker replaces its arrays at each step, never writes into them: no copy
     return Candidates(state.id[keep], (ends - state.fp_n)[keep], state.fp_n[keep],
-                      state.fp.copy(), state.hits[keep])
+                      state.fp, state.hits[keep])
+
+
+def _in_sorted(values: np.ndarray, ascending: np.ndarray) -> np.ndarray:
+    """Which of ``values`` are in ``ascending`` (sorted)."""
+    if len(ascending) == 0:
+        return np.zeros(len(values), np.bool_)
+    at = np.minimum(np.searchsorted(ascending, values), len(ascending) - 1)
+    return ascending[at] == values
 
 
 class Backfill:
@@ -135,6 +144,9 @@ class Backfill:
         #: objects.fragment_extent_m: ... unless their joined box is longer along x or y
         self.extent_m = float(extent_m)
         self.held: deque[HeldFrame] = deque()
+        #: the track ids reported moving by the last frame pushed (their candidates in the
+        #: frames held before it were taken then, and it has none: nothing left to fill)
+        self.last_moving = np.zeros(0, np.int64)
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> Backfill:
@@ -146,13 +158,15 @@ class Backfill:
         """Fill the held frames from ``frame``'s moving records, hold ``frame``; returns the
         frames now older than the lag, oldest first (to hand to the output)."""
         moving = frame.objects[frame.objects["state"] == _STATE_MOVING]
-        if len(moving) and self.held:
-            ids = moving["track_id"].astype(np.int64)
+        ids = moving["track_id"].astype(np.int64)
+        new = ids[~_in_sorted(ids, self.last_moving)]
+        self.last_moving = ids
+        if len(new) and self.held:
             for held in self.held:
-                for k in held.candidates.matching(ids):
+                for k in held.candidates.matching(new):
                     track = int(held.candidates.ids[k])
                     cells, age = held.candidates.pop(track)
-                    fill(held, track, cells, age, moving[int(np.flatnonzero(ids == track)[0])],
+                    fill(held, track, cells, age, moving[int(np.searchsorted(ids, track))],
                          self.gap_cells, self.extent_m, self.fill_decision)
         self.held.append(frame)
         released = []
@@ -218,7 +232,9 @@ def fill(held: HeldFrame, track: int, lattice: np.ndarray, age: int,
     _set_geometry(record, held, cells)
     at = int(np.searchsorted(objects["track_id"], track))  # records stay in id order
     offset = int(ends[at - 1]) if at else 0
-    held.objects = np.concatenate([objects[:at], record, objects[at:]])
+    grown = np.empty(len(objects) + 1, OBJECT_DTYPE)  # (concatenating records is slow)
+    grown[:at], grown[at], grown[at + 1:] = objects[:at], record[0], objects[at:]
+    held.objects = grown
     held.object_cells = np.concatenate([old_cells[:offset], cells.astype(dtype),
                                         old_cells[offset:]])
     held.added.append(track)
@@ -230,23 +246,36 @@ def _touching(objects: np.ndarray, cells: np.ndarray, ends: np.ndarray, counts: 
     (Chebyshev) of a cell (``r``, ``c``) and whose cells joined with those span at most
     ``span`` cells along rows and columns, or -1. Records whose boxes are farther than
     ``gap`` from those cells' box are passed over without looking at their cells."""
-    res = w.resolution_m
-    box = np.rint(objects["bbox_m"] / res).astype(np.int64)  # outer edges, in cells
-    c0, r0 = box[:, 0] - w.col0, box[:, 1] - w.row0
-    c1, r1 = box[:, 2] - w.col0 - 1, box[:, 3] - w.row0 - 1
-    near = ((objects["state"] == _STATE_MOVING) & (counts > 0)
-            & (r0 - r.max() <= gap) & (r.min() - r1 <= gap)
-            & (c0 - c.max() <= gap) & (c.min() - c1 <= gap))
-    for k in np.flatnonzero(near):
-        mine = cells[ends[k] - counts[k]:ends[k]].astype(np.int64)
-        rr, cc = mine // w.cols, mine % w.cols
-        d = np.maximum(np.abs(rr[:, None] - r[None, :]), np.abs(cc[:, None] - c[None, :]))
-        if d.min() > gap:
+    box = np.rint(objects["bbox_m"] / w.resolution_m).astype(np.int64)  # outer edges, cells
+    box -= np.array([w.col0, w.row0, w.col0 + 1, w.row0 + 1], np.int64)  # inclusive, window
+    return int(_touching_pass(box, objects["state"] == _STATE_MOVING, cells.astype(np.int64),
+                              ends, counts, r, c, gap, span, w.cols))
+
+
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def _touching_pass(box, moving, cells, ends, counts, r, c, gap, span,
+                   cols):  # pragma: no cover - compiled
+    """:func:`_touching` over the records' window boxes ``box`` (n, 4: first col, first row,
+    last col, last row) and flat ``cells``."""
+    r_lo, r_hi, c_lo, c_hi = r.min(), r.max(), c.min(), c.max()
+    for k in range(box.shape[0]):
+        if (not moving[k] or counts[k] == 0 or box[k, 1] - r_hi > gap or r_lo - box[k, 3] > gap
+                or box[k, 0] - c_hi > gap or c_lo - box[k, 2] > gap):
             continue
-        rows = max(rr.max(), r.max()) - min(rr.min(), r.min()) + 1
-        width = max(cc.max(), c.max()) - min(cc.min(), c.min()) + 1
-        if rows <= span and width <= span:
-            return int(k)
+        near = False
+        rows_lo, rows_hi, cols_lo, cols_hi = r_lo, r_hi, c_lo, c_hi
+        for q in range(ends[k] - counts[k], ends[k]):
+            rq = cells[q] // cols
+            cq = cells[q] - rq * cols
+            rows_lo, rows_hi = min(rows_lo, rq), max(rows_hi, rq)
+            cols_lo, cols_hi = min(cols_lo, cq), max(cols_hi, cq)
+            if not near:
+                for i in range(r.shape[0]):
+                    if max(abs(rq - r[i]), abs(cq - c[i])) <= gap:
+                        near = True
+                        break
+        if near and rows_hi - rows_lo + 1 <= span and cols_hi - cols_lo + 1 <= span:
+            return k
     return -1
 
 
@@ -254,12 +283,37 @@ def _set_geometry(record: np.ndarray, held: HeldFrame, cells: np.ndarray) -> Non
     """``record``'s cell count, centroid, box, extent and mean betP(M) from its flat window
     ``cells`` in ``held`` (as the cluster summary computes them)."""
     w, res = held.window, held.window.resolution_m
-    r, c = cells // w.cols, cells % w.cols
-    record["cell_count"] = cells.size
-    record["centroid_m"] = [(w.col0 + c.mean() + 0.5) * res, (w.row0 + r.mean() + 0.5) * res]
-    box = [(w.col0 + c.min()) * res, (w.row0 + r.min()) * res,
-           (w.col0 + c.max() + 1) * res, (w.row0 + r.max() + 1) * res]
+    r_lo, r_hi, c_lo, c_hi, r_sum, c_sum, betp_sum = _geometry(
+        np.asarray(cells, np.int64), w.cols, held.betp_moving.reshape(-1))
+    n = cells.size
+    record["cell_count"] = n
+    record["centroid_m"] = [(w.col0 + c_sum / n + 0.5) * res, (w.row0 + r_sum / n + 0.5) * res]
+    box = [(w.col0 + c_lo) * res, (w.row0 + r_lo) * res,
+           (w.col0 + c_hi + 1) * res, (w.row0 + r_hi + 1) * res]
     record["bbox_m"] = box
     record["extent_m"] = [box[2] - box[0], box[3] - box[1]]
-    record["mean_betp_moving"] = np.float32(
-        int(held.betp_moving.reshape(-1)[cells].astype(np.int64).sum()) / cells.size / 255.0)
+    record["mean_betp_moving"] = np.float32(betp_sum / n / 255.0)
+
+
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def _geometry(cells, cols, betp):  # pragma: no cover - compiled
+    """Row / column bounds, row / column sums and the betP(M) (×255) sum of flat ``cells``
+    (integers: the means divided out by the caller are those of numpy)."""
+    r_lo, r_hi, c_lo, c_hi = cols * cols, -1, cols * cols, -1
+    r_sum, c_sum, betp_sum = 0, 0, 0
+    for q in cells:
+        r = q // cols
+        c = q - r * cols
+        r_lo, r_hi, c_lo, c_hi = min(r_lo, r), max(r_hi, r), min(c_lo, c), max(c_hi, c)
+        r_sum += r
+        c_sum += c
+        betp_sum += np.int64(betp[q])
+    return r_lo, r_hi, c_lo, c_hi, r_sum, c_sum, betp_sum
+
+
+def warm_up() -> None:
+    """Load the compiled passes of :func:`fill` (the run's warm-up: not charged to a frame)."""
+    one = np.zeros(1, np.int64)
+    _touching_pass(np.zeros((1, 4), np.int64), np.zeros(1, np.bool_), one, one, one, one, one,
+                   1, 1, 1)
+    _geometry(one, 1, np.zeros(1, np.uint8))

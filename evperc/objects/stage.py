@@ -183,6 +183,29 @@ def unfill_small(decision: np.ndarray, small_cells: np.ndarray,
 _NO_CELLS = np.zeros(0, np.int64)
 
 
+def unfill_unconfirmed(decision: np.ndarray, moving_cells: np.ndarray | None,
+                       small_moving: np.ndarray | None = None) -> int:
+    """``objects.moving_needs_object``: decide ``static`` every cell decided ``moving`` that
+    no moving object holds (``moving_cells``, flat) and that is not in ``small_moving`` (the
+    moving cells of the groups under ``moving_min_cluster_cells``, which their own rule,
+    :func:`unfill_small`, judged: too small to be tracked, so no object can confirm them);
+    ``decision`` changed in place, returns the cells changed. Run on the frame's final
+    object list (after the backfill, when on).
+
+    Why (docs/method.md §8 step 9): the fusion's moving cells outside any moving object are
+    a conflict no track confirms — on SemanticKITTI 09, where nothing moves, 194 of 277
+    static points decided moving; a moving object's own frames before its report are the
+    backfill's to fill. ``static``: the cell holds a return (as :func:`unfill_small`)."""
+    flat = decision.reshape(-1)
+    cells = np.flatnonzero(flat == MOVING)
+    if cells.size == 0:
+        return 0
+    held = _NO_CELLS if moving_cells is None else np.asarray(moving_cells, np.int64)
+    if small_moving is not None and small_moving.size:
+        held = np.concatenate([held, np.asarray(small_moving, np.int64)])
+    return int(_unfill(flat, cells, held, STATIC, MOVING))
+
+
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _unfill(flat, cells, held, static, moving):  # pragma: no cover - compiled
     """:func:`unfill_small`: ``cells`` not in ``held`` decided ``static``; returns how many

@@ -88,6 +88,28 @@ def test_a_track_reported_moving_later_is_filled_into_the_held_frames() -> None:
     assert len(f2.objects) == 1  # the reporting frame itself is unchanged
 
 
+def test_a_report_that_drops_out_and_returns_fills_the_frame_between() -> None:
+    """Lag 3. Track 7 is a candidate in frame 0, reported moving in frame 1 (frame 0
+    filled), associated but not reported in frame 2, moving again in frames 3 and 4: frame 2
+    is filled at frame 3 (a report after a frame without one fills); frame 4's report, the
+    same track moving in the frame before, has nothing left to fill."""
+    backfill = Backfill(3)
+    f0 = _frame({7: ([[101, 202]], 1)})
+    f1 = _frame({}, objects=_record(7), cells=np.array([13], np.uint32))
+    f2 = _frame({7: ([[101, 204]], 3)})
+    backfill.push(f0)
+    backfill.push(f1)
+    assert f0.added == [7]
+    backfill.push(f2)
+    f3 = _frame({}, objects=_record(7), cells=np.array([15], np.uint32))
+    assert backfill.push(f3) == [f0]
+    assert f2.added == [7] and f2.objects["age_frames"].tolist() == [3]
+    assert np.flatnonzero(f2.decision.reshape(-1) == D["moving"]).tolist() == [14]
+    f4 = _frame({}, objects=_record(7), cells=np.array([16], np.uint32))
+    assert backfill.push(f4) == [f1]
+    assert f0.added == f2.added == [7] and f1.added == f3.added == []
+
+
 def test_a_fragment_beside_a_moving_record_joins_it() -> None:
     """Gap 2 cells, extent 3 m: track 5's cells two cells from track 3's moving record join
     it (track 3's id, age and velocity kept, its geometry recomputed over the union); a
@@ -160,7 +182,8 @@ def test_candidates_are_the_associated_unreported_tracks() -> None:
 
 
 def test_the_key_is_off_without_objects_and_checked() -> None:
-    assert backfill_frames(load_config()) == 0  # off by default (docs/performance.md)
+    assert backfill_frames(load_config()) == 6  # the default (docs/method.md §8 step 8)
+    assert backfill_frames(load_config(overrides={"objects.backfill_frames": 0})) == 0
     assert backfill_frames(load_config(overrides={"objects.backfill_frames": 6})) == 6
     assert backfill_frames(load_config(overrides={"objects.enabled": False,
                                                   "objects.backfill_frames": 6})) == 0
