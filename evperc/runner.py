@@ -587,7 +587,7 @@ class Pipeline:
             if self.objects.moving_min_cells > 0:  # small clusters' moving cells: static
                 unfill_small(out.decision, self.objects.small_moving, moving_cells)
                 if self.moving_needs_object:  # the small groups left moving: their own rule
-                    frame["small_moving"] = small_moving_cells(
+                    frame["small_groups"] = small_moving_cells(
                         *self.objects.clusterer.groups(), out.decision,
                         self.objects.moving_min_cells)
             clock.lap("objects")
@@ -616,7 +616,7 @@ class Pipeline:
         when the frame leaves the backfill (:func:`run`)."""
         if self.moving_needs_object:  # the fusion's moving cells no moving object holds
             unfill_unconfirmed(out.decision, moving_object_cells(
-                frame["objects"], frame["object_cells"]), frame.pop("small_moving", None))
+                frame["objects"], frame["object_cells"]), frame.pop("small_groups", None))
         # counted after every pass that changes the decision: the counts match the stored one
         frame["decision_counts"] = counts = count_codes(out.decision, len(state.decision_counts))
         state.decision_counts += counts

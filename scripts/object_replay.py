@@ -179,6 +179,7 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
     frames = []
     fill = stage_mod.fills_decision(config)
     backfill = Backfill.from_config(config)
+    small_groups: dict[int, np.ndarray] = {}
     for k in range(len(stamps)):
         window = Window(res, shape[0], shape[1], int(origins[k, 0]), int(origins[k, 1]))
         decision = decisions[k].copy()
@@ -198,6 +199,9 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
             fill_moving(decision, moving)
         if stage.moving_min_cells > 0:
             unfill_small(decision, stage.small_moving, moving)
+            # the small groups left moving: moving_needs_object leaves them to that rule
+            small_groups[k] = stage_mod.small_moving_cells(*stage.clusterer.groups(), decision,
+                                                           stage.moving_min_cells)
         f = stored.get(int(stamps[k]))
         if f is not None:  # the unmapped cue's cells, where the replay did not decide moving
             relabel = (np.asarray(f.decision) == _UNMAPPED) & (decision != _MOVING)
@@ -213,8 +217,9 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
     frames.extend(_released(backfill.flush()))
     if config["objects"].get("moving_needs_object", False):  # on the final object lists
         for frame in frames:
-            stage_mod.unfill_unconfirmed(frame.decision,
-                                         moving_object_cells(frame.objects, frame.object_cells))
+            stage_mod.unfill_unconfirmed(
+                frame.decision, moving_object_cells(frame.objects, frame.object_cells),
+                small_groups.get(frame.index))
     return ReplayRun(run, frames)
 
 
