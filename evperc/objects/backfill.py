@@ -61,8 +61,6 @@ class HeldFrame:
     #: the tracks it may get (:func:`candidates`), each taken once
     candidates: Candidates = field(default_factory=lambda: Candidates.from_dict({}))
     payload: Any = None
-    #: cells decided moving by the backfill (for the counts of the caller)
-    filled: int = 0
     #: the track ids the backfill added, in the order added
     added: list[int] = field(default_factory=list)
 
@@ -201,9 +199,7 @@ def fill(held: HeldFrame, track: int, lattice: np.ndarray, age: int,
         return
     cells = (r * w.cols + c).astype(np.int64)
     if fill_decision:
-        flat = held.decision.reshape(-1)
-        held.filled += int(np.count_nonzero(flat[cells] != MOVING))
-        flat[cells] = MOVING
+        held.decision.reshape(-1)[cells] = MOVING
     objects = held.objects
     counts = objects["cell_count"].astype(np.int64)
     ends = np.cumsum(counts)
