@@ -107,6 +107,7 @@ RULES: dict[str, tuple] = {
     "objects.point_height_margin_m": ("range", 0.0, 100.0, False, False),
     "objects.footprint_frames": ("range", 0, 1_000, False, False),
     "objects.backfill_frames": ("range", 0, 100, False, False),
+    "objects.bridge_reach_cells": ("range", 0, 10, False, False),
     "objects.moving_min_height_m": ("range", 0.0, 100.0, False, False),
     "objects.arrival_share": ("range", *_UNIT_INTERVAL, False, False),
     "objects.fragment_gap_cells": ("range", 0, 100, False, False),

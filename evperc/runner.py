@@ -575,6 +575,9 @@ class Pipeline:
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
                 inputs.stamp_ns, occupied_now=occupied_now, heights=inputs.heights)
+            if self.backfill_frames > 0:  # the backfill's gaps (objects.bridge_gaps)
+                frame["occupied_now"] = occupied_now
+                frame["speaks"] = (inputs.free, inputs.occupied)
             if self.footprint.frames > 0:  # motion-compensated footprints (objects/footprint.py)
                 if state.footprints is None:
                     state.footprints = FootprintState()
@@ -818,7 +821,9 @@ def run(request: RunRequest, resume: bool = False,
             objects = frame["objects"]
             released = backfill.push(HeldFrame(
                 frame["window"], out.decision, out.betp[4], objects, frame["object_cells"],
-                candidates(state.tracks, objects), payload=(frame, out)))
+                candidates(state.tracks, objects), payload=(frame, out),
+                stamp_ns=frame["stamp_ns"], occupied=frame.pop("occupied_now"),
+                speaks=frame.pop("speaks")))
             clock.lap("objects")
             release(released)
         if backfill is not None:  # the log's end: the frames still held

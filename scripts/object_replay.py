@@ -190,8 +190,8 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
         args = (state, decision, betps[k], conflicts[k], window, int(stamps[k]), occ,
                 top if top.any() else None)
         objects, cells = step(stage, *args) if step is not None else stage.step(*args)
+        speaks = np.unpackbits(data["speaks"][k])[:occ.size].reshape(shape).astype(bool)
         if fp_params.frames > 0:
-            speaks = np.unpackbits(data["speaks"][k])[:occ.size].reshape(shape).astype(bool)
             objects, cells = complete_footprints(fp_state, objects, cells, window,
                                                  int(stamps[k]), speaks, fp_params)
         moving = moving_object_cells(objects, cells)
@@ -211,7 +211,7 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
         if backfill.frames > 0:  # the frames L behind, with the moving tracks filled in
             frames.extend(_released(backfill.push(HeldFrame(
                 window, decision, betps[k], objects, cells, candidates(state, objects),
-                payload=frame))))
+                payload=frame, stamp_ns=int(stamps[k]), occupied=occ, speaks=speaks))))
         else:
             frames.append(frame)
     frames.extend(_released(backfill.flush()))

@@ -18,7 +18,26 @@ later frame (within L) reports a candidate ``moving``, the held frame gets a rec
 its cells there, their centroid, box and mean betP(M), its age then, and the velocity of the
 report — and its cells are decided ``moving`` (a decision, like the fill: the masses are not
 changed). A candidate is filled once; a track reported ``stopped`` in the held frame is not
-a candidate (it moved before and stood there)."""
+a candidate (it moved before and stood there).
+
+**Gaps** (``objects.bridge_gaps``, reach ``objects.bridge_reach_cells`` = ρ; ours): a track
+reported moving now that was not reported moving in the frame before may have gone without a
+cluster for a few frames in between (the tracker coasts through up to
+``max_missed_frames``): its cluster fell under the minimum size, or merged with a neighbour's.
+If the newest held frame in which the track has a record holds it ``moving`` (reported then,
+or filled just now) and the frames after it have no record of it (a gap of g frames), each
+gap frame k gets the track's cells predicted there from both ends at constant velocity v
+(the report's),
+
+    P_k = { c + ⌊v (t_k − t_now) / r⌉ : c ∈ C_now } ∪ { c + ⌊v (t_k − t_p) / r⌉ : c ∈ C_p },
+
+and its record is the cells *occupied now* in frame k (holding a return of its scan, the
+clusters' input) within Chebyshev distance ρ of P_k and, if there are any, the cells of P_k
+its scan is silent about (neither seen free nor holding a return: occluded, as the footprint
+completion fills them), none in another record of frame k; they are decided ``moving`` as a
+fill's. A gap that reaches past the held frames, or ends at a ``stopped`` record, is not
+bridged; a frame with no occupied cell near P_k gets nothing (nothing says the object is
+there)."""
 
 from __future__ import annotations
 
@@ -63,6 +82,13 @@ class HeldFrame:
     payload: Any = None
     #: the track ids the backfill added, in the order added
     added: list[int] = field(default_factory=list)
+    #: the frame's time (ns) and its cells occupied now (window-shaped, nonzero: the
+    #: clusters' input), for the gaps (module docstring); None: no gap is bridged into it
+    stamp_ns: int = 0
+    occupied: np.ndarray | None = None
+    #: the cells its scan speaks of (seen free or holding a return): a bool layer or the
+    #: sensor grid's (m({F}), m({O})); None: a gap's record is its occupied cells only
+    speaks: np.ndarray | tuple[np.ndarray, np.ndarray] | None = None
 
 
 class Candidates:
@@ -133,8 +159,10 @@ class Backfill:
     """Holds the last ``frames`` frames (:meth:`push`) and fills them (module docstring)."""
 
     def __init__(self, frames: int, gap_cells: int = 0, extent_m: float = np.inf,
-                 fill_decision: bool = True) -> None:
+                 fill_decision: bool = True, bridge_reach: int = -1) -> None:
         self.frames = int(frames)
+        #: objects.bridge_reach_cells with objects.bridge_gaps (module docstring); -1: off
+        self.bridge_reach = int(bridge_reach)
         #: objects.fill_moving: the added records' cells are decided moving
         self.fill_decision = bool(fill_decision)
         #: objects.fragment_gap_cells: a candidate this close to a moving record joins it ...
@@ -149,8 +177,10 @@ class Backfill:
     @staticmethod
     def from_config(config: dict[str, Any]) -> Backfill:
         o = config["objects"]
+        reach = int(o.get("bridge_reach_cells", 0)) if o.get("bridge_gaps", False) else -1
         return Backfill(backfill_frames(config), int(o.get("fragment_gap_cells", 0)),
-                        float(o.get("fragment_extent_m", np.inf)), fills_decision(config))
+                        float(o.get("fragment_extent_m", np.inf)), fills_decision(config),
+                        reach)
 
     def push(self, frame: HeldFrame) -> list[HeldFrame]:
         """Fill the held frames from ``frame``'s moving records, hold ``frame``; returns the
@@ -166,11 +196,47 @@ class Backfill:
                     cells, age = held.candidates.pop(track)
                     fill(held, track, cells, age, moving[int(np.searchsorted(ids, track))],
                          self.gap_cells, self.extent_m, self.fill_decision)
+            if self.bridge_reach >= 0:
+                ends = np.cumsum(frame.objects["cell_count"].astype(np.int64))
+                for k in np.flatnonzero(frame.objects["state"] == _STATE_MOVING):
+                    if int(frame.objects["track_id"][k]) in new:
+                        self._bridge(frame, k, ends)
         self.held.append(frame)
         released = []
         while len(self.held) > self.frames:
             released.append(self.held.popleft())
         return released
+
+    def _bridge(self, frame: HeldFrame, k: int, ends: np.ndarray) -> None:
+        """Bridge the gaps of the track of record ``k`` of ``frame`` (newly reported moving;
+        ``ends``: the cumulative cell counts of its records) in the held frames, newest
+        first, each between two of its moving records (module docstring)."""
+        report = frame.objects[k]
+        track = int(report["track_id"])
+        newer = (_lattice(frame.window, frame.object_cells[
+            int(ends[k] - report["cell_count"]):int(ends[k])]), frame.stamp_ns)
+        gap: list[HeldFrame] = []
+        for held in reversed(self.held):
+            at = np.flatnonzero(held.objects["track_id"] == track)
+            if at.size == 0:
+                if held.occupied is None:
+                    return
+                gap.append(held)
+                continue
+            b = int(at[0])
+            if held.objects["state"][b] != _STATE_MOVING:
+                return
+            held_ends = np.cumsum(held.objects["cell_count"].astype(np.int64))
+            older = (_lattice(held.window, held.object_cells[
+                int(held_ends[b] - held.objects["cell_count"][b]):int(held_ends[b])]),
+                held.stamp_ns)
+            for g in gap:
+                cells = bridge_cells(g, report["velocity_m_per_s"], (newer, older),
+                                     self.bridge_reach)
+                if len(cells):
+                    fill(g, track, cells, int(held.objects["age_frames"][b]), report,
+                         self.gap_cells, self.extent_m, self.fill_decision)
+            newer, gap = older, []
 
     def flush(self) -> list[HeldFrame]:
         """Every held frame, oldest first (the log's end)."""
@@ -234,6 +300,57 @@ def fill(held: HeldFrame, track: int, lattice: np.ndarray, age: int,
     held.object_cells = np.concatenate([old_cells[:offset], cells.astype(dtype),
                                         old_cells[offset:]])
     held.added.append(track)
+
+
+def bridge_cells(held: HeldFrame, velocity_m_per_s: np.ndarray,
+                 known: tuple[tuple[np.ndarray, int], ...], reach: int) -> np.ndarray:
+    """The cells (global lattice (iy, ix), ascending) of a track in ``held``, a frame of
+    a gap (module docstring, "Gaps"), none of them in a record of ``held``: its cells
+    ``known`` elsewhere ((cells (n, 2), stamp_ns) pairs) carried to ``held.stamp_ns`` at
+    ``velocity_m_per_s`` (x, y) predict where it is; the cells occupied now within
+    Chebyshev distance ``reach`` of the prediction are its, and if there are any, so are
+    the predicted cells its scan is silent about (``held.speaks``). None if no cell near
+    the prediction is occupied now (nothing says the object is there)."""
+    w = held.window
+    v = np.asarray(velocity_m_per_s, np.float64)
+    predicted = np.concatenate([cells + np.rint(v[::-1] * (held.stamp_ns - stamp) * 1e-9
+                                                / w.resolution_m).astype(np.int64)
+                                for cells, stamp in known])
+    offsets = np.arange(-reach, reach + 1)
+    near = (predicted[:, None, None, :] + np.stack(np.meshgrid(
+        offsets, offsets, indexing="ij"), axis=-1)[None]).reshape(-1, 2)
+    records = np.asarray(held.object_cells, np.int64)
+    flat = _window_flat(w, near)
+    flat = flat[held.occupied.reshape(-1)[flat] != 0]
+    flat = flat[~np.isin(flat, records)]
+    if flat.size and held.speaks is not None:
+        silent = _window_flat(w, predicted)
+        silent = silent[~_spoken(held.speaks, silent) & ~np.isin(silent, records)]
+        flat = np.union1d(flat, silent)
+    return np.stack([flat // w.cols + w.row0, flat % w.cols + w.col0], axis=1)
+
+
+def _window_flat(window: Window, lattice: np.ndarray) -> np.ndarray:
+    """The flat window indices (ascending, unique) of the lattice cells inside ``window``."""
+    r = lattice[:, 0] - window.row0
+    c = lattice[:, 1] - window.col0
+    inside = (r >= 0) & (r < window.rows) & (c >= 0) & (c < window.cols)
+    return np.unique(r[inside] * window.cols + c[inside])
+
+
+def _spoken(speaks: Any, flat: np.ndarray) -> np.ndarray:
+    """Whether the scan speaks of each cell ``flat``: ``speaks`` a bool layer, or the
+    sensor grid's (m({F}), m({O})) layers (either > 0)."""
+    if isinstance(speaks, tuple):
+        return (speaks[0].reshape(-1)[flat] > 0) | (speaks[1].reshape(-1)[flat] > 0)
+    return np.asarray(speaks).reshape(-1)[flat].astype(bool)
+
+
+def _lattice(window: Window, flat: np.ndarray) -> np.ndarray:
+    """Flat window cells as global lattice (iy, ix) rows."""
+    flat = np.asarray(flat, np.int64)
+    return np.stack([flat // window.cols + window.row0, flat % window.cols + window.col0],
+                    axis=1)
 
 
 def _touching(objects: np.ndarray, cells: np.ndarray, ends: np.ndarray, counts: np.ndarray,

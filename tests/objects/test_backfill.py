@@ -111,6 +111,117 @@ def test_a_report_that_drops_out_and_returns_fills_the_frame_between() -> None:
     assert f0.added == f2.added == [7] and f1.added == f3.added == []
 
 
+def _gap_frames(before_state: int = MOVING, reach: int = 1
+                ) -> tuple[Backfill, list[HeldFrame]]:
+    """Lag 3, frames 0.5 s apart: track 7 (velocity 1 m/s along x: one 0.5 m cell a frame)
+    has a record in frame 0 on window cell (2, 2), none in frame 1, and is reported moving
+    in frame 2 on (2, 4). Frame 1 holds a stopped record of track 12 on (1, 2); its cells
+    occupied now: (2, 3) and (3, 4) (within one cell of the prediction (2, 3) from both
+    ends), (2, 5) (two cells away) and (1, 2) (track 12's)."""
+    backfill = Backfill(3, bridge_reach=reach)
+
+    def frame(k: int, objects: np.ndarray, cells: list[int], occupied: list[int]
+              ) -> HeldFrame:
+        f = _frame({}, objects=objects, cells=np.array(cells, np.uint32))
+        f.stamp_ns = k * 500_000_000
+        f.occupied = np.zeros(W.shape, np.bool_)
+        f.occupied.reshape(-1)[occupied] = True
+        return f
+
+    frames = [frame(0, _record(7, state=before_state, velocity=(1.0, 0.0)), [22], [22]),
+              frame(1, _record(12, state=OBJECT_STATES["stopped"]), [12], [23, 34, 25, 12]),
+              frame(2, _record(7, velocity=(1.0, 0.0)), [24], [24])]
+    return backfill, frames
+
+
+def test_a_gap_between_two_moving_records_is_bridged() -> None:
+    """The gap frame gets track 7's record on its occupied cells within one cell of the
+    predicted (2, 3), not on the cell two away nor on track 12's; they are decided moving,
+    the record takes the age of the record before the gap and the report's velocity."""
+    backfill, (f0, f1, f2) = _gap_frames()
+    f0.objects["age_frames"] = 5
+    for f in (f0, f1, f2):
+        backfill.push(f)
+    assert f1.added == [7] and f1.objects["track_id"].tolist() == [7, 12]
+    assert f1.object_cells.tolist() == [23, 34, 12]
+    assert np.flatnonzero(f1.decision.reshape(-1) == D["moving"]).tolist() == [23, 34]
+    (r,) = f1.objects[f1.objects["track_id"] == 7]
+    assert (r["state"], r["age_frames"], r["cell_count"]) == (MOVING, 5, 2)
+    np.testing.assert_allclose(r["velocity_m_per_s"], [1.0, 0.0])
+    assert f0.added == f2.added == []
+
+
+def test_a_gap_between_two_candidates_is_bridged_when_they_are_filled() -> None:
+    """Lag 4: track 7 a candidate in frames 0 and 2 (window cells (2, 2) and (2, 4)), not
+    associated in frame 1, reported moving in frame 3: frames 0 and 2 are filled, then the
+    gap between them bridged on frame 1's occupied cell at the predicted (2, 3)."""
+    backfill = Backfill(4, bridge_reach=0)
+    frames = [_frame({7: ([[102, 202]], 1)}), _frame({}), _frame({7: ([[102, 204]], 2)}),
+              _frame({}, objects=_record(7, velocity=(1.0, 0.0)),
+                     cells=np.array([25], np.uint32))]
+    for k, f in enumerate(frames):
+        f.stamp_ns = k * 500_000_000
+        f.occupied = np.zeros(W.shape, np.bool_)
+        f.occupied.reshape(-1)[[22 + k, 33]] = True  # (3, 3): off the prediction
+        backfill.push(f)
+    assert [f.added for f in frames] == [[7], [7], [7], []]
+    assert frames[1].object_cells.tolist() == [23]
+    assert frames[1].objects["age_frames"].tolist() == [1]  # the record before the gap
+
+
+def test_a_bridged_record_takes_the_predicted_cells_its_scan_is_silent_about() -> None:
+    """Track 7 on window cells (2, 2), (3, 2) before the gap and (2, 4), (3, 4) after it:
+    predicted (2, 3), (3, 3) in the gap frame. (2, 3) is occupied there; (3, 3) joins the
+    record when the scan is silent about it, not when it was seen free; with no occupied
+    cell near the prediction nothing is bridged, silent or not."""
+    def run(occupied: list[int], free: list[int]) -> HeldFrame:
+        backfill = Backfill(3, bridge_reach=0)
+        f0 = _frame({}, objects=_record(7, cells=2, velocity=(1.0, 0.0)),
+                    cells=np.array([22, 32], np.uint32))
+        f1 = _frame({})
+        f2 = _frame({}, objects=_record(7, cells=2, velocity=(1.0, 0.0)),
+                    cells=np.array([24, 34], np.uint32))
+        for k, f in enumerate((f0, f1, f2)):
+            f.stamp_ns = k * 500_000_000
+            f.occupied = np.zeros(W.shape, np.bool_)
+            f.speaks = np.zeros(W.shape, np.bool_)
+        f1.occupied.reshape(-1)[occupied] = True
+        f1.speaks.reshape(-1)[occupied + free] = True
+        for f in (f0, f1, f2):
+            backfill.push(f)
+        return f1
+
+    assert run([23], []).object_cells.tolist() == [23, 33]
+    assert run([23], [33]).object_cells.tolist() == [23]
+    gap = run([], [])
+    assert gap.added == [] and not (gap.decision == D["moving"]).any()
+
+
+def test_gaps_not_bounded_by_a_moving_record_are_not_bridged() -> None:
+    """Nothing is bridged when the record before the gap is stopped, when the bridge is off
+    (reach -1), when the record before the gap was released already (lag 1), or into a
+    frame whose occupied cells are unknown; reach 0 keeps the predicted cell only."""
+    for state, reach in ((OBJECT_STATES["stopped"], 1), (MOVING, -1)):
+        backfill, frames = _gap_frames(state, reach)
+        for f in frames:
+            backfill.push(f)
+        assert frames[1].added == [] and not (frames[1].decision == D["moving"]).any()
+    backfill, frames = _gap_frames()
+    backfill.frames = 1
+    for f in frames:
+        backfill.push(f)
+    assert frames[1].added == []
+    backfill, frames = _gap_frames()
+    frames[1].occupied = None
+    for f in frames:
+        backfill.push(f)
+    assert frames[1].added == []
+    backfill, frames = _gap_frames(reach=0)
+    for f in frames:
+        backfill.push(f)
+    assert frames[1].object_cells.tolist() == [23, 12]
+
+
 def test_a_fragment_beside_a_moving_record_joins_it() -> None:
     """Gap 2 cells, extent 3 m: track 5's cells two cells from track 3's moving record join
     it (track 3's id, age and velocity kept, its geometry recomputed over the union); a
@@ -193,16 +304,18 @@ def test_the_key_is_off_without_objects_and_checked() -> None:
 
 
 @pytest.fixture(scope="module")
-def sample_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, list]:
+def sample_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int | str, list]:
     """The sample drive (8 s, with its map) causal and with lags 3 and 6; chunks of 7
     frames, a checkpoint at each chunk end (the backfill's snapshots taken); -6: lag 6 with
     the chunks stored uncompressed (the writer cannot hold slots: the held frames' own
-    buffers are copied into its slot)."""
+    buffers are copied into its slot); "no_bridge": lag 6 without objects.bridge_gaps."""
     root = Path(__file__).resolve().parents[2] / "sample_data"
     tmp = tmp_path_factory.mktemp("backfill")
-    frames = {}
-    for lag, compress in ((0, True), (3, True), (6, True), (-6, False)):
-        config = load_config(overrides={"objects.backfill_frames": abs(lag),
+    frames: dict[int | str, list] = {}
+    for lag, compress in ((0, True), (3, True), (6, True), (-6, False), ("no_bridge", True)):
+        config = load_config(overrides={"objects.backfill_frames": 6 if lag == "no_bridge"
+                                        else abs(lag),
+                                        "objects.bridge_gaps": lag != "no_bridge",
                                         "output.chunk_frames": 7,
                                         "output.checkpoint_frames": 1,
                                         "output.compress": compress})
@@ -215,7 +328,7 @@ def sample_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, list]:
 
 @pytest.mark.parametrize("lag", [3, 6])
 def test_a_run_with_the_backfill_adds_only_what_the_rule_allows(
-        sample_runs: dict[int, list], lag: int) -> None:
+        sample_runs: dict[int | str, list], lag: int) -> None:
     """Against the causal run, frame by frame: the layers other than the decision are equal;
     every record of the causal frame is kept (same track, state, age, velocity) on a
     superset of its cells (a fragment joined); each added record is a track absent from
@@ -258,6 +371,41 @@ def test_a_run_with_the_backfill_adds_only_what_the_rule_allows(
     assert counts_b[D["moving"]] > counts_a[D["moving"]]
 
 
+def test_the_bridged_gaps_of_a_run_are_bounded_by_moving_records(
+        sample_runs: dict[int | str, list]) -> None:
+    """Lag 6 with and without objects.bridge_gaps, frame by frame: the layers other than the
+    decision are equal; every record without the bridge is kept (same track, state, age,
+    velocity, cells a superset: a bridged fragment may join it); each added record is a
+    moving track absent from that frame without the bridge and holding a moving record in
+    an earlier and in a later frame within the lag (the gap between them); the decision
+    changes only on the added moving cells, to moving; and the sample drive has such gaps."""
+    plain, bridged = sample_runs["no_bridge"], sample_runs[6]
+    assert len(plain) == len(bridged) > 50
+    moving_ids = [set(f.objects["track_id"][f.objects["state"] == MOVING].tolist())
+                  for f in plain]
+    added_total = 0
+    for k, (a, b) in enumerate(zip(plain, bridged, strict=True)):
+        for layer in ("masses", "betp", "conflict", "zeta"):
+            np.testing.assert_array_equal(getattr(a, layer), getattr(b, layer))
+        la, lb = a.object_labels(), b.object_labels()
+        kept = np.isin(b.objects["track_id"], a.objects["track_id"])
+        assert kept.sum() == len(a.objects)
+        for ra, rb in zip(a.objects, b.objects[kept], strict=True):
+            for name in ("track_id", "state", "age_frames", "velocity_m_per_s"):
+                np.testing.assert_array_equal(ra[name], rb[name])
+            assert (lb[la == ra["track_id"]] == ra["track_id"]).all()
+        added = b.objects[~kept]
+        assert (added["state"] == MOVING).all()
+        before = set().union(*moving_ids[max(k - 6, 0):k])
+        after = set().union(*moving_ids[k + 1:k + 7])
+        assert set(added["track_id"].tolist()) <= before & after
+        new_cells = (la == 0) & (lb > 0)
+        assert not ((a.decision != b.decision) & ~new_cells).any()
+        assert (b.decision[new_cells] == D["moving"]).all()
+        added_total += len(added)
+    assert added_total > 0
+
+
 def test_the_writer_holds_slots_and_commits_the_oldest(tmp_path: Path) -> None:
     """RunWriter(hold_frames=2): three slots out at once (the ring grows by two), each
     commit takes the oldest, so the frames are stored in the order reserved with the layers
@@ -288,7 +436,7 @@ def test_the_writer_holds_slots_and_commits_the_oldest(tmp_path: Path) -> None:
 
 
 def test_held_in_the_writer_or_copied_the_frames_are_the_same(
-        sample_runs: dict[int, list]) -> None:
+        sample_runs: dict[int | str, list]) -> None:
     held, copied = sample_runs[6], sample_runs[-6]
     assert len(held) == len(copied)
     for a, b in zip(held, copied, strict=True):
