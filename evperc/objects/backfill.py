@@ -319,14 +319,14 @@ def bridge_cells(held: HeldFrame, velocity_m_per_s: np.ndarray,
     offsets = np.arange(-reach, reach + 1)
     near = (predicted[:, None, None, :] + np.stack(np.meshgrid(
         offsets, offsets, indexing="ij"), axis=-1)[None]).reshape(-1, 2)
-    records = np.asarray(held.object_cells, np.int64)
+    records = np.sort(np.asarray(held.object_cells, np.int64))
     flat = _window_flat(w, near)
     flat = flat[held.occupied.reshape(-1)[flat] != 0]
-    flat = flat[~np.isin(flat, records)]
+    flat = flat[~_in_sorted(flat, records)]
     if flat.size and held.speaks is not None:
         silent = _window_flat(w, predicted)
-        silent = silent[~_spoken(held.speaks, silent) & ~np.isin(silent, records)]
-        flat = np.union1d(flat, silent)
+        silent = silent[~_spoken(held.speaks, silent) & ~_in_sorted(silent, records)]
+        flat = _sorted_unique(np.concatenate([flat, silent]))
     return np.stack([flat // w.cols + w.row0, flat % w.cols + w.col0], axis=1)
 
 
@@ -335,7 +335,13 @@ def _window_flat(window: Window, lattice: np.ndarray) -> np.ndarray:
     r = lattice[:, 0] - window.row0
     c = lattice[:, 1] - window.col0
     inside = (r >= 0) & (r < window.rows) & (c >= 0) & (c < window.cols)
-    return np.unique(r[inside] * window.cols + c[inside])
+    return _sorted_unique(r[inside] * window.cols + c[inside])
+
+
+def _sorted_unique(values: np.ndarray) -> np.ndarray:
+    """``np.unique`` of a short array (sorted, duplicates dropped), without its hashing."""
+    values = np.sort(values)
+    return values[np.concatenate(([True], values[1:] != values[:-1]))] if values.size else values
 
 
 def _spoken(speaks: Any, flat: np.ndarray) -> np.ndarray:
