@@ -326,6 +326,28 @@ def sample_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int | str, lis
     return frames
 
 
+def _moving_ids(frames: list) -> list[set[int]]:
+    """The track ids each frame reports moving."""
+    return [set(f.objects["track_id"][f.objects["state"] == MOVING].tolist()) for f in frames]
+
+
+def _records_kept(a, b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frame ``b`` against ``a`` (the same scan, fewer records filled in): the layers other
+    than the decision are equal and every record of ``a`` is in ``b`` (same track, state,
+    age, velocity) on a superset of its cells. Returns both frames' object labels and the
+    records ``b`` adds."""
+    for layer in ("masses", "betp", "conflict", "zeta"):
+        np.testing.assert_array_equal(getattr(a, layer), getattr(b, layer))
+    la, lb = a.object_labels(), b.object_labels()
+    kept = np.isin(b.objects["track_id"], a.objects["track_id"])
+    assert kept.sum() == len(a.objects)
+    for ra, rb in zip(a.objects, b.objects[kept], strict=True):
+        for name in ("track_id", "state", "age_frames", "velocity_m_per_s"):
+            np.testing.assert_array_equal(ra[name], rb[name])
+        assert (lb[la == ra["track_id"]] == ra["track_id"]).all()  # cells kept
+    return la, lb, b.objects[~kept]
+
+
 @pytest.mark.parametrize("lag", [3, 6])
 def test_a_run_with_the_backfill_adds_only_what_the_rule_allows(
         sample_runs: dict[int | str, list], lag: int) -> None:
@@ -338,20 +360,10 @@ def test_a_run_with_the_backfill_adds_only_what_the_rule_allows(
     drive's agents are confirmed over 3+ frames)."""
     causal, lagged = sample_runs[0], sample_runs[lag]
     assert len(causal) == len(lagged) > 50
-    moving_ids = [set(f.objects["track_id"][f.objects["state"] == MOVING].tolist())
-                  for f in causal]
+    moving_ids = _moving_ids(causal)
     added_total = 0
     for k, (a, b) in enumerate(zip(causal, lagged, strict=True)):
-        for layer in ("masses", "betp", "conflict", "zeta"):
-            np.testing.assert_array_equal(getattr(a, layer), getattr(b, layer))
-        la, lb = a.object_labels(), b.object_labels()
-        kept = np.isin(b.objects["track_id"], a.objects["track_id"])
-        assert kept.sum() == len(a.objects)
-        for ra, rb in zip(a.objects, b.objects[kept], strict=True):
-            for name in ("track_id", "state", "age_frames", "velocity_m_per_s"):
-                np.testing.assert_array_equal(ra[name], rb[name])
-            assert (lb[la == ra["track_id"]] == ra["track_id"]).all()  # cells kept
-        added = b.objects[~kept]
+        la, lb, added = _records_kept(a, b)
         later = set().union(*moving_ids[k + 1:k + 1 + lag])
         assert set(added["track_id"].tolist()) <= later
         assert (added["state"] == MOVING).all()
@@ -381,20 +393,10 @@ def test_the_bridged_gaps_of_a_run_are_bounded_by_moving_records(
     changes only on the added moving cells, to moving; and the sample drive has such gaps."""
     plain, bridged = sample_runs["no_bridge"], sample_runs[6]
     assert len(plain) == len(bridged) > 50
-    moving_ids = [set(f.objects["track_id"][f.objects["state"] == MOVING].tolist())
-                  for f in plain]
+    moving_ids = _moving_ids(plain)
     added_total = 0
     for k, (a, b) in enumerate(zip(plain, bridged, strict=True)):
-        for layer in ("masses", "betp", "conflict", "zeta"):
-            np.testing.assert_array_equal(getattr(a, layer), getattr(b, layer))
-        la, lb = a.object_labels(), b.object_labels()
-        kept = np.isin(b.objects["track_id"], a.objects["track_id"])
-        assert kept.sum() == len(a.objects)
-        for ra, rb in zip(a.objects, b.objects[kept], strict=True):
-            for name in ("track_id", "state", "age_frames", "velocity_m_per_s"):
-                np.testing.assert_array_equal(ra[name], rb[name])
-            assert (lb[la == ra["track_id"]] == ra["track_id"]).all()
-        added = b.objects[~kept]
+        la, lb, added = _records_kept(a, b)
         assert (added["state"] == MOVING).all()
         before = set().union(*moving_ids[max(k - 6, 0):k])
         after = set().union(*moving_ids[k + 1:k + 7])
