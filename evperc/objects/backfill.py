@@ -24,14 +24,14 @@ a candidate (it moved before and stood there).
 reported moving now that was not reported moving in the frame before may have gone without a
 cluster for a few frames in between (the tracker coasts through up to
 ``max_missed_frames``): its cluster fell under the minimum size, or merged with a neighbour's.
-If the newest held frame in which the track has a record holds it ``moving`` (reported then,
-or filled just now) and the frames after it have no record of it (a gap of g frames), each
-gap frame k gets the track's cells predicted there from both ends at constant velocity v
-(the report's),
+Walking the held frames from the newest, each run of frames without a record of the track
+between two frames that hold a ``moving`` record of it (reported then, or filled just now;
+the newest end may be the report itself) is a gap, and each of its frames k gets the
+track's cells predicted there from both ends at constant velocity v (the report's),
 
-    P_k = { c + ⌊v (t_k − t_now) / r⌉ : c ∈ C_now } ∪ { c + ⌊v (t_k − t_p) / r⌉ : c ∈ C_p },
+    P_k = { c + ⌊v (t_k − t_q) / r⌉ : c ∈ C_q } ∪ { c + ⌊v (t_k − t_p) / r⌉ : c ∈ C_p },
 
-and its record is the cells *occupied now* in frame k (holding a return of its scan, the
+with p < k < q the gap's two ends, and its record is the cells *occupied now* in frame k (holding a return of its scan, the
 clusters' input) within Chebyshev distance ρ of P_k and, if there are any, the cells of P_k
 its scan is silent about (neither seen free nor holding a return: occluded, as the footprint
 completion fills them), none in another record of frame k; they are decided ``moving`` as a
@@ -309,8 +309,8 @@ def bridge_cells(held: HeldFrame, velocity_m_per_s: np.ndarray,
     ``known`` elsewhere ((cells (n, 2), stamp_ns) pairs) carried to ``held.stamp_ns`` at
     ``velocity_m_per_s`` (x, y) predict where it is; the cells occupied now within
     Chebyshev distance ``reach`` of the prediction are its, and if there are any, so are
-    the predicted cells its scan is silent about (``held.speaks``). None if no cell near
-    the prediction is occupied now (nothing says the object is there)."""
+    the predicted cells its scan is silent about (``held.speaks``). No cell at all if none
+    near the prediction is occupied now (nothing says the object is there)."""
     w = held.window
     v = np.asarray(velocity_m_per_s, np.float64)
     predicted = np.concatenate([cells + np.rint(v[::-1] * (held.stamp_ns - stamp) * 1e-9
@@ -327,7 +327,7 @@ def bridge_cells(held: HeldFrame, velocity_m_per_s: np.ndarray,
         silent = _window_flat(w, predicted)
         silent = silent[~_spoken(held.speaks, silent) & ~_in_sorted(silent, records)]
         flat = _sorted_unique(np.concatenate([flat, silent]))
-    return np.stack([flat // w.cols + w.row0, flat % w.cols + w.col0], axis=1)
+    return _lattice(w, flat)
 
 
 def _window_flat(window: Window, lattice: np.ndarray) -> np.ndarray:
