@@ -31,13 +31,13 @@ track's cells predicted there from both ends at constant velocity v (the report'
 
     P_k = { c + ⌊v (t_k − t_q) / r⌉ : c ∈ C_q } ∪ { c + ⌊v (t_k − t_p) / r⌉ : c ∈ C_p },
 
-with p < k < q the gap's two ends, and its record is the cells *occupied now* in frame k (holding a return of its scan, the
-clusters' input) within Chebyshev distance ρ of P_k and, if there are any, the cells of P_k
-its scan is silent about (neither seen free nor holding a return: occluded, as the footprint
-completion fills them), none in another record of frame k; they are decided ``moving`` as a
-fill's. A gap that reaches past the held frames, or ends at a ``stopped`` record, is not
-bridged; a frame with no occupied cell near P_k gets nothing (nothing says the object is
-there)."""
+with p < k < q the gap's two ends, and its record is the cells *occupied now* in frame k
+(holding a return of its scan, the clusters' input) within Chebyshev distance ρ of P_k and,
+if there are any, the cells of P_k its scan is silent about (neither seen free nor holding a
+return: occluded, as the footprint completion fills them), none in another record of frame
+k; they are decided ``moving`` as a fill's. A gap that reaches past the held frames, or
+ends at a ``stopped`` record, is not bridged; a frame with no occupied cell near P_k gets
+nothing (nothing says the object is there)."""
 
 from __future__ import annotations
 
@@ -119,12 +119,9 @@ class Candidates:
                           np.array([tracks[t][1] for t in ids], np.int64))
 
     def matching(self, tracks: np.ndarray) -> np.ndarray:
-        """The indices of the candidates not yet taken whose ids are in ``tracks``."""
-        if len(self.ids) == 0 or len(tracks) == 0:
-            return np.zeros(0, np.int64)
-        at = np.minimum(np.searchsorted(self.ids, tracks), len(self.ids) - 1)
-        found = at[self.ids[at] == tracks]
-        return np.unique(found[~self.taken[found]])
+        """The indices of the candidates not yet taken whose ids are in ``tracks``
+        (ascending: a frame's record ids)."""
+        return np.flatnonzero(_in_sorted(self.ids, tracks) & ~self.taken)
 
     def pop(self, track: int, default: Any = None) -> Any:
         """(cells, age) of ``track``, taken (``default`` if not a candidate or taken)."""
@@ -197,24 +194,23 @@ class Backfill:
                     fill(held, track, cells, age, moving[int(np.searchsorted(ids, track))],
                          self.gap_cells, self.extent_m, self.fill_decision)
             if self.bridge_reach >= 0:
-                ends = np.cumsum(frame.objects["cell_count"].astype(np.int64))
-                for k in np.flatnonzero(frame.objects["state"] == _STATE_MOVING):
-                    if int(frame.objects["track_id"][k]) in new:
-                        self._bridge(frame, k, ends)
+                reported = frame.objects["track_id"].astype(np.int64)
+                for k in np.flatnonzero((frame.objects["state"] == _STATE_MOVING)
+                                        & _in_sorted(reported, new)):
+                    self._bridge(frame, int(k))
         self.held.append(frame)
         released = []
         while len(self.held) > self.frames:
             released.append(self.held.popleft())
         return released
 
-    def _bridge(self, frame: HeldFrame, k: int, ends: np.ndarray) -> None:
-        """Bridge the gaps of the track of record ``k`` of ``frame`` (newly reported moving;
-        ``ends``: the cumulative cell counts of its records) in the held frames, newest
-        first, each between two of its moving records (module docstring)."""
+    def _bridge(self, frame: HeldFrame, k: int) -> None:
+        """Bridge the gaps of the track of record ``k`` of ``frame`` (newly reported moving)
+        in the held frames, newest first, each between two of its moving records (module
+        docstring)."""
         report = frame.objects[k]
         track = int(report["track_id"])
-        newer = (_lattice(frame.window, frame.object_cells[
-            int(ends[k] - report["cell_count"]):int(ends[k])]), frame.stamp_ns)
+        newer = (_record_lattice(frame, k), frame.stamp_ns)
         gap: list[HeldFrame] = []
         for held in reversed(self.held):
             at = np.flatnonzero(held.objects["track_id"] == track)
@@ -226,10 +222,7 @@ class Backfill:
             b = int(at[0])
             if held.objects["state"][b] != _STATE_MOVING:
                 return
-            held_ends = np.cumsum(held.objects["cell_count"].astype(np.int64))
-            older = (_lattice(held.window, held.object_cells[
-                int(held_ends[b] - held.objects["cell_count"][b]):int(held_ends[b])]),
-                held.stamp_ns)
+            older = (_record_lattice(held, b), held.stamp_ns)
             for g in gap:
                 cells = bridge_cells(g, report["velocity_m_per_s"], (newer, older),
                                      self.bridge_reach)
@@ -350,6 +343,13 @@ def _spoken(speaks: Any, flat: np.ndarray) -> np.ndarray:
     if isinstance(speaks, tuple):
         return (speaks[0].reshape(-1)[flat] > 0) | (speaks[1].reshape(-1)[flat] > 0)
     return np.asarray(speaks).reshape(-1)[flat].astype(bool)
+
+
+def _record_lattice(frame: HeldFrame, k: int) -> np.ndarray:
+    """The cells of record ``k`` of ``frame`` as global lattice (iy, ix) rows."""
+    counts = frame.objects["cell_count"].astype(np.int64)
+    end = int(counts[:k + 1].sum())
+    return _lattice(frame.window, frame.object_cells[end - int(counts[k]):end])
 
 
 def _lattice(window: Window, flat: np.ndarray) -> np.ndarray:
