@@ -293,7 +293,7 @@ def test_candidates_are_the_associated_unreported_tracks() -> None:
     assert len(candidates(TrackerState(), empty_objects()).ids) == 0
 
 
-def test_the_key_is_off_without_objects_and_checked() -> None:
+def test_the_key_is_off_without_objects_and_checked(tmp_path: Path) -> None:
     assert backfill_frames(load_config()) == 6  # the default (docs/method.md §8 step 8)
     assert backfill_frames(load_config(overrides={"objects.backfill_frames": 0})) == 0
     assert backfill_frames(load_config(overrides={"objects.backfill_frames": 6})) == 6
@@ -301,6 +301,18 @@ def test_the_key_is_off_without_objects_and_checked() -> None:
                                                   "objects.backfill_frames": 6})) == 0
     with pytest.raises(ConfigError, match="backfill_frames"):
         load_config(overrides={"objects.backfill_frames": -1})
+    # the gaps: on with reach 0 by default (docs/method.md §8 step 8, "Gaps"), off is -1
+    assert Backfill.from_config(load_config()).bridge_reach == 0
+    assert Backfill.from_config(load_config(overrides={"objects.bridge_gaps": False})
+                                ).bridge_reach == -1
+    assert Backfill.from_config(load_config(overrides={"objects.bridge_reach_cells": 2})
+                                ).bridge_reach == 2
+    with pytest.raises(ConfigError, match="bridge_reach_cells"):
+        load_config(overrides={"objects.bridge_reach_cells": -1})
+    bad = tmp_path / "bad.toml"  # a user's file: typed (overrides are the tests' own)
+    bad.write_text("[objects]\nbridge_gaps = 1\n")
+    with pytest.raises(ConfigError, match="bridge_gaps must be bool"):
+        load_config(bad)
 
 
 @pytest.fixture(scope="module")
