@@ -13,6 +13,11 @@ then per tree the median and range, and for every pair of trees the median and r
 the per-round ratios — on a shared machine the only figure that means something, since
 the host's speed changes from minute to minute. Raw summaries go to
 ``bench-out/ab_run.json``.
+
+``--seconds 60`` (before the rounds) runs a 60 s drive of the same profile instead (600
+scans, simulated once into bench-out/sim-hdl64-60s): the frames' steady state, with the
+run's set-up and its first touch of fresh memory spread over six times more frames
+(docs/performance.md § "The main thread against e996c3d").
 """
 
 from __future__ import annotations
@@ -43,9 +48,12 @@ def run_tree(tree: Path, name: str, sim: Path, config: Path) -> dict:
 
 
 def main(argv: list[str]) -> None:
+    seconds = 10  # workload (a)
+    if argv[:1] == ["--seconds"]:
+        seconds, argv = int(argv[1]), argv[2:]
     rounds = int(argv[0])
     trees = [(name, Path(path).resolve()) for name, path in (a.split("=", 1) for a in argv[1:])]
-    sim = bench_run.simulate("sim-hdl64-10s", "hdl64", 10)
+    sim = bench_run.simulate(f"sim-hdl64-{seconds}s", "hdl64", seconds)
     config = bench_run.config_file("window200", bench_run.WINDOW_200)
     runs: dict[str, list[dict]] = {name: [] for name, _ in trees}
     print("load average before", os.getloadavg(), flush=True)
