@@ -94,6 +94,9 @@ class TrackingParams:
     #: objects.arrival_share: a frame in which at least this share of the cluster's cells is
     #: decided moving is the whole evidence at once (0: off; :func:`track_step`)
     arrival_share: float = 0.0
+    #: objects.arrival_min_cells: ... and that share holds at least this many cells decided
+    #: moving (below ``conflict_cells``: ``conflict_cells``)
+    arrival_min_cells: int = 0
     #: objects.centroid_sigma_per_m: the centroid noise floor grows with the object's range r
     #: from the ego (the window's centre cell): σ₀ = max(centroid_sigma_m, this · r); 0 = off
     centroid_sigma_per_m: float = 0.0
@@ -113,6 +116,7 @@ class TrackingParams:
             vacated_share=float(o["vacated_share"]),
             evidence_every_frame=bool(o.get("evidence_every_frame", False)),
             arrival_share=float(o.get("arrival_share", 0.0)),
+            arrival_min_cells=int(o.get("arrival_min_cells", 0)),
             centroid_sigma_per_m=float(o.get("centroid_sigma_per_m", 0.0)))
 
 
@@ -555,7 +559,7 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                   col0, rows, cols, decision, has_decision, stamp_ns, next_id, gate,
                   history, confirm, max_missed, speed2_min, motion_test, sigma0, need,
                   conflict_cells, vacated_frames, share_min, every_frame, arrival_share,
-                  sigma_per_m, centre_x, centre_y):  # pragma: no cover - compiled
+                  arrival_cells, sigma_per_m, centre_x, centre_y):  # pragma: no cover - compiled
     """One frame of the tracker (:func:`track_step`, the module docstring) on the state's
     arrays; returns the new arrays, the next id, and the reported (track row, cluster)."""
     n_old = ids.shape[0]
@@ -745,7 +749,8 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
             if fast or every_frame:  # the frame's evidence (reference: frame_evidence)
                 conflict = 1 if seeds[c] >= conflict_cells else 0
                 if conflict and arrival_share > 0:  # arrival: the whole evidence at once
-                    if seeds[c] >= arrival_share * (offsets[c + 1] - offsets[c]):
+                    if (seeds[c] >= arrival_cells
+                            and seeds[c] >= arrival_share * (offsets[c + 1] - offsets[c])):
                         conflict = max(1, need)
                 o_evidence[j, 0] += conflict
                 if has_decision and n_past == vacated_frames:
@@ -853,8 +858,9 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
     counted in the frames whose velocity passes the test (or, with
     ``evidence_every_frame``, in every associated frame). Arrival: with ``arrival_share``
     > 0, a cluster of which at least that share of the cells is decided moving (free
-    before, occupied now: the object arrived in cells seen free) counts
-    ``motion_evidence_frames`` frames of conflict evidence at once.
+    before, occupied now: the object arrived in cells seen free), and at least
+    ``arrival_min_cells`` of them, counts ``motion_evidence_frames`` frames of conflict
+    evidence at once.
 
     One compiled pass over the tracks (``_track_kernel``); the predicted centroids and
     their distances to the clusters (``_distances``) are numpy's formulas op for op, so the
@@ -877,6 +883,7 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
         int(params.motion_evidence_frames), int(params.conflict_cells),
         int(params.vacated_frames), float(params.vacated_share),
         bool(params.evidence_every_frame), float(params.arrival_share),
+        int(params.arrival_min_cells),
         float(params.centroid_sigma_per_m), *ego_cell_centre(window))
     (state.id, state.hits, state.missed, state.flags, state.hist_n, state.hist_t,
      state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,

@@ -304,13 +304,14 @@ def frame_evidence(t: Track, clusters: Clusters, c: int, decision: np.ndarray | 
     ``c`` adds this frame (module docstring), counted in the frames whose velocity passes
     the test (or, with ``evidence_every_frame``, in every associated frame). Arrival: with
     ``arrival_share`` > 0, a cluster of which at least that share of the cells is decided
-    moving (free before, occupied now: the object arrived in cells seen free) counts
-    ``motion_evidence_frames`` frames of conflict evidence at once."""
+    moving (free before, occupied now: the object arrived in cells seen free), and at least
+    ``arrival_min_cells`` of them, counts ``motion_evidence_frames`` frames of conflict
+    evidence at once."""
     seeds = int(clusters.seeds[c])
     conflict = int(seeds >= params.conflict_cells)
     if conflict and params.arrival_share > 0:
         size = int(clusters.offsets[c + 1] - clusters.offsets[c])
-        if seeds >= params.arrival_share * size:
+        if seeds >= params.arrival_min_cells and seeds >= params.arrival_share * size:
             conflict = max(1, params.motion_evidence_frames)
     vacated = int(decision is not None and len(t.past) == params.vacated_frames
                   and vacated_share(t.past[0], decision, window) >= params.vacated_share)

@@ -64,6 +64,29 @@ def test_arrival_gives_the_whole_evidence_at_once() -> None:
     assert _first_moving(face, TrackingParams(**EVIDENCE, arrival_share=0.3)) == 2
 
 
+def test_arrival_needs_its_least_count_of_moving_cells() -> None:
+    # 3 x 1 cells (the clusters' least size), all decided moving (share 1: arrival with
+    # arrival_min_cells <= 3), one cell east per frame: the velocity passes from frame 2
+    def small(k):
+        dec = np.full(SHAPE, D["unknown"], np.uint8)
+        dec[5:8, 10 + k] = D["moving"]
+        return dec
+    frames = [small(k) for k in range(8)]
+    assert _first_moving(frames, TrackingParams(**EVIDENCE, arrival_share=0.5)) == 2
+    assert _first_moving(frames, TrackingParams(**EVIDENCE, arrival_share=0.5,
+                                                arrival_min_cells=3)) == 2
+    # 3 moving cells < 4: counted frame by frame (frames 2, 3, 4), as without arrival
+    assert _first_moving(frames, TrackingParams(**EVIDENCE, arrival_share=0.5,
+                                                arrival_min_cells=4)) == 4
+    assert _first_moving(frames, TrackingParams(**EVIDENCE)) == 4
+    # the 6-cell arrival of the test above still arrives at once with 4 (6 moving cells)
+    arrived = [_block(k, 3) for k in range(8)]
+    assert _first_moving(arrived, TrackingParams(**EVIDENCE, arrival_share=0.5,
+                                                 arrival_min_cells=4)) == 2
+    assert _first_moving(arrived, TrackingParams(**EVIDENCE, arrival_share=0.5,
+                                                 arrival_min_cells=7)) == 4
+
+
 def test_arrival_needs_conflict_a_growing_parked_car_still_never_moves() -> None:
     frames = []
     for k in range(8):  # its side comes into view a column per frame, nothing conflicts
