@@ -49,7 +49,7 @@ from evperc.output.manifest import read_manifest
 from evperc.output.npz import write_npz
 from evperc.output.objects import OBJECT_STATES, moving_object_cells
 from evperc.output.quantise import dequantise, dequantise_planar
-from evperc.output.writer import RunWriter, check_output_dir
+from evperc.output.writer import HeldLayers, RunWriter, check_output_dir
 from evperc.plumbing import fusion_threads, keep_freed_memory, kernels_cached, prefetched
 from evperc.progress import bar as progress_bar
 from evperc.sensor import SensorParams, sensor_grid
@@ -608,26 +608,26 @@ class Pipeline:
             frame["labelling"] = (*inputs.labelling, scan.number if scan.number is not None
                                   else state.frames - 1)
         if self.backfill_frames == 0:
-            self.finish_frame(state, frame, out)
+            self.finish_frame(state, frame, out.decision)
         return frame
 
-    def finish_frame(self, state: FusionState, frame: dict[str, Any], out: StoredOutputs
+    def finish_frame(self, state: FusionState, frame: dict[str, Any], decision: np.ndarray
                      ) -> None:
-        """The passes that read the frame's final decision (``out.decision``): its counts
+        """The passes that read the frame's final ``decision`` (uint8 window layer): its counts
         (added to ``state.decision_counts``) and, with ``--point-labels``, the points' labels
         (``frame["point_labels"]``). Run by :meth:`step`, or with ``objects.backfill_frames``
         when the frame leaves the backfill (:func:`run`)."""
         if self.moving_needs_object:  # the fusion's moving cells no moving object holds
-            unfill_unconfirmed(out.decision, moving_object_cells(
+            unfill_unconfirmed(decision, moving_object_cells(
                 frame["objects"], frame["object_cells"]), frame.pop("small_groups", None))
         # counted after every pass that changes the decision: the counts match the stored one
-        frame["decision_counts"] = counts = count_codes(out.decision, len(state.decision_counts))
+        frame["decision_counts"] = counts = count_codes(decision, len(state.decision_counts))
         state.decision_counts += counts
         window = frame.pop("window")
         labelling = frame.pop("labelling", None)
         if labelling is not None:  # a separate pass over the points, after the step
             scan, t_crs, kinds, number = labelling
-            labels = point_labels(scan.points, kinds, t_crs, window, out.decision,
+            labels = point_labels(scan.points, kinds, t_crs, window, decision,
                                   scan.source_count, scan.source_index,
                                   **self._object_reach(frame))
             frame["point_labels"] = (number, labels)
@@ -697,13 +697,12 @@ def run(request: RunRequest, resume: bool = False,
     if not pipeline.warm_up_inputs() and not resume:
         raise nothing_fused(request, pipeline.reader.stats)
     if resume:
-        writer = RunWriter.resume(out_dir, hold_frames=pipeline.backfill_frames)
+        writer = RunWriter.resume(out_dir)
         done = writer.manifest["frame_count"]
         if done:
             state = FusionState.load(checkpoint_path(out_dir, done))
     else:
-        writer = RunWriter(out_dir, request.config, pipeline.meta(), overwrite=request.overwrite,
-                           hold_frames=pipeline.backfill_frames)
+        writer = RunWriter(out_dir, request.config, pipeline.meta(), overwrite=request.overwrite)
 
     def discard_if_empty() -> None:
         """A new run that fails before its manifest lists a frame leaves no output (there
@@ -766,12 +765,15 @@ def run(request: RunRequest, resume: bool = False,
     bar = progress_bar(scans, total=pipeline.expected_frames(), desc=request.log_path.name,
                        initial=state.frames, enabled=progress)
     clock = pipeline.clock
-    # the held frames' layers: the writer's own slots where it can hold them (its ring of
-    # per-frame deflation), else buffers of their own copied into its slot when released
-    held_in_writer = backfill is not None and writer.can_hold
+    # the held frames: held by the writer (RunWriter.hold: their decision and betP(M)
+    # copied out, their other layers deflated at once) where it can, else — chunks
+    # deflated whole, or on_frame wanting every layer — buffers of their own, copied into
+    # the writer's slot when released
+    held_in_writer = backfill is not None and writer.can_hold and on_frame is None
     free_outputs: list[StoredOutputs] = []
 
-    def hand_over(frame: dict[str, Any], out: StoredOutputs) -> None:
+    def hand_over(frame: dict[str, Any], out: StoredOutputs | None,
+                  held: HeldLayers | None = None) -> None:
         """A finished frame to the point labels, ``on_frame`` and the writer."""
         labelled = frame.pop("point_labels", None)
         if labelled is not None:  # before the manifest counts the frame (resume redoes it)
@@ -780,30 +782,29 @@ def run(request: RunRequest, resume: bool = False,
         if on_frame is not None:
             on_frame({**frame, **frame_arrays(out)})
             clock.lap("on_frame")
-        writer.commit_frame(**frame)
+        writer.commit_frame(**frame, held=held)
         clock.lap("write")
 
     def release(held: list[HeldFrame]) -> None:
-        """Frames leaving the backfill: their layers into the writer's slots, finished."""
+        """Frames leaving the backfill: finished and committed, in order."""
         for h in held:
             frame, layers = h.payload
             frame["objects"], frame["object_cells"] = h.objects, h.object_cells
             if held_in_writer:
-                slot = layers  # the oldest slot held: the one commit_frame commits
-            else:
-                slot = writer.frame_slot()
-                layers.copy_to(slot)
-                free_outputs.append(layers)
-            pipeline.finish_frame(state, frame, slot)
+                pipeline.finish_frame(state, frame, layers.decision)
+                hand_over(frame, None, layers)
+                continue
+            slot = writer.frame_slot()
+            layers.copy_to(slot)
+            free_outputs.append(layers)
+            pipeline.finish_frame(state, frame, slot.decision)
             hand_over(frame, slot)
 
     clock.restart()
     try:
         for index, inputs in bar:
-            if backfill is None:
+            if backfill is None or held_in_writer:
                 out = writer.frame_slot()
-            elif held_in_writer:
-                out = writer.reserve_slot()
             else:
                 out = (free_outputs.pop() if free_outputs
                        else StoredOutputs.empty(tuple(state.pg.shape[1:])))
@@ -819,9 +820,14 @@ def run(request: RunRequest, resume: bool = False,
                 snapshots[state.frames] = state.snapshot()
                 clock.lap("write")  # the checkpoint's copy (the causal run's is in the write)
             objects = frame["objects"]
+            if held_in_writer:
+                layers = writer.hold()
+                decision, betp_moving = layers.decision, layers.betp_moving
+            else:
+                layers, decision, betp_moving = out, out.decision, out.betp[4]
             released = backfill.push(HeldFrame(
-                frame["window"], out.decision, out.betp[4], objects, frame["object_cells"],
-                candidates(state.tracks, objects), payload=(frame, out),
+                frame["window"], decision, betp_moving, objects, frame["object_cells"],
+                candidates(state.tracks, objects), payload=(frame, layers),
                 stamp_ns=frame["stamp_ns"], occupied=frame.pop("occupied_now"),
                 speaks=frame.pop("speaks")))
             clock.lap("objects")

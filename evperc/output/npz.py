@@ -67,6 +67,7 @@ import zipfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from isal import isal_zlib
@@ -103,6 +104,45 @@ class DeflatedMember:
     size: int
 
 
+@dataclass(frozen=True)
+class DeflatedPiece:
+    """An array's bytes deflated on their own (:func:`deflate_piece`), ended by a sync flush,
+    for :meth:`DeflateStream.add_deflated`: the raw deflate blocks, the CRC-32 and the size
+    of the bytes, their dtype."""
+
+    parts: tuple[bytes, ...]
+    crc: int
+    size: int
+    dtype: np.dtype
+
+
+def deflate_piece(array: np.ndarray) -> DeflatedPiece:
+    """``array``'s bytes (C order) as a :class:`DeflatedPiece`: deflated now, appended to a
+    member's stream later (a held frame's layers, while they are in the cache)."""
+    compressor = isal_zlib.compressobj(DEFLATE_LEVEL, isal_zlib.DEFLATED, -15)
+    parts: list[bytes] = []
+    crc, size = _deflate_into(compressor, array, parts, 0)
+    parts.append(compressor.flush(isal_zlib.Z_SYNC_FLUSH))
+    return DeflatedPiece(tuple(parts), crc, size, array.dtype)
+
+
+def _deflate_into(compressor: Any, array: np.ndarray, parts: list[bytes], crc: int
+                  ) -> tuple[int, int]:
+    """Feed ``array``'s bytes to ``compressor`` piece by piece, its output onto ``parts``;
+    the CRC-32 continued from ``crc`` and the bytes fed."""
+    size = 0
+    for part in _contiguous_parts(array):
+        data = part.reshape(-1).view(np.uint8)
+        for start in range(0, data.size, _PIECE):
+            piece = data[start:start + _PIECE]
+            crc = isal_zlib.crc32(piece, crc)
+            packed = compressor.compress(piece)
+            if packed:
+                parts.append(packed)
+        size += data.size
+    return crc, size
+
+
 class _Flushed:
     """Stands for a member writer's compressor once the member's stream is complete."""
 
@@ -116,7 +156,8 @@ class DeflateStream:
     by frame, while the frame is still in the cache, instead of all at once when the chunk
     is full. The header, which states the final shape, is deflated last and put in front:
     a deflate stream ended by a sync flush followed by another deflate stream is one valid
-    stream (RFC 1951 blocks in sequence), and ISA-L combines the CRC-32s."""
+    stream (RFC 1951 blocks in sequence), and ISA-L combines the CRC-32s. The same holds
+    for pieces deflated apart (:meth:`add_deflated`)."""
 
     def __init__(self, dtype: np.dtype | type) -> None:
         self.dtype = np.dtype(dtype)
@@ -124,6 +165,7 @@ class DeflateStream:
         self._parts: list[bytes] = []
         self._crc = 0
         self._size = 0
+        self._fed = False  # the compressor holds data not yet flushed out
         self._end: bytes | None = None  # the stream's final flush, once member() ran
 
     def add(self, array: np.ndarray) -> None:
@@ -132,15 +174,26 @@ class DeflateStream:
             raise ValueError("the member is complete")
         if array.dtype != self.dtype:
             raise ValueError(f"{array.dtype} data for a {self.dtype} member")
-        for part in _contiguous_parts(array):
-            data = part.reshape(-1).view(np.uint8)
-            for start in range(0, data.size, _PIECE):
-                piece = data[start:start + _PIECE]
-                self._crc = isal_zlib.crc32(piece, self._crc)
-                packed = self._compressor.compress(piece)
-                if packed:
-                    self._parts.append(packed)
-            self._size += data.size
+        self._crc, size = _deflate_into(self._compressor, array, self._parts, self._crc)
+        self._size += size
+        self._fed = self._fed or size > 0
+
+    def add_deflated(self, piece: DeflatedPiece) -> None:
+        """Append bytes deflated apart (:func:`deflate_piece`): their blocks follow this
+        stream's, flushed to a byte boundary first if it holds data of its own; data added
+        after them starts a new compressor (the old one's back-references would reach
+        across the piece)."""
+        if self._end is not None:
+            raise ValueError("the member is complete")
+        if piece.dtype != self.dtype:
+            raise ValueError(f"{piece.dtype} data for a {self.dtype} member")
+        if self._fed:
+            self._parts.append(self._compressor.flush(isal_zlib.Z_SYNC_FLUSH))
+            self._compressor = isal_zlib.compressobj(DEFLATE_LEVEL, isal_zlib.DEFLATED, -15)
+            self._fed = False
+        self._parts.extend(piece.parts)
+        self._crc = isal_zlib.crc32_combine(self._crc, piece.crc, piece.size)
+        self._size += piece.size
 
     def member(self, shape: tuple[int, ...]) -> DeflatedMember:
         """The complete member: an array of ``shape`` (its data all added); the stream

@@ -5,7 +5,9 @@ deflates each frame's layers as soon as the frame is committed (ISA-L releases t
 this runs on the second core while the main thread fuses the next frames), and writes the
 chunk file when the chunk is full — so the end of a run waits for one frame and the file,
 not for a whole chunk (12–17 ms on workload (a) before, 4–9 after). At most one chunk is
-being written while the next one fills, which bounds memory.
+being written while the next one fills, which bounds memory. A frame the caller holds
+before committing it (:meth:`RunWriter.hold`, the object list's backfill) has its layers
+but the decision deflated at once too, and keeps only its decision and betP(M).
 
 Order on disk for every chunk: the chunk file (temporary name, then rename), then the
 caller's ``on_chunk`` commit (the run's checkpoint), then ``manifest.json`` with
@@ -22,9 +24,9 @@ import os
 import shutil
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +37,14 @@ from evperc.errors import OutputError, WriteError
 from evperc.output import mass_tiles
 from evperc.output.layers import MASS_TILE, StoredOutputs
 from evperc.output.manifest import FORMAT_VERSION, MANIFEST, read_manifest
-from evperc.output.npz import Concatenated, DeflateStream, member_writer_supported, write_npz
+from evperc.output.npz import (
+    Concatenated,
+    DeflatedPiece,
+    DeflateStream,
+    deflate_piece,
+    member_writer_supported,
+    write_npz,
+)
 from evperc.output.objects import OBJECT_DTYPE
 from evperc.output.quantise import quantise, quantise_planar
 
@@ -142,6 +151,21 @@ class _Layers:
         return getattr(self, name)[i]
 
 
+@dataclass
+class HeldLayers:
+    """A fused frame the caller holds before committing it (the object list's backfill,
+    :meth:`RunWriter.hold`): its decision and betP(M) in arrays of its own, which the caller
+    may still change (the decision) or read; its other layers deflated by the writer thread
+    while they were in the cache, their ring slot free again."""
+
+    decision: np.ndarray  # uint8 (rows, cols)
+    betp_moving: np.ndarray  # uint8 (rows, cols), betP(M) as stored
+    mass_bytes: int
+    #: member name -> its deflated bytes of the frame (every streamed member but the decision)
+    pieces: dict[str, DeflatedPiece] = field(default_factory=dict)
+    error: Exception | None = None  # of deflating them, raised with the chunk
+
+
 class _Chunk:
     """The frames of one chunk: their metadata, and their layers — in ``layers`` slot
     ``slots[k]`` for frame ``k``: a ring shared by the chunks when the layers are deflated
@@ -163,12 +187,15 @@ class _Chunk:
         self.streams: dict[str, DeflateStream] | None = None
         self.streamed = 0  # frames in the streams
         self.error: Exception | None = None  # of deflating a frame, raised with the chunk
+        #: frame -> its held layers (committed with ``held=``: no slot of the ring)
+        self.held: dict[int, HeldLayers] = {}
 
     def reset(self, streaming: bool) -> None:
         """Empty, for the next chunk."""
         self.count = self.streamed = 0
         self.error = None
         self.objects = None
+        self.held = {}
         self.streams = ({name: DeflateStream(getattr(self.layers, name).dtype)
                          for name in STREAMED} if streaming else None)
 
@@ -180,8 +207,16 @@ class _Chunk:
         """Deflate frame ``k``'s layers into the chunk's streams (in frame order)."""
         if k != self.streamed:
             raise RuntimeError(f"frame {k} deflated out of order (expected {self.streamed})")
+        held = self.held.pop(k, None)
+        if held is not None and held.error is not None:
+            raise held.error
         for name, stream in self.streams.items():
-            stream.add(self.layer(name, k))
+            if held is None:
+                stream.add(self.layer(name, k))
+            elif name == "decision":
+                stream.add(held.decision)
+            else:
+                stream.add_deflated(held.pieces[name])
         self.streamed += 1
 
     def arrays(self) -> dict[str, Any]:
@@ -229,11 +264,8 @@ class RunWriter:
     """Streams frames into ``out_dir/frames/chunk_NNNNN.npz`` and keeps the manifest."""
 
     def __init__(self, out_dir: str | Path, config: dict[str, Any], meta: dict[str, Any],
-                 overwrite: bool = False, hold_frames: int = 0) -> None:
+                 overwrite: bool = False) -> None:
         self.out_dir = Path(out_dir)
-        #: frames whose slots the caller may hold (:meth:`reserve_slot`) before it commits
-        #: the oldest (the object list's backfill); the ring grows by as many slots
-        self.hold_frames = int(hold_frames)
         prepare_output_dir(self.out_dir, overwrite)
         self.chunk_frames = chunk_frames_for(config, (int(meta["rows"]), int(meta["cols"])))
         self.compress = bool(config["output"]["compress"])
@@ -260,13 +292,13 @@ class RunWriter:
         # changed
         self._streaming = self.compress and member_writer_supported()
         if self._streaming:
-            ring = _Layers(self.ring_slots, shape)
+            ring = _Layers(RING_SLOTS, shape)
             layers = [ring, ring]
         else:
             layers = [_Layers(self.chunk_frames, shape) for _ in range(2)]
-        self._ring_free = threading.Semaphore(self.ring_slots)  # slots the writer deflated
+        self._ring_free = threading.Semaphore(RING_SLOTS)  # slots the writer deflated
         self._next_slot = 0
-        self._reserved: deque[int] = deque()  # the slots handed out, oldest first
+        self._reserved: int | None = None  # the slot handed out by frame_slot()
         self._buffers = [_Chunk(self.chunk_frames, n_codes, layer) for layer in layers]
         for chunk in self._buffers:
             chunk.reset(self._streaming)
@@ -288,17 +320,13 @@ class RunWriter:
         self.on_chunk: Callable[[int], Callable[[], None] | None] | None = None
 
     @property
-    def ring_slots(self) -> int:
-        return RING_SLOTS + self.hold_frames
-
-    @property
     def can_hold(self) -> bool:
-        """Whether :meth:`reserve_slot` may hold ``hold_frames`` slots (the layers deflated
-        frame by frame from a ring; not with whole chunks deflated at once)."""
+        """Whether :meth:`hold` can hold frames (the layers deflated frame by frame from a
+        ring; not with whole chunks deflated at once)."""
         return self._streaming
 
     @classmethod
-    def resume(cls, out_dir: str | Path, hold_frames: int = 0) -> RunWriter:
+    def resume(cls, out_dir: str | Path) -> RunWriter:
         """Reopen an interrupted run: keep the chunks the manifest lists, drop the rest."""
 
         out_dir = Path(out_dir)
@@ -309,7 +337,6 @@ class RunWriter:
                               "be resumed, run it again with --overwrite")
         writer = cls.__new__(cls)
         writer.out_dir = out_dir
-        writer.hold_frames = int(hold_frames)
         writer.manifest = manifest
         writer.chunk_frames = int(manifest["chunk_frames"])
         writer.compress = bool(manifest["config"]["output"]["compress"])
@@ -327,37 +354,61 @@ class RunWriter:
 
     def frame_slot(self) -> StoredOutputs:
         """Views of the next frame's layers. Fill them (the fused step quantises straight
-        into them), then call :meth:`commit_frame`. Waits while the writer thread has not
-        yet deflated the frames that used the ring's slots before."""
-        if not self._reserved:
-            return self.reserve_slot()
-        return self._chunk.layers.view(self._reserved[-1])
+        into them), then call :meth:`commit_frame` (or :meth:`hold`). Waits while the writer
+        thread has not yet deflated the frames that used the ring's slots before."""
+        if self._reserved is None:
+            if self._streaming:
+                self._ring_free.acquire()
+                self._reserved = self._next_slot
+                self._next_slot = (self._next_slot + 1) % RING_SLOTS
+            else:
+                self._reserved = self._chunk.count
+        return self._chunk.layers.view(self._reserved)
 
-    def reserve_slot(self) -> StoredOutputs:
-        """A new slot, after those already handed out (:meth:`commit_frame` commits the
-        oldest): with :attr:`can_hold`, up to ``hold_frames`` + 1 may be out at once."""
-        if self._streaming:
-            if len(self._reserved) > self.hold_frames:
-                raise RuntimeError("more frame slots held than hold_frames")
-            self._ring_free.acquire()
-            slot = self._next_slot
-            self._next_slot = (self._next_slot + 1) % self.ring_slots
-        else:
-            if self._reserved:
-                raise RuntimeError("one frame slot at a time when chunks are deflated whole")
-            slot = self._chunk.count
-        self._reserved.append(slot)
-        return self._chunk.layers.view(slot)
+    def hold(self) -> HeldLayers:
+        """The frame in :meth:`frame_slot` is fused and will be committed later, after the
+        frames held before it (``commit_frame(..., held=)``), its decision perhaps changed:
+        its decision and betP(M) are copied out, its other layers deflated by the writer
+        thread now, while they are in the cache, and its slot freed then. Needs
+        :attr:`can_hold`. The held frames take ~0.3 MB each on a 200 m window, not a slot of
+        the ring (~2.8 MB written) each (docs/performance.md § The main thread against
+        e996c3d)."""
+        if not self._streaming:
+            raise RuntimeError("frames are held only when deflated frame by frame")
+        if self._reserved is None:
+            raise RuntimeError("hold() without frame_slot()")
+        slot, self._reserved = self._reserved, None
+        layers = self._chunk.layers  # the ring: the same layers for both chunks
+        held = HeldLayers(layers.decision[slot].copy(), layers.betp[slot, 4].copy(),
+                          int(layers.mass_bytes[slot]))
+        self._pool.submit(self._deflate_held, layers, slot, held)
+        return held
+
+    def _deflate_held(self, layers: _Layers, slot: int, held: HeldLayers) -> None:
+        """Writer thread: deflate a held frame's layers but its decision, free its slot."""
+        t0 = time.perf_counter()
+        try:
+            for name in STREAMED:
+                if name != "decision":
+                    held.pieces[name] = deflate_piece(layers.layer(name, slot))
+        except Exception as err:  # noqa: BLE001 - raised by _write_chunk, in order
+            held.error = err
+        finally:
+            self._ring_free.release()
+            self.thread_seconds += time.perf_counter() - t0
+            self.thread_cpu_s = time.thread_time()
 
     def commit_frame(self, stamp_ns: int, pose: np.ndarray, origin: tuple[int, int],
                      decision_counts: np.ndarray | None = None,
                      objects: np.ndarray | None = None,
-                     object_cells: np.ndarray | None = None) -> bool:
-        """The frame whose layers fill :meth:`frame_slot` is complete; a full chunk is handed
+                     object_cells: np.ndarray | None = None,
+                     held: HeldLayers | None = None) -> bool:
+        """The frame whose layers fill :meth:`frame_slot` (or, with ``held``, the oldest
+        frame :meth:`hold` returned, not yet committed) is complete; a full chunk is handed
         to the writer thread (then returns True). ``objects``, ``object_cells``: the frame's
         object list (:mod:`evperc.output.objects`; kept, not copied), given for every frame
         of a run or for none."""
-        if not self._reserved:
+        if held is None and self._reserved is None:
             raise RuntimeError("commit_frame() without frame_slot()")
         c = self._chunk
         k = c.count
@@ -369,19 +420,24 @@ class RunWriter:
             if k == 0:
                 c.objects = []
             c.objects.append((objects, object_cells))
-        slot = self._reserved.popleft()
-        c.slots[k] = slot
-        c.mass_bytes[k] = c.layers.mass_bytes[slot]
+        if held is None:
+            slot, self._reserved = self._reserved, None
+            c.slots[k] = slot
+            c.mass_bytes[k] = c.layers.mass_bytes[slot]
+            decision = c.layers.decision[slot]
+        else:
+            c.held[k] = held
+            c.mass_bytes[k] = held.mass_bytes
+            decision = held.decision
         c.stamp_ns[k] = int(stamp_ns)
         c.pose[k] = pose
         c.origin[k] = origin
         if decision_counts is None:
-            decision_counts = np.bincount(c.layers.decision[slot].ravel(),
-                                          minlength=c.decision_counts.shape[1])
+            decision_counts = np.bincount(decision.ravel(), minlength=c.decision_counts.shape[1])
         c.decision_counts[k] = decision_counts
         c.count = k + 1
         if self._streaming:
-            self._pool.submit(self._stream_frame, c, k)
+            self._pool.submit(self._stream_frame, c, k, held is None)
         if self.manifest["first_stamp_ns"] is None:
             self.manifest["first_stamp_ns"] = int(stamp_ns)
         if c.count >= self.chunk_frames:
@@ -431,8 +487,9 @@ class RunWriter:
         commit = self.on_chunk(self._queued) if self.on_chunk is not None else None
         self._pending = self._pool.submit(self._write_chunk, c, index, first, commit)
 
-    def _stream_frame(self, c: _Chunk, k: int) -> None:
-        """Writer thread: deflate frame ``k`` of chunk ``c`` (queued before the chunk)."""
+    def _stream_frame(self, c: _Chunk, k: int, in_ring: bool = True) -> None:
+        """Writer thread: deflate frame ``k`` of chunk ``c`` (queued before the chunk); free
+        its ring slot if it has one (``in_ring``: not a held frame's)."""
         t0 = time.perf_counter()
         try:
             if c.error is None:
@@ -440,7 +497,8 @@ class RunWriter:
         except Exception as err:  # noqa: BLE001 - raised by _write_chunk, in order
             c.error = err
         finally:
-            self._ring_free.release()  # the frame's slot may be filled again
+            if in_ring:
+                self._ring_free.release()  # the frame's slot may be filled again
             self.thread_seconds += time.perf_counter() - t0
             self.thread_cpu_s = time.thread_time()
 

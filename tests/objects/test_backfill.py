@@ -420,33 +420,63 @@ def test_the_bridged_gaps_of_a_run_are_bounded_by_moving_records(
     assert added_total > 0
 
 
-def test_the_writer_holds_slots_and_commits_the_oldest(tmp_path: Path) -> None:
-    """RunWriter(hold_frames=2): three slots out at once (the ring grows by two), each
-    commit takes the oldest, so the frames are stored in the order reserved with the layers
-    written into them; a fourth held slot is refused rather than waiting forever."""
-    from evperc.output.writer import RunWriter
+def test_the_writer_holds_frames_and_commits_them_in_order(tmp_path: Path) -> None:
+    """RunWriter.hold(): a fused frame's decision and betP(M) copied out (the ring slot is
+    refilled by the next frames before the held ones are committed: the ring has 4 slots,
+    6 frames are held here), its other layers deflated at once; the decision changed while
+    held is the one stored, every other layer the slot's at hold time, and frames committed
+    plainly after held ones keep their order. Read back with numpy alone (np.load)."""
+    from evperc.output.writer import RING_SLOTS, RunWriter
 
     config = load_config(overrides={"output.chunk_frames": 4})
-    meta = {"rows": 4, "cols": 4, "decision_codes": D}
-    writer = RunWriter(tmp_path / "w", config, meta, hold_frames=2)
+    meta = {"rows": 4, "cols": 5, "decision_codes": D}
+    writer = RunWriter(tmp_path / "w", config, meta)
     if not writer.can_hold:
         pytest.skip("this zipfile cannot deflate frame by frame (chunks deflated whole)")
-    slots = [writer.reserve_slot() for _ in range(3)]
-    with pytest.raises(RuntimeError, match="hold_frames"):
-        writer.reserve_slot()
-    for k in range(5):
-        slot = slots[k] if k < 3 else writer.reserve_slot()
-        slot.tile_masks[...] = 0
-        slot.mass_length[0] = 0
+    rng = np.random.default_rng(7)
+    expected, held = [], []
+    n_held = RING_SLOTS + 2
+    for k in range(n_held + 3):
+        slot = writer.frame_slot()
+        runs = rng.integers(0, 256, 3 + k, dtype=np.uint8)
+        slot.mass_runs[:runs.size] = runs
+        slot.mass_length[0] = runs.size
+        slot.tile_masks[...] = rng.integers(0, 2**32, slot.tile_masks.shape, dtype=np.uint32)
         for layer in (slot.betp, slot.conflict, slot.zeta):
-            layer[...] = 0
-        slot.decision[...] = k + 1
-        writer.commit_frame(stamp_ns=k, pose=np.zeros(3), origin=(0, 0))
-    writer.close({"frames": 5})
-    stored = [np.load(tmp_path / "w" / "frames" / f"chunk_0000{i}.npz") for i in (0, 1)]
-    assert np.concatenate([c["stamp_ns"] for c in stored]).tolist() == [0, 1, 2, 3, 4]
-    decisions = np.concatenate([c["decision"] for c in stored])
-    assert decisions[:, 0, 0].tolist() == [1, 2, 3, 4, 5]
+            layer[...] = rng.integers(0, 256, layer.shape, dtype=np.uint8)
+        slot.decision[...] = rng.integers(0, len(D), slot.decision.shape, dtype=np.uint8)
+        frame = {"runs": runs.copy(), **{name: getattr(slot, name).copy() for name in
+                                        ("tile_masks", "betp", "conflict", "zeta", "decision")}}
+        if k < n_held:
+            h = writer.hold()
+            np.testing.assert_array_equal(h.betp_moving, frame["betp"][4])
+            np.testing.assert_array_equal(h.decision, frame["decision"])
+            changed = (h.decision[0, 0] + 1) % len(D)  # changed while held (the fills)
+            h.decision[0, 0] = changed
+            frame["decision"][0, 0] = changed
+            held.append(h)
+        else:
+            if held:  # the held frames first, oldest first
+                for k_held, h in enumerate(held):
+                    writer.commit_frame(stamp_ns=k_held, pose=np.zeros(3), origin=(0, 0),
+                                        held=h)
+                held = []
+            writer.commit_frame(stamp_ns=k, pose=np.zeros(3), origin=(0, 0))
+        expected.append(frame)
+    writer.close({"frames": len(expected)})
+    chunks = [np.load(p) for p in sorted((tmp_path / "w" / "frames").glob("chunk_*.npz"))]
+    assert np.concatenate([c["stamp_ns"] for c in chunks]).tolist() == list(range(len(expected)))
+    runs = np.concatenate([c["mass_runs"] for c in chunks])
+    np.testing.assert_array_equal(runs, np.concatenate([f["runs"] for f in expected]))
+    assert np.concatenate([c["mass_bytes"] for c in chunks]).tolist() == [
+        f["runs"].size for f in expected]
+    for name in ("tile_masks", "betp", "conflict", "zeta", "decision"):
+        stored = np.concatenate([c[name] for c in chunks])
+        np.testing.assert_array_equal(stored, np.stack([f[name] for f in expected]), name)
+    counts = np.concatenate([c["decision_counts"] for c in chunks])
+    for f, count in zip(expected, counts, strict=True):
+        assert count.tolist() == np.bincount(f["decision"].ravel(),
+                                             minlength=counts.shape[1]).tolist()
 
 
 def test_held_in_the_writer_or_copied_the_frames_are_the_same(

@@ -284,3 +284,31 @@ def test_a_member_deflated_frame_by_frame_is_the_whole_array(tmp_path: Path) -> 
         npz.DeflateStream(np.uint8).add(np.zeros(3))
     with pytest.raises(ValueError, match="deflated member in a stored archive"):
         write_npz(tmp_path / "x.npz", {"betp": stream.member((3, 5, 60, 60))}, compress=False)
+
+
+@pytest.mark.parametrize("order", ["pieces only", "mixed", "own data after a piece"])
+def test_pieces_deflated_apart_join_a_member_stream(tmp_path: Path, order: str) -> None:
+    """DeflateStream.add_deflated: frames deflated on their own (deflate_piece, a held
+    frame's layers) and frames the stream deflates itself, in any order, make the member
+    np.savez writes (byte for byte once inflated; zipfile checks the CRC-32). Data the stream
+    deflates after a piece must not refer back across it: its compressor starts anew."""
+    frames = [planes(1, 5, 60, seed=k)[0] for k in range(5)]
+    apart = {"pieces only": [True] * 5, "mixed": [True, False, True, True, False],
+             "own data after a piece": [False, True, False, False, True]}[order]
+    stream = npz.DeflateStream(np.uint8)
+    for frame, piece in zip(frames, apart, strict=True):
+        if piece:
+            stream.add_deflated(npz.deflate_piece(frame))
+        else:
+            stream.add(frame)
+    write_npz(tmp_path / "s.npz", {"betp": stream.member((5, 5, 60, 60))}, compress=True)
+    np.savez(tmp_path / "ref.npz", betp=np.stack(frames))
+    with zipfile.ZipFile(tmp_path / "s.npz") as got, zipfile.ZipFile(tmp_path / "ref.npz") as ref:
+        assert got.testzip() is None
+        assert got.read("betp.npy") == ref.read("betp.npy")
+    piece = npz.deflate_piece(frames[0])
+    # a piece ends on a byte boundary, not with a final block: inflated as far as it goes
+    assert zlib.decompressobj(-15).decompress(b"".join(piece.parts)) == frames[0].tobytes()
+    assert piece.crc == zlib.crc32(frames[0].tobytes()) and piece.size == frames[0].size
+    with pytest.raises(ValueError, match="float64 data for a uint8 member"):
+        npz.DeflateStream(np.uint8).add_deflated(npz.deflate_piece(np.zeros(3)))
