@@ -111,6 +111,7 @@ RULES: dict[str, tuple] = {
     "objects.moving_min_height_m": ("range", 0.0, 100.0, False, False),
     "objects.arrival_share": ("range", *_UNIT_INTERVAL, False, False),
     "objects.arrival_min_cells": ("range", 0, 1_000_000, False, False),
+    "objects.ego_clearance_m": ("range", 0.0, 100.0, False, False),
     "objects.fragment_gap_cells": ("range", 0, 100, False, False),
     "objects.fragment_extent_m": ("range", 0.0, 100.0, True, False),
     "objects.unmapped_max_width_m": ("range", 0.0, 100.0, True, False),

@@ -173,6 +173,8 @@ def test_object_evidence_keys_are_validated(tmp_path: Path) -> None:
         load_config(write(tmp_path, "[objects]\narrival_min_cells = -1\n"))
     with pytest.raises(ConfigError, match=r"objects.arrival_min_cells"):
         load_config(write(tmp_path, "[objects]\narrival_min_cells = 2.5\n"))
+    with pytest.raises(ConfigError, match=r"objects.ego_clearance_m = -1.0 is outside"):
+        load_config(write(tmp_path, "[objects]\nego_clearance_m = -1.0\n"))
     with pytest.raises(ConfigError, match=r"objects.fragment_gap_cells = -1 is outside"):
         load_config(write(tmp_path, "[objects]\nfragment_gap_cells = -1\n"))
     with pytest.raises(ConfigError, match=r"objects.fragment_extent_m = 0.0 is outside"):

@@ -100,6 +100,9 @@ class TrackingParams:
     #: objects.centroid_sigma_per_m: the centroid noise floor grows with the object's range r
     #: from the ego (the window's centre cell): σ₀ = max(centroid_sigma_m, this · r); 0 = off
     centroid_sigma_per_m: float = 0.0
+    #: objects.ego_clearance_m: a cluster whose centroid lies nearer the sensor than this
+    #: passes no motion test (the recording vehicle's own returns ride along with it); 0 = off
+    ego_clearance_m: float = 0.0
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> TrackingParams:
@@ -117,7 +120,8 @@ class TrackingParams:
             evidence_every_frame=bool(o.get("evidence_every_frame", False)),
             arrival_share=float(o.get("arrival_share", 0.0)),
             arrival_min_cells=int(o.get("arrival_min_cells", 0)),
-            centroid_sigma_per_m=float(o.get("centroid_sigma_per_m", 0.0)))
+            centroid_sigma_per_m=float(o.get("centroid_sigma_per_m", 0.0)),
+            ego_clearance_m=float(o.get("ego_clearance_m", 0.0)))
 
 
 @dataclass
@@ -559,7 +563,8 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                   col0, rows, cols, decision, has_decision, stamp_ns, next_id, gate,
                   history, confirm, max_missed, speed2_min, motion_test, sigma0, need,
                   conflict_cells, vacated_frames, share_min, every_frame, arrival_share,
-                  arrival_cells, sigma_per_m, centre_x, centre_y):  # pragma: no cover - compiled
+                  arrival_cells, sigma_per_m, clearance2, centre_x, centre_y
+                  ):  # pragma: no cover - compiled
     """One frame of the tracker (:func:`track_step`, the module docstring) on the state's
     arrays; returns the new arrays, the next id, and the reported (track row, cluster)."""
     n_old = ids.shape[0]
@@ -746,6 +751,10 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
             fast = False
             if math.isfinite(sg) and not speed2 < speed2_min:
                 fast = sg == 0.0 or speed2 / (sg * sg) >= motion_test
+            if fast and clearance2 > 0:  # the ego's own returns
+                ex = centroid[c, 0] - centre_x
+                ey = centroid[c, 1] - centre_y
+                fast = ex * ex + ey * ey >= clearance2
             if fast or every_frame:  # the frame's evidence (reference: frame_evidence)
                 conflict = 1 if seeds[c] >= conflict_cells else 0
                 if conflict and arrival_share > 0:  # arrival: the whole evidence at once
@@ -884,7 +893,8 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
         int(params.vacated_frames), float(params.vacated_share),
         bool(params.evidence_every_frame), float(params.arrival_share),
         int(params.arrival_min_cells),
-        float(params.centroid_sigma_per_m), *ego_cell_centre(window))
+        float(params.centroid_sigma_per_m), float(params.ego_clearance_m) ** 2,
+        *ego_cell_centre(window))
     (state.id, state.hits, state.missed, state.flags, state.hist_n, state.hist_t,
      state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
      state.past_n, state.past, state.next_id, rows, cl) = out

@@ -387,6 +387,12 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
             t.past.append(t.footprint)
             del t.past[:-params.vacated_frames]
         fast = is_moving(v, sigma, params)
+        if fast and params.ego_clearance_m > 0:  # the ego's own returns pass no motion test
+            ex = (window.col0 + window.cols // 2 + 0.5) * window.resolution_m
+            ey = (window.row0 + window.rows // 2 + 0.5) * window.resolution_m
+            dx = float(clusters.centroid_m[c, 0]) - ex
+            dy = float(clusters.centroid_m[c, 1]) - ey
+            fast = dx * dx + dy * dy >= params.ego_clearance_m ** 2
         if fast or params.evidence_every_frame:
             conflict, vacated = frame_evidence(t, clusters, c, decision, window, params)
             t.conflict_evidence += conflict

@@ -126,3 +126,18 @@ def test_only_the_small_clusters_grown_from_a_tracked_cell_are_kept() -> None:
     assert len(c) == 1 and sorted(c.cells_of(0).tolist()) == [2 * 60 + 2, 2 * 60 + 3]
     off = Clusterer(ClusterParams(seeds="occupied"), SHAPE).clusters(dec, Z, Z, WIN, extra, now)
     assert len(off) == 0
+
+
+def test_a_cluster_near_the_sensor_passes_no_motion_test() -> None:
+    # the window's centre cell (row 10, column 30: x 15.25 m, y 5.25 m) holds the sensor;
+    # the block's centroid (x 5.75 + 0.5 k, y 3.0 m in frame k) comes towards it: 8.79 m
+    # away in frame 2, 7.83 in frame 4, 7.35 in frame 5
+    arrived = [_block(k, 3) for k in range(8)]
+    params = dict(**EVIDENCE, arrival_share=0.5)
+    assert _first_moving(arrived, TrackingParams(**params)) == 2
+    assert _first_moving(arrived, TrackingParams(**params, ego_clearance_m=5.0)) == 2
+    assert _first_moving(arrived, TrackingParams(**params, ego_clearance_m=10.0)) is None
+    states = _states(arrived, TrackingParams(**params, ego_clearance_m=7.5))
+    assert states[4] == [OBJECT_STATES["moving"]]   # 7.83 m: its motion counts
+    assert states[5] == [OBJECT_STATES["stopped"]]  # 7.35 m: it passes no test, has moved
+    assert _states(arrived, TrackingParams(**params))[5] == [OBJECT_STATES["moving"]]
