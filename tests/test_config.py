@@ -158,27 +158,24 @@ def test_packaged_preset_is_the_repo_file() -> None:
         REPO / "configs" / "kurdej2013.toml").resolve()
 
 
-def test_object_evidence_keys_are_validated(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match=r"objects.seeds"):
-        load_config(write(tmp_path, '[objects]\nseeds = "everything"\n'))
-    with pytest.raises(ConfigError, match=r"objects.vacated_share = 0.0 is outside"):
-        load_config(write(tmp_path, "[objects]\nvacated_share = 0.0\n"))
-    with pytest.raises(ConfigError, match=r"objects.motion_evidence_frames = -1 is outside"):
-        load_config(write(tmp_path, "[objects]\nmotion_evidence_frames = -1\n"))
-    with pytest.raises(ConfigError, match=r"objects.footprint_frames = -1 is outside"):
-        load_config(write(tmp_path, "[objects]\nfootprint_frames = -1\n"))
-    with pytest.raises(ConfigError, match=r"objects.arrival_share = 1.5 is outside"):
-        load_config(write(tmp_path, "[objects]\narrival_share = 1.5\n"))
-    with pytest.raises(ConfigError, match=r"objects.arrival_min_cells = -1 is outside"):
-        load_config(write(tmp_path, "[objects]\narrival_min_cells = -1\n"))
-    with pytest.raises(ConfigError, match=r"objects.arrival_min_cells"):
-        load_config(write(tmp_path, "[objects]\narrival_min_cells = 2.5\n"))
-    with pytest.raises(ConfigError, match=r"objects.ego_clearance_m = -1.0 is outside"):
-        load_config(write(tmp_path, "[objects]\nego_clearance_m = -1.0\n"))
-    with pytest.raises(ConfigError, match=r"objects.fragment_gap_cells = -1 is outside"):
-        load_config(write(tmp_path, "[objects]\nfragment_gap_cells = -1\n"))
-    with pytest.raises(ConfigError, match=r"objects.fragment_extent_m = 0.0 is outside"):
-        load_config(write(tmp_path, "[objects]\nfragment_extent_m = 0.0\n"))
+@pytest.mark.parametrize(("line", "match"), [
+    ('seeds = "everything"', r"objects.seeds"),
+    ("vacated_share = 0.0", r"objects.vacated_share = 0.0 is outside"),
+    ("motion_evidence_frames = -1", r"objects.motion_evidence_frames = -1 is outside"),
+    ("footprint_frames = -1", r"objects.footprint_frames = -1 is outside"),
+    ("arrival_share = 1.5", r"objects.arrival_share = 1.5 is outside"),
+    ("arrival_min_cells = -1", r"objects.arrival_min_cells = -1 is outside"),
+    ("arrival_min_cells = 2.5", r"objects.arrival_min_cells"),
+    ("ego_clearance_m = -1.0", r"objects.ego_clearance_m = -1.0 is outside"),
+    ("fragment_gap_cells = -1", r"objects.fragment_gap_cells = -1 is outside"),
+    ("fragment_extent_m = 0.0", r"objects.fragment_extent_m = 0.0 is outside"),
+])
+def test_object_evidence_keys_are_validated(tmp_path: Path, line: str, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        load_config(write(tmp_path, f"[objects]\n{line}\n"))
+
+
+def test_object_evidence_keys_are_read(tmp_path: Path) -> None:
     config = load_config(write(tmp_path, '[objects]\nseeds = "moving"\nfill_moving = false\n'))
     assert config["objects"]["seeds"] == "moving" and config["objects"]["fill_moving"] is False
 

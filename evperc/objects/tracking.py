@@ -100,8 +100,9 @@ class TrackingParams:
     #: objects.centroid_sigma_per_m: the centroid noise floor grows with the object's range r
     #: from the ego (the window's centre cell): σ₀ = max(centroid_sigma_m, this · r); 0 = off
     centroid_sigma_per_m: float = 0.0
-    #: objects.ego_clearance_m: a cluster whose centroid lies nearer the sensor than this
-    #: passes no motion test (the recording vehicle's own returns ride along with it); 0 = off
+    #: objects.ego_clearance_m: a track never associated with a cluster whose centroid lay at
+    #: least this far from the sensor passes no motion test (the recording vehicle's own
+    #: returns ride along with it); 0 = off
     ego_clearance_m: float = 0.0
 
     @staticmethod
@@ -143,6 +144,8 @@ class Track:
     vacated_evidence: int = 0    # frames with vacated evidence
     #: the footprints of the previous associations, oldest first (at most vacated_frames)
     past: list[np.ndarray] = field(default_factory=list)
+    #: associated at least once with a cluster at least ego_clearance_m from the sensor
+    ever_far: bool = True
 
 
 def velocity_fit(t_s: Sequence[float], xy: Sequence[Sequence[float]], sigma0: float
@@ -220,14 +223,15 @@ class TrackerState:
     """The tracks and the next id; part of the run's checkpointed state.
 
     Struct of arrays, one row a track (in id order), laid out as the checkpoint stores them
-    (:meth:`to_arrays`): ``id``, ``hits``, ``missed`` (n,) int64; ``flags`` (n, 2) uint8
-    (ever moving, moving); ``hist_n`` (n,) int64 and ``hist_t`` (n, W) int64 / ``hist_xy``
-    (n, W, 2) float64, the recent associated stamps and centroids, oldest first in the first
-    ``hist_n`` columns, 0 after; ``velocity`` (n, 2), ``sigma`` (n,) float64; ``fp_n`` (n,)
-    int64 and ``fp`` (Σ fp_n, 2) int64, the global lattice (iy, ix) of each track's cells of
-    its last association, track by track; ``evidence`` (n, 2) int64 (conflict, vacated);
-    ``past_n`` (n, D) int64, the cells of each previous footprint, oldest first, −1 after,
-    and ``past`` their cells, track by track. W and D may exceed what the tracks use."""
+    (:meth:`to_arrays`): ``id``, ``hits``, ``missed`` (n,) int64; ``flags`` (n, 3) uint8
+    (ever moving, moving, ever far: see ``objects.ego_clearance_m``); ``hist_n`` (n,) int64
+    and ``hist_t`` (n, W) int64 / ``hist_xy`` (n, W, 2) float64, the recent associated
+    stamps and centroids, oldest first in the first ``hist_n`` columns, 0 after;
+    ``velocity`` (n, 2), ``sigma`` (n,) float64; ``fp_n`` (n,) int64 and ``fp`` (Σ fp_n, 2)
+    int64, the global lattice (iy, ix) of each track's cells of its last association, track
+    by track; ``evidence`` (n, 2) int64 (conflict, vacated); ``past_n`` (n, D) int64, the
+    cells of each previous footprint, oldest first, −1 after, and ``past`` their cells,
+    track by track. W and D may exceed what the tracks use."""
 
     def __init__(self) -> None:
         self.next_id = 1
@@ -235,7 +239,7 @@ class TrackerState:
         self.id = np.zeros(0, np.int64)
         self.hits = np.zeros(0, np.int64)
         self.missed = np.zeros(0, np.int64)
-        self.flags = np.zeros((0, 2), np.uint8)
+        self.flags = np.zeros((0, 3), np.uint8)
         self.hist_n = np.zeros(0, np.int64)
         self.hist_t = np.zeros((0, 0), np.int64)
         self.hist_xy = np.zeros((0, 0, 2), np.float64)
@@ -280,7 +284,8 @@ class TrackerState:
                 [(float(x), float(y)) for x, y in self.hist_xy[i, :k]],
                 (float(self.velocity[i, 0]), float(self.velocity[i, 1])), float(self.sigma[i]),
                 bool(self.flags[i, 1]), self.fp[fp_end[i] - self.fp_n[i]:fp_end[i]].copy(),
-                int(self.evidence[i, 0]), int(self.evidence[i, 1]), past))
+                int(self.evidence[i, 0]), int(self.evidence[i, 1]), past,
+                bool(self.flags[i, 2])))
         return out
 
     def to_arrays(self, prefix: str = "objects_") -> dict[str, np.ndarray]:
@@ -323,7 +328,9 @@ class TrackerState:
             else:
                 raise KeyError(key)
             setattr(state, name, value)
-        state.flags = state.flags.reshape(n, 2)
+        if state.flags.size == 2 * n:  # checkpoints written before the ever-far flag
+            state.flags = np.column_stack([state.flags.reshape(n, 2), np.ones(n, np.uint8)])
+        state.flags = state.flags.reshape(n, 3)
         state.velocity = state.velocity.reshape(n, 2)
         state.evidence = state.evidence.reshape(n, 2)
         state.hist_t = state.hist_t.reshape(n, -1) if n else np.zeros((0, 0), np.int64)
@@ -626,7 +633,7 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
     o_ids = np.empty(n_all, np.int64)
     o_hits = np.empty(n_all, np.int64)
     o_missed = np.empty(n_all, np.int64)
-    o_flags = np.zeros((n_all, 2), np.uint8)
+    o_flags = np.zeros((n_all, 3), np.uint8)
     o_hist_n = np.zeros(n_all, np.int64)
     o_hist_t = np.zeros((n_all, width), np.int64)
     o_hist_xy = np.zeros((n_all, width, 2), np.float64)
@@ -664,6 +671,7 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
             o_missed[j] = missed[i]
             o_flags[j, 0] = flags[i, 0]
             o_flags[j, 1] = flags[i, 1]
+            o_flags[j, 2] = flags[i, 2]
             o_velocity[j, 0] = velocity[i, 0]
             o_velocity[j, 1] = velocity[i, 1]
             o_sigma[j] = sigma[i]
@@ -751,10 +759,12 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
             fast = False
             if math.isfinite(sg) and not speed2 < speed2_min:
                 fast = sg == 0.0 or speed2 / (sg * sg) >= motion_test
-            if fast and clearance2 > 0:  # the ego's own returns
-                ex = centroid[c, 0] - centre_x
-                ey = centroid[c, 1] - centre_y
-                fast = ex * ex + ey * ey >= clearance2
+            ex = centroid[c, 0] - centre_x
+            ey = centroid[c, 1] - centre_y
+            if ex * ex + ey * ey >= clearance2:
+                o_flags[j, 2] = 1
+            if o_flags[j, 2] == 0:  # never away from the sensor: the ego's own returns
+                fast = False
             if fast or every_frame:  # the frame's evidence (reference: frame_evidence)
                 conflict = 1 if seeds[c] >= conflict_cells else 0
                 if conflict and arrival_share > 0:  # arrival: the whole evidence at once

@@ -80,6 +80,8 @@ class Track:
     vacated_evidence: int = 0    # frames with vacated evidence
     #: the footprints of the previous associations, oldest first (at most vacated_frames)
     past: list[np.ndarray] = field(default_factory=list)
+    #: associated at least once with a cluster at least ego_clearance_m from the sensor
+    ever_far: bool = True
 
 
 def velocity_fit(t_s: Sequence[float], xy: Sequence[Sequence[float]], sigma0: float
@@ -167,7 +169,7 @@ class TrackerState:
         other.tracks = [Track(t.track_id, t.hits, t.missed, t.ever_moving, list(t.t_ns),
                               list(t.xy), t.velocity, t.sigma, t.moving, t.footprint.copy(),
                               t.conflict_evidence, t.vacated_evidence,
-                              [f.copy() for f in t.past])
+                              [f.copy() for f in t.past], t.ever_far)
                         for t in self.tracks]
         return other
 
@@ -196,8 +198,8 @@ class TrackerState:
                 f"{prefix}id": np.array([t.track_id for t in self.tracks], np.int64),
                 f"{prefix}hits": np.array([t.hits for t in self.tracks], np.int64),
                 f"{prefix}missed": np.array([t.missed for t in self.tracks], np.int64),
-                f"{prefix}flags": np.array([[t.ever_moving, t.moving] for t in self.tracks],
-                                           np.uint8).reshape(n, 2),
+                f"{prefix}flags": np.array([[t.ever_moving, t.moving, t.ever_far]
+                                            for t in self.tracks], np.uint8).reshape(n, 3),
                 f"{prefix}hist_n": hist_n, f"{prefix}hist_t": hist_t,
                 f"{prefix}hist_xy": hist_xy,
                 f"{prefix}velocity": np.array([t.velocity for t in self.tracks],
@@ -228,14 +230,15 @@ class TrackerState:
         past_at = 0
         for i, tid in enumerate(arrays[f"{prefix}id"]):
             k = int(arrays[f"{prefix}hist_n"][i])
-            ever, moving = (bool(v) for v in arrays[f"{prefix}flags"][i])
+            ever, moving, *far = (bool(v) for v in arrays[f"{prefix}flags"][i])
             vx, vy = (float(v) for v in arrays[f"{prefix}velocity"][i])
             state.tracks.append(Track(
                 int(tid), int(arrays[f"{prefix}hits"][i]), int(arrays[f"{prefix}missed"][i]),
                 ever, [int(v) for v in arrays[f"{prefix}hist_t"][i, :k]],
                 [(float(x), float(y)) for x, y in arrays[f"{prefix}hist_xy"][i, :k]],
                 (vx, vy), float(arrays[f"{prefix}sigma"][i]), moving,
-                np.array(fp[ends[i] - arrays[f"{prefix}fp_n"][i]:ends[i]], np.int64)))
+                np.array(fp[ends[i] - arrays[f"{prefix}fp_n"][i]:ends[i]], np.int64),
+                ever_far=far[0] if far else True))
             if has_past:
                 t = state.tracks[-1]
                 t.conflict_evidence, t.vacated_evidence = (
@@ -387,12 +390,14 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
             t.past.append(t.footprint)
             del t.past[:-params.vacated_frames]
         fast = is_moving(v, sigma, params)
-        if fast and params.ego_clearance_m > 0:  # the ego's own returns pass no motion test
-            ex = (window.col0 + window.cols // 2 + 0.5) * window.resolution_m
-            ey = (window.row0 + window.rows // 2 + 0.5) * window.resolution_m
-            dx = float(clusters.centroid_m[c, 0]) - ex
-            dy = float(clusters.centroid_m[c, 1]) - ey
-            fast = dx * dx + dy * dy >= params.ego_clearance_m ** 2
+        ex = (window.col0 + window.cols // 2 + 0.5) * window.resolution_m
+        ey = (window.row0 + window.rows // 2 + 0.5) * window.resolution_m
+        dx = float(clusters.centroid_m[c, 0]) - ex
+        dy = float(clusters.centroid_m[c, 1]) - ey
+        if t.hits == 1:  # a new track: far or not by its first cluster alone
+            t.ever_far = False
+        t.ever_far = t.ever_far or dx * dx + dy * dy >= params.ego_clearance_m ** 2
+        fast = fast and t.ever_far  # never away from the sensor: the ego's own returns
         if fast or params.evidence_every_frame:
             conflict, vacated = frame_evidence(t, clusters, c, decision, window, params)
             t.conflict_evidence += conflict

@@ -128,16 +128,18 @@ def test_only_the_small_clusters_grown_from_a_tracked_cell_are_kept() -> None:
     assert len(off) == 0
 
 
-def test_a_cluster_near_the_sensor_passes_no_motion_test() -> None:
+def test_a_track_never_away_from_the_sensor_passes_no_motion_test() -> None:
     # the window's centre cell (row 10, column 30: x 15.25 m, y 5.25 m) holds the sensor;
-    # the block's centroid (x 5.75 + 0.5 k, y 3.0 m in frame k) comes towards it: 8.79 m
-    # away in frame 2, 7.83 in frame 4, 7.35 in frame 5
+    # the block's centroid (x 5.75 + 0.5 k, y 3.0 m in frame k) comes towards it: 9.76 m
+    # away in frame 0, 8.79 in frame 2, 7.35 in frame 5
     arrived = [_block(k, 3) for k in range(8)]
     params = dict(**EVIDENCE, arrival_share=0.5)
     assert _first_moving(arrived, TrackingParams(**params)) == 2
-    assert _first_moving(arrived, TrackingParams(**params, ego_clearance_m=5.0)) == 2
+    # never 10 m away: the vehicle's own returns as far as the rule can tell
     assert _first_moving(arrived, TrackingParams(**params, ego_clearance_m=10.0)) is None
+    # 9.76 m away when first seen: its motion counts, also once it is nearer than 7.5 m
     states = _states(arrived, TrackingParams(**params, ego_clearance_m=7.5))
-    assert states[4] == [OBJECT_STATES["moving"]]   # 7.83 m: its motion counts
-    assert states[5] == [OBJECT_STATES["stopped"]]  # 7.35 m: it passes no test, has moved
-    assert _states(arrived, TrackingParams(**params))[5] == [OBJECT_STATES["moving"]]
+    assert _first_moving(arrived, TrackingParams(**params, ego_clearance_m=7.5)) == 2
+    assert states[5] == states[7] == [OBJECT_STATES["moving"]]
+    # first seen at 9.76 m, never 9.8 m away: never reported
+    assert _first_moving(arrived, TrackingParams(**params, ego_clearance_m=9.8)) is None

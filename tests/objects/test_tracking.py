@@ -155,6 +155,22 @@ def test_checkpoint_round_trip_continues_identically():
     assert TrackerState.from_arrays({}) is None
 
 
+def test_a_checkpoint_without_the_ever_far_flag_reads_its_tracks_as_far():
+    # checkpoints written before objects.ego_clearance_m hold two flag columns: their
+    # tracks keep being judged as before (ever far), the other columns unchanged
+    run = Run()
+    for k in range(5):
+        run.step(_frame([(5, 10 + k), (12, 30)]))
+    arrays = run.state.to_arrays()
+    flags = arrays["objects_flags"]
+    assert flags.shape == (2, 3)
+    old = {**arrays, "objects_flags": flags[:, :2].copy()}
+    state = TrackerState.from_arrays(old)
+    assert state.flags.shape == (2, 3)
+    np.testing.assert_array_equal(state.flags[:, :2], flags[:, :2])
+    assert state.flags[:, 2].tolist() == [1, 1]
+
+
 def test_velocity_fit_residual_noise_and_motion_test():
     t = np.array([-0.3, -0.2, -0.1, 0.0])
     xy = np.array([[0.0, 0.0], [0.2, 0.0], [0.2, 0.0], [0.4, 0.0]])

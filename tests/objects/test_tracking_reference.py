@@ -78,7 +78,7 @@ def _params(rng: np.random.Generator) -> TrackingParams:
         evidence_every_frame=bool(rng.random() < 0.5),
         arrival_share=float(rng.choice([0.0, 0.0, 0.3, 0.5, 1.0])),
         arrival_min_cells=int(rng.choice([0, 0, 3, 5])),
-        ego_clearance_m=float(rng.choice([0.0, 0.0, 1.0, 3.0])),
+        ego_clearance_m=float(rng.choice([0.0, 0.0, 3.0, 8.0])),
         centroid_sigma_per_m=float(rng.choice([0.0, 0.0, 0.01, 0.05])))
 
 
