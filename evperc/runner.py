@@ -823,6 +823,7 @@ def run(request: RunRequest, resume: bool = False,
             if held_in_writer:
                 layers = writer.hold()
                 decision, betp_moving = layers.decision, layers.betp_moving
+                clock.lap("write")  # the writer's: the copies and the hand-over to its thread
             else:
                 layers, decision, betp_moving = out, out.decision, out.betp[4]
             released = backfill.push(HeldFrame(
