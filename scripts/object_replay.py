@@ -41,6 +41,7 @@ from evperc.fusion.twin import DECISION_CODES  # noqa: E402
 from evperc.geo.window import Window  # noqa: E402
 from evperc.objects import stage as stage_mod  # noqa: E402
 from evperc.objects.backfill import Backfill, HeldFrame, candidates  # noqa: E402
+from evperc.objects.boxes import BoxParams, complete_boxes  # noqa: E402
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints  # noqa: E402,E501
 from evperc.objects.stage import ObjectStage, fill_moving, unfill_small  # noqa: E402
 from evperc.objects.tracking import TrackerState  # noqa: E402
@@ -175,6 +176,7 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
     stage = ObjectStage(config, shape)
     state = TrackerState()
     fp_params, fp_state = FootprintParams.from_config(config), FootprintState()
+    box_params = BoxParams.from_config(config)
     stored = {f.stamp_ns: f for f in run.frames}
     frames = []
     fill = stage_mod.fills_decision(config)
@@ -194,6 +196,9 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
         if fp_params.frames > 0:
             objects, cells = complete_footprints(fp_state, objects, cells, window,
                                                  int(stamps[k]), speaks, fp_params)
+        if box_params.enabled:
+            objects, cells = complete_boxes(objects, cells, window, speaks, decision,
+                                            box_params, returns=top)
         moving = moving_object_cells(objects, cells)
         if fill:
             fill_moving(decision, moving)
@@ -327,7 +332,8 @@ def pooled(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "obs_episodes": sum(r["obs_episodes"] for r in rows),
             "P": ratio(sc[0], sc[1]), "R": ratio(sc[0], sc[2]),
             "missed": sum(r["missed"] for r in rows), "episodes": sum(r["episodes"] for r in rows),
-            "oP": ratio(oc[0], oc[1]), "oR": ratio(oc[2], oc[3])}
+            "oP": ratio(oc[0], oc[1]), "oR": ratio(oc[2], oc[3]),
+            "obsF1_mean": float(np.mean([r["obsF1"] for r in rows if r["obsF1"] is not None]))}
 
 
 def print_table(table: dict[str, dict[str, dict[str, Any]]]) -> None:
@@ -345,7 +351,7 @@ def print_table(table: dict[str, dict[str, dict[str, Any]]]) -> None:
             p = pooled([r for n, r in runs.items() if n.startswith(profile)])
             print(f"| {s or 'defaults'} | **{profile} pooled** | {f(p['P'])} | {f(p['R'])} | "
                   f"{f(p['tP'])} | {f(p['tR'])} | {p['missed']} / {p['episodes']} | "
-                  f"{f(p['oP'])} | {f(p['oR'])} | |")
+                  f"{f(p['oP'])} | {f(p['oR'])} | {f(p['obsF1_mean'])} (mean) |")
 
 
 if __name__ == "__main__":

@@ -20,7 +20,10 @@ from tests.e2e.scenes import write_street_drive
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
-    """Objects on (the defaults), off, and on without ``fill_moving``."""
+    """Objects on (the defaults), off, and on without ``fill_moving``; without the vehicle
+    boxes: the scene's 2 m square "car" is no car a 4.4 m box fits, and a record's
+    ``mean_betp_moving`` is over its cluster's cells, which the checks below take to be all
+    its cells (the boxes' run: tests/objects/test_boxes.py)."""
     tmp = tmp_path_factory.mktemp("objects")
     drive = write_street_drive(tmp / "street.mcap", n_scans=30)
     out = []
@@ -28,7 +31,8 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
                                 ("nofill", True, False)):
         config = load_config(overrides={"grid.window_size_m": 40.0, "output.chunk_frames": 10,
                                         "objects.enabled": enabled,
-                                        "objects.fill_moving": fill})
+                                        "objects.fill_moving": fill,
+                                        "objects.box_length_m": 0.0})
         run(RunRequest(log_path=drive, out_dir=tmp / name, config=config))
         out.append(tmp / name)
     return out[0], out[1], out[2]
