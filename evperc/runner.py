@@ -581,9 +581,10 @@ class Pipeline:
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
                 inputs.stamp_ns, occupied_now=occupied_now, heights=inputs.heights)
-            if self.backfill_frames > 0:  # the backfill's gaps (objects.bridge_gaps)
+            if self.backfill_frames > 0:  # the backfill's gaps (objects.bridge_gaps), boxes
                 frame["occupied_now"] = occupied_now
                 frame["speaks"] = (inputs.free, inputs.occupied)
+                frame["returns"] = inputs.heights
             if self.footprint.frames > 0:  # motion-compensated footprints (objects/footprint.py)
                 if state.footprints is None:
                     state.footprints = FootprintState()
@@ -848,7 +849,7 @@ def run(request: RunRequest, resume: bool = False,
                 frame["window"], decision, betp_moving, objects, frame["object_cells"],
                 candidates(state.tracks, objects), payload=(frame, layers),
                 stamp_ns=frame["stamp_ns"], occupied=frame.pop("occupied_now"),
-                speaks=frame.pop("speaks")))
+                speaks=frame.pop("speaks"), returns=frame.pop("returns", None)))
             clock.lap("objects")
             release(released)
         if backfill is not None:  # the log's end: the frames still held

@@ -216,7 +216,8 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
         if backfill.frames > 0:  # the frames L behind, with the moving tracks filled in
             frames.extend(_released(backfill.push(HeldFrame(
                 window, decision, betps[k], objects, cells, candidates(state, objects),
-                payload=frame, stamp_ns=int(stamps[k]), occupied=occ, speaks=speaks))))
+                payload=frame, stamp_ns=int(stamps[k]), occupied=occ, speaks=speaks,
+                returns=top))))
         else:
             frames.append(frame)
     frames.extend(_released(backfill.flush()))

@@ -18,7 +18,10 @@ later frame (within L) reports a candidate ``moving``, the held frame gets a rec
 its cells there, their centroid, box and mean betP(M), its age then, and the velocity of the
 report — and its cells are decided ``moving`` (a decision, like the fill: the masses are not
 changed). A candidate is filled once; a track reported ``stopped`` in the held frame is not
-a candidate (it moved before and stood there).
+a candidate (it moved before and stood there). With the vehicle boxes on
+(``objects.box_length_m``, :mod:`evperc.objects.boxes`), a frame leaving the backfill gets
+the boxes of the records added to it, as its own moving records got theirs when it was
+fused (the added records' velocity is the later report's).
 
 **Gaps** (``objects.bridge_gaps``, reach ``objects.bridge_reach_cells`` = ρ; ours): a track
 reported moving now that was not reported moving in the frame before may have gone without a
@@ -50,6 +53,7 @@ import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
+from evperc.objects.boxes import BoxParams, complete_boxes
 from evperc.objects.stage import fills_decision, objects_enabled
 from evperc.objects.tracking import TrackerState
 from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
@@ -89,6 +93,9 @@ class HeldFrame:
     #: the cells its scan speaks of (seen free or holding a return): a bool layer or the
     #: sensor grid's (m({F}), m({O})); None: a gap's record is its occupied cells only
     speaks: np.ndarray | tuple[np.ndarray, np.ndarray] | None = None
+    #: > 0 where the cell holds any obstacle return of its scan (the sensor grid's heights),
+    #: for the vehicle boxes of the added records; None: the first returns only
+    returns: np.ndarray | None = None
 
 
 class Candidates:
@@ -156,8 +163,12 @@ class Backfill:
     """Holds the last ``frames`` frames (:meth:`push`) and fills them (module docstring)."""
 
     def __init__(self, frames: int, gap_cells: int = 0, extent_m: float = np.inf,
-                 fill_decision: bool = True, bridge_reach: int = -1) -> None:
+                 fill_decision: bool = True, bridge_reach: int = -1,
+                 boxes: BoxParams | None = None) -> None:
         self.frames = int(frames)
+        #: objects.box_length_m ...: the added moving vehicles get their boxes at release
+        #: (:mod:`evperc.objects.boxes`), as the frame's own did
+        self.boxes = boxes if boxes is not None and boxes.enabled else None
         #: objects.bridge_reach_cells with objects.bridge_gaps (module docstring); -1: off
         self.bridge_reach = int(bridge_reach)
         #: objects.fill_moving: the added records' cells are decided moving
@@ -177,7 +188,7 @@ class Backfill:
         reach = int(o.get("bridge_reach_cells", 0)) if o.get("bridge_gaps", False) else -1
         return Backfill(backfill_frames(config), int(o.get("fragment_gap_cells", 0)),
                         float(o.get("fragment_extent_m", np.inf)), fills_decision(config),
-                        reach)
+                        reach, BoxParams.from_config(config))
 
     def push(self, frame: HeldFrame) -> list[HeldFrame]:
         """Fill the held frames from ``frame``'s moving records, hold ``frame``; returns the
@@ -201,7 +212,7 @@ class Backfill:
         self.held.append(frame)
         released = []
         while len(self.held) > self.frames:
-            released.append(self.held.popleft())
+            released.append(self._box_added(self.held.popleft()))
         return released
 
     def _bridge(self, frame: HeldFrame, k: int) -> None:
@@ -233,9 +244,29 @@ class Backfill:
 
     def flush(self) -> list[HeldFrame]:
         """Every held frame, oldest first (the log's end)."""
-        released = list(self.held)
+        released = [self._box_added(held) for held in self.held]
         self.held.clear()
         return released
+
+    def _box_added(self, held: HeldFrame) -> HeldFrame:
+        """``held``, leaving the backfill, with the vehicle boxes of the records added to it
+        (their cells decided ``moving`` with the fill): its own records got theirs when it
+        was fused."""
+        if self.boxes is None or not held.added or held.speaks is None:
+            return held
+        only = np.isin(held.objects["track_id"], np.asarray(held.added, np.int64))
+        objects, cells = complete_boxes(held.objects, held.object_cells, held.window,
+                                        held.speaks, held.decision, self.boxes,
+                                        returns=held.returns, only=only)
+        if objects is not held.objects:
+            held.objects, held.object_cells = objects, cells
+            if self.fill_decision:
+                counts = objects["cell_count"].astype(np.int64)
+                ends = np.cumsum(counts)
+                flat = held.decision.reshape(-1)
+                for k in np.flatnonzero(only):
+                    flat[cells[ends[k] - counts[k]:ends[k]]] = MOVING
+        return held
 
 
 def fill(held: HeldFrame, track: int, lattice: np.ndarray, age: int,

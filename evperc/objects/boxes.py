@@ -86,7 +86,8 @@ class BoxParams:
 def complete_boxes(objects: np.ndarray, cells: np.ndarray, window: Window,
                    scan_speaks: tuple[np.ndarray, np.ndarray] | np.ndarray,
                    decision: np.ndarray, params: BoxParams, scratch: np.ndarray | None = None,
-                   returns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   returns: np.ndarray | None = None, only: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """The frame's object list with each moving vehicle's footprint completed to its box
     (module docstring). ``objects``, ``cells``: records and their flat window cells, in
     record order; ``scan_speaks``: (rows, cols) bool, the cells seen free or holding a
@@ -96,8 +97,9 @@ def complete_boxes(objects: np.ndarray, cells: np.ndarray, window: Window,
     of the window's size to mark the records' cells in (zeroed again on return; None: one
     is made); ``returns``: (rows, cols), > 0 where the cell holds any obstacle return of
     the scan, not only a first one (the sensor grid's ``heights_out`` layer; None: the first
-    returns only). Returns new records and cells (the inputs unchanged); the inputs
-    themselves when boxes are off or no box adds a cell."""
+    returns only); ``only``: bool per record, the records to complete (None: all; the others'
+    cells are kept from the boxes all the same). Returns new records and cells (the inputs
+    unchanged); the inputs themselves when boxes are off or no box adds a cell."""
     if not params.enabled or len(objects) == 0:
         return objects, cells
     if isinstance(scan_speaks, tuple):
@@ -110,6 +112,8 @@ def complete_boxes(objects: np.ndarray, cells: np.ndarray, window: Window,
     held_returns = (_NO_RETURNS if returns is None
                     else np.ascontiguousarray(returns, np.float32).reshape(-1))
     moving = objects["state"] == _MOVING
+    if only is not None:
+        moving &= np.asarray(only, np.bool_)
     count = objects["cell_count"].astype(np.int64)
     velocity = np.ascontiguousarray(objects["velocity_m_per_s"], np.float64)
     own = np.ascontiguousarray(np.asarray(cells, np.int64)[:int(count.sum())])

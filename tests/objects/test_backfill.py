@@ -488,3 +488,38 @@ def test_held_in_the_writer_or_copied_the_frames_are_the_same(
             np.testing.assert_array_equal(getattr(a, layer), getattr(b, layer))
         assert a.objects.tobytes() == b.objects.tobytes()
         np.testing.assert_array_equal(a.object_cells, b.object_cells)
+
+
+def test_a_filled_vehicle_gets_its_box_when_the_frame_leaves() -> None:
+    """Lag 1, vehicle boxes on (evperc/objects/boxes.py): track 7 is a candidate in frame 0
+    with a car's rear face (window rows 13-16 at column 20: centres x 10.25, y 6.75-8.25),
+    reported moving at (5, 0) m/s in frame 1. Frame 0 leaves with its record completed to
+    the box: along u = x from 10.25 to 10.25 + 4.4 = 14.65 (columns 20-28; the sensor,
+    the window's centre (7.75, 7.75), lies behind the face); across, the face's 1.5 m grows
+    to 1.8 m away from the sensor (y ≥ 6.45: rows 13-16 still). Without boxes: the face."""
+    from evperc.objects.boxes import BoxParams
+    window = Window(0.5, 30, 30, 0, 0)
+    silent = (np.zeros(window.shape, np.float32), np.zeros(window.shape, np.float32))
+    face = [[r, 20] for r in range(13, 17)]
+    got = {}
+    for name, boxes in (("boxes", BoxParams(4.4, 1.8, 3.0, 1.0)), ("none", None)):
+        backfill = Backfill(1, boxes=boxes)
+        f0 = HeldFrame(window, np.full(window.shape, D["free"], np.uint8),
+                       np.zeros(window.shape, np.uint8), empty_objects(),
+                       np.zeros(0, np.uint32),
+                       Candidates.from_dict({7: (np.array(face, np.int64), 3)}),
+                       speaks=silent)
+        f1 = HeldFrame(window, np.full(window.shape, D["free"], np.uint8),
+                       np.zeros(window.shape, np.uint8),
+                       _record(7, cells=1, velocity=(5.0, 0.0)),
+                       np.array([13 * 30 + 21], np.uint32), speaks=silent)
+        assert backfill.push(f0) == []
+        assert backfill.push(f1) == [f0]
+        (record,) = f0.objects
+        cells = {divmod(int(c), 30) for c in f0.object_cells}
+        assert record["cell_count"] == len(cells)
+        assert {divmod(int(c), 30) for c in np.flatnonzero(
+            f0.decision.reshape(-1) == D["moving"])} == cells
+        got[name] = cells
+    assert got["none"] == {(r, 20) for r in range(13, 17)}
+    assert got["boxes"] == {(r, c) for r in range(13, 17) for c in range(20, 29)}
