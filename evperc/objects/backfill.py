@@ -169,6 +169,7 @@ class Backfill:
         #: objects.box_length_m ...: the added moving vehicles get their boxes at release
         #: (:mod:`evperc.objects.boxes`), as the frame's own did
         self.boxes = boxes if boxes is not None and boxes.enabled else None
+        self._marks = np.zeros(0, np.uint8)  # the boxes' zeroed scratch layer
         #: objects.bridge_reach_cells with objects.bridge_gaps (module docstring); -1: off
         self.bridge_reach = int(bridge_reach)
         #: objects.fill_moving: the added records' cells are decided moving
@@ -254,10 +255,14 @@ class Backfill:
         was fused."""
         if self.boxes is None or not held.added or held.speaks is None:
             return held
-        only = np.isin(held.objects["track_id"], np.asarray(held.added, np.int64))
+        only = _in_sorted(held.objects["track_id"].astype(np.int64),
+                          np.sort(np.asarray(held.added, np.int64)))
+        size = held.window.rows * held.window.cols
+        if self._marks.size != size:
+            self._marks = np.zeros(size, np.uint8)
         objects, cells = complete_boxes(held.objects, held.object_cells, held.window,
                                         held.speaks, held.decision, self.boxes,
-                                        returns=held.returns, only=only)
+                                        scratch=self._marks, returns=held.returns, only=only)
         if objects is not held.objects:
             held.objects, held.object_cells = objects, cells
             if self.fill_decision:
