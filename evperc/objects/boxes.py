@@ -50,7 +50,7 @@ import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
-from evperc.objects.footprint import _set_geometry
+from evperc.objects.footprint import _geometry, _set_geometry
 from evperc.objects.tracking import ego_cell_centre
 from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
 
@@ -235,28 +235,6 @@ def _extend(lo, hi, sensor, size):  # pragma: no cover - compiled
     if sensor <= (lo + hi) / 2:
         return lo, lo + size
     return hi - size, hi
-
-
-@numba.njit(cache=True)
-def _geometry(cells, cols, row0, col0, res, centroid, bbox, extent):  # pragma: no cover
-    """Centroid (a sequential mean of the cell centres), bbox of the outer edges and extent
-    of non-empty flat ``cells``."""
-    sx_, sy_ = 0.0, 0.0
-    lox, hix, loy, hiy = np.inf, -np.inf, np.inf, -np.inf
-    for q in range(cells.shape[0]):
-        r = cells[q] // cols
-        x = (cells[q] - r * cols + col0 + 0.5) * res
-        y = (r + row0 + 0.5) * res
-        sx_ += x
-        sy_ += y
-        lox, hix = min(lox, x), max(hix, x)
-        loy, hiy = min(loy, y), max(hiy, y)
-    centroid[0] = sx_ / cells.shape[0]
-    centroid[1] = sy_ / cells.shape[0]
-    half = res / 2
-    bbox[0], bbox[1], bbox[2], bbox[3] = lox - half, loy - half, hix + half, hiy + half
-    extent[0] = bbox[2] - bbox[0]
-    extent[1] = bbox[3] - bbox[1]
 
 
 _NO_RETURNS = np.zeros(1, np.float32)
