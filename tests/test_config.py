@@ -169,6 +169,10 @@ def test_packaged_preset_is_the_repo_file() -> None:
     ("ego_clearance_m = -1.0", r"objects.ego_clearance_m = -1.0 is outside"),
     ("fragment_gap_cells = -1", r"objects.fragment_gap_cells = -1 is outside"),
     ("fragment_extent_m = 0.0", r"objects.fragment_extent_m = 0.0 is outside"),
+    ("box_length_m = -4.4", r"objects.box_length_m = -4.4 is outside"),
+    ("box_width_m = 200.0", r"objects.box_width_m = 200.0 is outside"),
+    ('box_min_length_m = "long"', r"objects.box_min_length_m"),
+    ("box_min_width_m = -1.0", r"objects.box_min_width_m = -1.0 is outside"),
 ])
 def test_object_evidence_keys_are_validated(tmp_path: Path, line: str, match: str) -> None:
     with pytest.raises(ConfigError, match=match):
