@@ -30,7 +30,7 @@ from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
 from evperc.objects.backfill import Backfill, HeldFrame, backfill_frames, candidates
 from evperc.objects.backfill import warm_up as warm_up_backfill
-from evperc.objects.boxes import BoxParams, complete_boxes
+from evperc.objects.boxes import BoxParams, VehicleBoxes
 from evperc.objects.boxes import warm_up as warm_up_boxes
 from evperc.objects.clusters import JOINS_ANY
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints
@@ -353,7 +353,6 @@ class Pipeline:
         #: frames whose sensor grid the fusion thread computed (:meth:`inputs`, ``defer``)
         self.sensor_grids_in_step = 0
         self._gate_buffer: np.ndarray | None = None
-        self._box_buffer: np.ndarray | None = None
         probe = Window.centred_on(0.0, 0.0, self.window_size, self.resolution)
         self.objects = (ObjectStage(config, probe.shape) if objects_enabled(config) else None)
         self.fill_moving = fills_decision(config)
@@ -361,7 +360,7 @@ class Pipeline:
         self.moving_needs_object = (objects_enabled(config)
                                     and bool(config["objects"]["moving_needs_object"]))
         self.footprint = FootprintParams.from_config(config)
-        self.boxes = BoxParams.from_config(config)
+        self.boxes = VehicleBoxes(BoxParams.from_config(config))
         #: objects.backfill_frames: frames are handed to the output this many frames late,
         #: with the tracks reported moving since filled in (evperc.objects.backfill); 0 = off
         self.backfill_frames = backfill_frames(config)
@@ -403,7 +402,7 @@ class Pipeline:
                 TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0,
                 occupied_now=occupied > 0)
             warm_up_footprints(self.footprint)
-            warm_up_boxes(self.boxes)
+            warm_up_boxes(self.boxes.params)
             if self.objects.moving_min_cells > 0 or self.moving_needs_object:
                 unfill_small(out.decision.copy(), np.zeros(1, np.int64), None)
             if self.backfill_frames > 0:
@@ -592,10 +591,9 @@ class Pipeline:
                     state.footprints, frame["objects"], frame["object_cells"], window,
                     inputs.stamp_ns, (inputs.free, inputs.occupied), self.footprint)
             if self.boxes.enabled:  # moving vehicles' far sides (objects/boxes.py)
-                frame["objects"], frame["object_cells"] = complete_boxes(
+                frame["objects"], frame["object_cells"] = self.boxes.complete(
                     frame["objects"], frame["object_cells"], window,
-                    (inputs.free, inputs.occupied), out.decision, self.boxes,
-                    self._box_marks(window.shape), returns=inputs.heights)
+                    (inputs.free, inputs.occupied), out.decision, returns=inputs.heights)
             moving_cells = moving_object_cells(frame["objects"], frame["object_cells"])
             if self.fill_moving:  # the moving objects' cells decided moving (method.md §8)
                 fill_moving(out.decision, moving_cells)
@@ -660,13 +658,6 @@ class Pipeline:
             if st == OBJECT_STATES["moving"]]
         return {"moving_objects": moving, "reach_cells": reach,
                 "height_margin_m": float(self.request.config["objects"]["point_height_margin_m"])}
-
-    def _box_marks(self, shape: tuple[int, int]) -> np.ndarray:
-        """The vehicle boxes' zeroed scratch layer (one per run; each call leaves it zeroed)."""
-        marks = self._box_buffer
-        if marks is None or marks.shape != shape:
-            marks = self._box_buffer = np.zeros(shape, np.uint8)
-        return marks
 
     def _gate_layer(self, shape: tuple[int, int]) -> np.ndarray:
         """The gate layer's buffer (one per run, reused every frame)."""

@@ -53,7 +53,7 @@ import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
-from evperc.objects.boxes import BoxParams, complete_boxes
+from evperc.objects.boxes import BoxParams, VehicleBoxes
 from evperc.objects.stage import fills_decision, objects_enabled
 from evperc.objects.tracking import TrackerState
 from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
@@ -168,8 +168,7 @@ class Backfill:
         self.frames = int(frames)
         #: objects.box_length_m ...: the added moving vehicles get their boxes at release
         #: (:mod:`evperc.objects.boxes`), as the frame's own did
-        self.boxes = boxes if boxes is not None and boxes.enabled else None
-        self._marks = np.zeros(0, np.uint8)  # the boxes' zeroed scratch layer
+        self.boxes = VehicleBoxes(boxes) if boxes is not None and boxes.enabled else None
         #: objects.bridge_reach_cells with objects.bridge_gaps (module docstring); -1: off
         self.bridge_reach = int(bridge_reach)
         #: objects.fill_moving: the added records' cells are decided moving
@@ -257,12 +256,9 @@ class Backfill:
             return held
         only = _in_sorted(held.objects["track_id"].astype(np.int64),
                           np.sort(np.asarray(held.added, np.int64)))
-        size = held.window.rows * held.window.cols
-        if self._marks.size != size:
-            self._marks = np.zeros(size, np.uint8)
-        objects, cells = complete_boxes(held.objects, held.object_cells, held.window,
-                                        held.speaks, held.decision, self.boxes,
-                                        scratch=self._marks, returns=held.returns, only=only)
+        objects, cells = self.boxes.complete(held.objects, held.object_cells, held.window,
+                                             held.speaks, held.decision,
+                                             returns=held.returns, only=only)
         if objects is not held.objects:
             held.objects, held.object_cells = objects, cells
             if self.fill_decision:

@@ -131,6 +131,31 @@ def complete_boxes(objects: np.ndarray, cells: np.ndarray, window: Window,
     return out, full.astype(np.uint32)
 
 
+class VehicleBoxes:
+    """:func:`complete_boxes` with ``params`` and a zeroed scratch layer of its own, kept
+    from call to call and sized to the window (one per caller: the runner's frames, the
+    backfill's)."""
+
+    def __init__(self, params: BoxParams) -> None:
+        self.params = params
+        self._marks = np.zeros(0, np.uint8)
+
+    @property
+    def enabled(self) -> bool:
+        return self.params.enabled
+
+    def complete(self, objects: np.ndarray, cells: np.ndarray, window: Window,
+                 scan_speaks: tuple[np.ndarray, np.ndarray] | np.ndarray,
+                 decision: np.ndarray, returns: np.ndarray | None = None,
+                 only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`complete_boxes` of these arguments."""
+        size = window.rows * window.cols
+        if self._marks.size != size:
+            self._marks = np.zeros(size, np.uint8)
+        return complete_boxes(objects, cells, window, scan_speaks, decision, self.params,
+                              scratch=self._marks, returns=returns, only=only)
+
+
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _boxes(moving, count, velocity, own, rows, cols, row0, col0, res, sx, sy, speaks_a,
            speaks_b, returns, has_returns, decision, static, length, width, min_length,
