@@ -436,9 +436,12 @@ def rows_from(data: dict) -> list[dict]:
     cores = {"measure": "cores busy (cpu s / wall s)"}
     kernel = {"measure": "kernel (sys) CPU ms/frame; minor page faults/frame"}
     threads = {"measure": "CPU ms/frame of the frame loop: main / decode / writer thread"}
+    start_up = {"measure": "start-up before the first frame, s (map, kernels, the log's "
+                           "geo-reference from its GNSS fixes)"}
     for run_key, col in cols.items():
         run = r[run_key]
         whole[col] = f"{run['frames_per_s']:.1f}"
+        start_up[col] = f"{run.get('start_up_s', float('nan')):.2f}"
         if "all_frames_per_s" in run:
             whole[col] += f" (runs: {all_runs(run)})"
         rss[col] = f"{run['peak_rss_mb']:.0f} ({max(run['rss_mb_samples'], default=0):.0f})"
@@ -447,7 +450,7 @@ def rows_from(data: dict) -> list[dict]:
         kernel[col] = (f"{1e3 * run['sys_s'] / run['frames']:.1f}; "
                        f"{run['minor_faults'] / run['frames']:,.0f}")
         threads[col] = thread_cpu(run)
-    rows += [whole, rss, out, cores, kernel, threads]
+    rows += [whole, start_up, rss, out, cores, kernel, threads]
     long_rss = r["c_long"]["peak_rss_mb"] / r["c_short"]["peak_rss_mb"]
     rows.append({"measure": "peak RSS, (c) long / 1k", cols["c_long"]: f"{long_rss:.3f}"})
     a_long = r["a_long"]

@@ -116,15 +116,19 @@ def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
         crs = working_crs(config["map"]["crs"], lonlat)
         return georef_mod.from_origin(inp["origin_lat_deg"], inp["origin_lon_deg"],
                                       inp["origin_heading_deg"], crs)
-    fixes = reader.gnss_fixes()
+    spans = reader.gnss_spans()
+    in_spans = [reader.gnss_fixes(a, b) for a, b in spans]
+    fixes = np.concatenate(in_spans)
     if len(fixes):
+        if len(spans) > 1:
+            log.info("%s: a long log: its GNSS fixes read in %d spans of %.0f s spread over "
+                     "it", reader.path, len(spans), (spans[0][1] - spans[0][0]) * 1e-9)
         crs = working_crs(config["map"]["crs"], (float(fixes[0, 2]), float(fixes[0, 1])))
-        stamps = fixes[:, 0].astype(np.int64)
-        world_xy = reader.positions_at(stamps, frame=reader.gnss_antenna_frame())[:, :2]
+        world_xy = _fix_positions(reader, in_spans, reader.gnss_antenna_frame())
         if np.isnan(world_xy).all():
             log.info("%s: GNSS frame not reachable through the poses; fitting the fixes to the "
                      "lidar positions", reader.path)
-            world_xy = reader.positions_at(stamps)[:, :2]
+            world_xy = _fix_positions(reader, in_spans, None)
         valid = ~np.isnan(world_xy).any(axis=1)  # fixes outside the pose span
         return georef_mod.from_gnss(world_xy[valid], fixes[valid][:, [2, 1]], crs)
     if need_crs:
@@ -133,6 +137,13 @@ def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
             "input.origin_lat_deg / origin_lon_deg / origin_heading_deg (or input.poses_crs) "
             "in a --config file, or run with --no-map")
     return None
+
+
+def _fix_positions(reader: Any, in_spans: list[np.ndarray], frame: str | None) -> np.ndarray:
+    """(K, 2) world position of ``frame`` (None: the lidar) at the stamps of the fixes of
+    each span in turn (a span's poses read around its own fixes only, not over the log)."""
+    return np.concatenate([reader.positions_at(f[:, 0].astype(np.int64), frame=frame)[:, :2]
+                           for f in in_spans])
 
 
 def pose_xy_yaw(t_crs_sensor: np.ndarray) -> np.ndarray:

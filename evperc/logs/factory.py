@@ -3,8 +3,9 @@ dataloaders — one module per source kind, each listed once in :data:`SOURCES` 
 that recognises it (by content, not by name) and the function that opens it.
 
 Every reader offers what :class:`evperc.logs.message_log.LogReader` offers (docs/architecture.md:
-``scans()``, ``start_ns`` / ``end_ns``, ``stats``, ``gnss_fixes()``, ``positions_at()``,
-``info()``, …). Adding a source is a new module and one row here; nothing else changes.
+``scans()``, ``start_ns`` / ``end_ns``, ``stats``, ``gnss_spans()``, ``gnss_fixes()``,
+``positions_at()``, ``info()``, …). Adding a source is a new module and one row here;
+nothing else changes.
 """
 
 from __future__ import annotations

@@ -229,7 +229,11 @@ class KittiLog:
                                           self.poses[:, axis, 3])
         return out
 
-    def gnss_fixes(self) -> np.ndarray:
+    def gnss_spans(self) -> list[tuple[int | None, int | None]]:
+        return [(None, None)]
+
+    def gnss_fixes(self, start_ns: int | None = None, end_ns: int | None = None
+                   ) -> np.ndarray:
         """Always empty (0, 4): a KITTI sequence folder has no GNSS (module docstring)."""
         return np.empty((0, 4))
 

@@ -70,6 +70,10 @@ log = logging.getLogger(__name__)
 WAIT_SLACK_NS = 1_000_000_000
 #: scans decoded by ``info()`` to estimate the mean points per scan
 INFO_SAMPLE_SCANS = 20
+#: a long log's GNSS fixes are read in this many spans of log time (:meth:`LogReader.gnss_spans`)
+GNSS_SPANS = 16
+#: ... of this many seconds each, spread evenly from the log's first message to its last
+GNSS_SPAN_S = 2.0
 
 
 def open_message_log(path: str | Path, *, lidar_topic: str | None = None,
@@ -416,8 +420,9 @@ class LogReader:
                                         int(stamps.max()) + margin):
             poses.add(self._pose_records(raw))
             release(raw.log_time - margin)
-            if queue:
-                poses.prune(int(stamps[queue[0]]))
+            if not queue:  # every stamp placed: the rest of the span is not read
+                return
+            poses.prune(int(stamps[queue[0]]))
         release(None)
 
     @property
@@ -454,16 +459,35 @@ class LogReader:
         # TF: the frame may only appear in dynamic TF; positions_at gives NaN if it never does
         return frame or self.lidar_frame
 
-    def gnss_fixes(self) -> np.ndarray:
+    def gnss_spans(self) -> list[tuple[int | None, int | None]]:
+        """The spans of log time ``[start_ns, end_ns)`` whose GNSS fixes geo-reference the log
+        (:func:`evperc.runner.geo_reference`): the whole log, ``[(None, None)]``, unless it is
+        longer than :data:`GNSS_SPANS` spans of :data:`GNSS_SPAN_S` and its source reads a span
+        without reading what comes before (``indexed``); then those spans, spread evenly from
+        its first message to its last. The fixes share chunks with the scans, so reading all
+        of an hour's fixes decompressed the whole log twice before the first frame (4 s of
+        start-up for a 60 s drive, more than its frames took; docs/performance.md)."""
+        width = int(GNSS_SPAN_S * 1e9)
+        start, end = self.source.start_ns, self.source.end_ns
+        if (start is None or end is None or not self.source.indexed
+                or end - start <= GNSS_SPANS * width):
+            return [(None, None)]
+        step = (end - start - width) / (GNSS_SPANS - 1)
+        firsts = [start + round(k * step) for k in range(GNSS_SPANS)]
+        return [(a, a + width) for a in firsts]
+
+    def gnss_fixes(self, start_ns: int | None = None, end_ns: int | None = None
+                   ) -> np.ndarray:
         """(K, 4) float64 rows (stamp_ns, lat_deg, lon_deg, alt_m), sorted by stamp, unique
-        stamps; fixes without a position (NavSatFix status −1, NaN) are left out. Empty (0, 4)
-        when the log has no GNSS topic."""
+        stamps, of the fixes logged in ``[start_ns, end_ns)`` (default: the whole log);
+        fixes without a position (NavSatFix status −1, NaN) are left out. Empty (0, 4) when
+        the log has no GNSS topic."""
         topic = self.gnss_topic
         if topic is None:
             return np.empty((0, 4))
         adapter = GNSS_ADAPTERS[self.source.topics[topic].schema]
         rows = []
-        for raw in self.source.iter_raw([topic]):
+        for raw in self.source.iter_raw([topic], start_ns, end_ns):
             fix = adapter(self.source.decode(raw), raw.log_time)
             if fix is not None:
                 if self._gnss_frame is None:

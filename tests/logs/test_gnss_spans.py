@@ -1,0 +1,112 @@
+"""A long log is geo-referenced from the GNSS fixes of a few spans of it, not from all of it
+(evperc.logs.message_log.LogReader.gnss_spans; docs/performance.md, "Start-up")."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pyproj
+
+from evperc.config import load_config
+from evperc.logs import message_log
+from evperc.logs.factory import open_log
+from evperc.runner import geo_reference
+from tests.logs.reference import S0
+from tests.mcap_writers import transform, write_ros2_mcap
+
+MS = 1_000_000
+UTM35 = "EPSG:32635"
+#: where the log's world origin lies in UTM 35N, and the grid angle of its x axis
+ORIGIN_E, ORIGIN_N, HEADING = 385_000.0, 6_672_000.0, math.radians(37.0)
+
+
+def _drive(tmp_path, seconds: float, rate_hz: float = 10.0):
+    """A log of ``seconds``: odometry in a local frame along a quarter circle of 300 m
+    radius, and noise-free fixes of the body at the same stamps, placed by the known
+    origin and heading (pyproj inverse: an oracle independent of the fit)."""
+    n = int(seconds * rate_hz)
+    stamps = [S0 + round(i * 1e9 / rate_hz) for i in range(n)]
+    arc = np.linspace(0.0, math.pi / 2, n)
+    x, y = 300.0 * np.sin(arc), 300.0 * (1.0 - np.cos(arc))
+    odometry = [(s, transform(x=float(a), y=float(b), yaw=float(t)))
+                for s, a, b, t in zip(stamps, x, y, arc, strict=True)]
+    c, s_ = math.cos(HEADING), math.sin(HEADING)
+    east, north = ORIGIN_E + c * x - s_ * y, ORIGIN_N + s_ * x + c * y
+    lon, lat = pyproj.Transformer.from_crs(UTM35, "EPSG:4326", always_xy=True).transform(
+        east, north)
+    fixes = [(s, float(b), float(a), 10.0) for s, a, b in zip(stamps, lon, lat, strict=True)]
+    clouds = [(stamps[0], np.array([[5.0, 0.0, 0.5]]), "base_link"),
+              (stamps[-1], np.array([[5.0, 0.0, 0.5]]), "base_link")]
+    path = write_ros2_mcap(tmp_path / "long.mcap", clouds=clouds, odometry=odometry,
+                           fixes=fixes, chunk_size=8 * 1024)
+    return path, n
+
+
+def _counting(reader):
+    """``reader`` whose source counts the messages it yields per topic."""
+    counts: dict[str, int] = {}
+    iter_raw = reader.source.iter_raw
+
+    def counted(topics=None, start_ns=None, end_ns=None):
+        for raw in iter_raw(topics, start_ns, end_ns):
+            counts[raw.topic] = counts.get(raw.topic, 0) + 1
+            yield raw
+
+    reader.source.iter_raw = counted
+    return counts
+
+
+def test_spans_of_a_long_log(tmp_path):
+    path, n = _drive(tmp_path, 100.0)
+    reader = open_log(path)
+    spans = reader.gnss_spans()
+    width = int(message_log.GNSS_SPAN_S * 1e9)
+    assert len(spans) == message_log.GNSS_SPANS
+    assert all(b - a == width for a, b in spans)
+    # from the first message to the last, evenly spaced (to the nanosecond's rounding)
+    assert spans[0][0] == reader.source.start_ns
+    assert abs(spans[-1][1] - reader.source.end_ns) <= 1
+    steps = np.diff([a for a, _ in spans])
+    assert steps.max() - steps.min() <= 1 and steps.min() > width
+
+
+def test_a_short_log_is_read_whole(tmp_path):
+    path, _ = _drive(tmp_path, message_log.GNSS_SPANS * message_log.GNSS_SPAN_S)
+    assert open_log(path).gnss_spans() == [(None, None)]
+
+
+def test_an_unindexed_source_is_read_whole(tmp_path):
+    """An unindexed file is read from its start for every span: one pass instead."""
+    path, _ = _drive(tmp_path, 100.0)
+    reader = open_log(path)
+    reader.source.indexed = False
+    assert reader.gnss_spans() == [(None, None)]
+
+
+def test_long_log_geo_reference_from_its_spans(tmp_path):
+    path, n = _drive(tmp_path, 400.0, rate_hz=5.0)
+    reader = open_log(path)
+    counts = _counting(reader)
+    config = load_config(overrides={"map.crs": UTM35})
+    georef = geo_reference(reader, config, need_crs=True)
+    # noise-free fixes: the fit recovers the placement to float round-off; 1 mm and 1e-7 rad
+    # are far above that (~1e-9 m from pyproj's round trip) and far below a cell
+    assert abs(georef.heading_rad - HEADING) < 1e-7
+    np.testing.assert_allclose(georef.T_crs_world[:2, 3], [ORIGIN_E, ORIGIN_N], atol=1e-3)
+    # what was read: the fixes of the spans only, and the poses around them (from
+    # max_pose_gap_s + 1 s of slack before a span's first fix to the first pose after its last)
+    spans = message_log.GNSS_SPANS
+    assert counts["/fix"] <= spans * (message_log.GNSS_SPAN_S * 5 + 1)
+    around = message_log.GNSS_SPAN_S + config["input"]["max_pose_gap_s"] + 1.0 + 0.2
+    assert counts["/odom"] <= spans * around * 5 + 1  # + the body frame's first pose
+    assert counts["/odom"] < n / 3
+
+
+def test_short_log_geo_reference_reads_every_fix(tmp_path):
+    path, n = _drive(tmp_path, 20.0)
+    reader = open_log(path)
+    counts = _counting(reader)
+    georef = geo_reference(reader, load_config(overrides={"map.crs": UTM35}), need_crs=True)
+    assert abs(georef.heading_rad - HEADING) < 1e-7
+    assert counts["/fix"] == n
