@@ -110,3 +110,23 @@ def test_short_log_geo_reference_reads_every_fix(tmp_path):
     georef = geo_reference(reader, load_config(overrides={"map.crs": UTM35}), need_crs=True)
     assert abs(georef.heading_rad - HEADING) < 1e-7
     assert counts["/fix"] == n
+
+
+def test_the_summary_is_parsed_once(tmp_path, monkeypatch):
+    """The geo-reference's ~35 time-range reads reuse the summary read at open (each parse
+    walks every chunk index: O(log length) per read otherwise)."""
+    from mcap.reader import SeekingReader
+
+    path, _ = _drive(tmp_path, 400.0, rate_hz=5.0)
+    parse = SeekingReader.get_summary
+    parses = []
+
+    def counted(self):
+        parses.append(1)
+        return parse(self)
+
+    monkeypatch.setattr(SeekingReader, "get_summary", counted)
+    reader = open_log(path)
+    assert len(parses) == 1
+    geo_reference(reader, load_config(overrides={"map.crs": UTM35}), need_crs=True)
+    assert len(parses) == 1
