@@ -117,26 +117,41 @@ def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
         return georef_mod.from_origin(inp["origin_lat_deg"], inp["origin_lon_deg"],
                                       inp["origin_heading_deg"], crs)
     spans = reader.gnss_spans()
-    in_spans = [reader.gnss_fixes(a, b) for a, b in spans]
-    fixes = np.concatenate(in_spans)
-    if len(fixes):
-        if len(spans) > 1:
-            log.info("%s: a long log: its GNSS fixes read in %d spans of %.0f s spread over "
-                     "it", reader.path, len(spans), (spans[0][1] - spans[0][0]) * 1e-9)
-        crs = working_crs(config["map"]["crs"], (float(fixes[0, 2]), float(fixes[0, 1])))
-        world_xy = _fix_positions(reader, in_spans, reader.gnss_antenna_frame())
-        if np.isnan(world_xy).all():
-            log.info("%s: GNSS frame not reachable through the poses; fitting the fixes to the "
-                     "lidar positions", reader.path)
-            world_xy = _fix_positions(reader, in_spans, None)
-        valid = ~np.isnan(world_xy).any(axis=1)  # fixes outside the pose span
-        return georef_mod.from_gnss(world_xy[valid], fixes[valid][:, [2, 1]], crs)
+    georef = _from_gnss(reader, config, spans) if len(spans) > 1 else None
+    if georef is None:  # a short log, or a sparse GNSS topic the spans missed: every fix
+        georef = _from_gnss(reader, config, [(None, None)])
+    if georef is not None:
+        return georef
     if need_crs:
         raise GeoreferenceError(
             f"{reader.path}: poses are in a local frame and the log has no GNSS topic; set "
             "input.origin_lat_deg / origin_lon_deg / origin_heading_deg (or input.poses_crs) "
             "in a --config file, or run with --no-map")
     return None
+
+
+def _from_gnss(reader: Any, config: dict[str, Any],
+               spans: list[tuple[int | None, int | None]]) -> georef_mod.Georeference | None:
+    """The rigid fit of the fixes logged in ``spans`` (``reader.gnss_spans()``) to the poses
+    at their stamps. None if they hold no fix — or, for spans of a long log, fewer usable
+    fixes than spans (a GNSS topic too sparse for them: the caller reads every fix)."""
+    in_spans = [reader.gnss_fixes(a, b) for a, b in spans]
+    fixes = np.concatenate(in_spans)
+    if len(fixes) < len(spans):
+        return None
+    crs = working_crs(config["map"]["crs"], (float(fixes[0, 2]), float(fixes[0, 1])))
+    world_xy = _fix_positions(reader, in_spans, reader.gnss_antenna_frame())
+    if np.isnan(world_xy).all():
+        log.info("%s: GNSS frame not reachable through the poses; fitting the fixes to the "
+                 "lidar positions", reader.path)
+        world_xy = _fix_positions(reader, in_spans, None)
+    valid = ~np.isnan(world_xy).any(axis=1)  # fixes outside the pose span
+    if len(spans) > 1 and valid.sum() < len(spans):
+        return None
+    if len(spans) > 1:
+        log.info("%s: a long log: its GNSS fixes read in %d spans of %.0f s spread over it",
+                 reader.path, len(spans), (spans[0][1] - spans[0][0]) * 1e-9)
+    return georef_mod.from_gnss(world_xy[valid], fixes[valid][:, [2, 1]], crs)
 
 
 def _fix_positions(reader: Any, in_spans: list[np.ndarray], frame: str | None) -> np.ndarray:

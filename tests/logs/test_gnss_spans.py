@@ -21,10 +21,11 @@ UTM35 = "EPSG:32635"
 ORIGIN_E, ORIGIN_N, HEADING = 385_000.0, 6_672_000.0, math.radians(37.0)
 
 
-def _drive(tmp_path, seconds: float, rate_hz: float = 10.0):
+def _drive(tmp_path, seconds: float, rate_hz: float = 10.0, fix_every: int = 1):
     """A log of ``seconds``: odometry in a local frame along a quarter circle of 300 m
-    radius, and noise-free fixes of the body at the same stamps, placed by the known
-    origin and heading (pyproj inverse: an oracle independent of the fit)."""
+    radius, and noise-free fixes of the body at the same stamps (every ``fix_every``-th),
+    placed by the known origin and heading (pyproj inverse: an oracle independent of the
+    fit)."""
     n = int(seconds * rate_hz)
     stamps = [S0 + round(i * 1e9 / rate_hz) for i in range(n)]
     arc = np.linspace(0.0, math.pi / 2, n)
@@ -35,7 +36,8 @@ def _drive(tmp_path, seconds: float, rate_hz: float = 10.0):
     east, north = ORIGIN_E + c * x - s_ * y, ORIGIN_N + s_ * x + c * y
     lon, lat = pyproj.Transformer.from_crs(UTM35, "EPSG:4326", always_xy=True).transform(
         east, north)
-    fixes = [(s, float(b), float(a), 10.0) for s, a, b in zip(stamps, lon, lat, strict=True)]
+    fixes = [(s, float(b), float(a), 10.0)
+             for s, a, b in zip(stamps, lon, lat, strict=True)][::fix_every]
     clouds = [(stamps[0], np.array([[5.0, 0.0, 0.5]]), "base_link"),
               (stamps[-1], np.array([[5.0, 0.0, 0.5]]), "base_link")]
     path = write_ros2_mcap(tmp_path / "long.mcap", clouds=clouds, odometry=odometry,
@@ -130,3 +132,14 @@ def test_the_summary_is_parsed_once(tmp_path, monkeypatch):
     assert len(parses) == 1
     geo_reference(reader, load_config(overrides={"map.crs": UTM35}), need_crs=True)
     assert len(parses) == 1
+
+
+def test_a_sparse_gnss_topic_falls_back_to_every_fix(tmp_path):
+    """Fixes every 10 s: the 2 s spans hold fewer than one a span, so every fix is read."""
+    path, n = _drive(tmp_path, 400.0, rate_hz=5.0, fix_every=50)
+    reader = open_log(path)
+    assert len(reader.gnss_spans()) == message_log.GNSS_SPANS
+    counts = _counting(reader)
+    georef = geo_reference(reader, load_config(overrides={"map.crs": UTM35}), need_crs=True)
+    assert abs(georef.heading_rad - HEADING) < 1e-7
+    assert counts["/fix"] >= n // 50  # the spans' few, then all of them
