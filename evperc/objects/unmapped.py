@@ -44,6 +44,13 @@ Per frame, with ``dt`` the time since the previous frame:
    free, 8-next to a building cell); a parked car at the kerb has cells on the road and
    stays ``stopped``, a car that drove off the road and stopped was seen moving.
 
+5. A façade is not ``stopped`` (``stopped_off_facades``, the same components): a component
+   as thin as furniture (width at most ``max_width_m``), in or 8-next to a building cell
+   and never seen moving keeps no cell ``stopped``: they become ``static``. It is the
+   returns of a mapped building's face that fall in the cells just outside its outline,
+   on the road's side (road prior {F, S, M}: occupied there is {S, M}, and ζ makes it S);
+   a car parked against the wall makes the component wider than a strip, and keeps it.
+
 Without a map the pass changes nothing (the state is still kept): the road's edge is what
 tells a kerb-side car's face — a strip one cell thick, as thin as a fence — from the
 pavement's furniture, and without it every thin static strip would be called unmapped.
@@ -92,7 +99,8 @@ def unmapped_enabled(config: dict[str, Any]) -> bool:
     rule on (a config written before the keys existed, e.g. an old run's manifest on
     resume: no)."""
     o = config.get("objects", {})
-    return bool(o.get("unmapped_cue", False)) or bool(o.get("stopped_needs_road", False))
+    return (bool(o.get("unmapped_cue", False)) or bool(o.get("stopped_needs_road", False))
+            or bool(o.get("stopped_off_facades", False)))
 
 
 @dataclass(frozen=True)
@@ -112,6 +120,8 @@ class UnmappedParams:
     #: objects.stopped_needs_road: step 4 (off here, the fusion's decision; on in
     #: configs/default.toml)
     stopped_needs_road: bool = False
+    #: objects.stopped_off_facades: step 5 (off here; on in configs/default.toml)
+    stopped_off_facades: bool = False
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> UnmappedParams:
@@ -119,7 +129,8 @@ class UnmappedParams:
         return UnmappedParams(max_width_m=float(o["unmapped_max_width_m"]),
                               min_age_s=float(o["unmapped_min_age_s"]),
                               unmapped=bool(o.get("unmapped_cue", False)),
-                              stopped_needs_road=bool(o.get("stopped_needs_road", False)))
+                              stopped_needs_road=bool(o.get("stopped_needs_road", False)),
+                              stopped_off_facades=bool(o.get("stopped_off_facades", False)))
 
 
 @dataclass
@@ -175,7 +186,8 @@ class UnmappedCue:
         """Update ``state`` with the frame's ``decision`` (uint8 codes, window order,
         :data:`evperc.fusion.twin.DECISION_CODES`) and relabel its unmapped-like cells
         ``unmapped`` in place (module docstring), and, with ``stopped_needs_road``, the
-        ``stopped`` cells of off-road components never seen moving ``static``; returns the
+        ``stopped`` cells of off-road components never seen moving ``static`` (with
+        ``stopped_off_facades``, those of a façade's strip too); returns the
         number of cells relabelled ``unmapped`` (:attr:`stats` counts both per component).
 
         ``labels``: the window's map context (:mod:`evperc.geo.prior`), None without a map
@@ -206,7 +218,8 @@ class UnmappedCue:
             seen, state.age_s, state.moved, int(offset[0]) % rows if rows else 0,
             int(offset[1]) % cols if cols else 0, int(shift[0]), int(shift[1]),
             np.float32(max(dt_s, 0.0)), p.max_width_m / res, np.float32(p.min_age_s),
-            p.unmapped, p.stopped_needs_road, self._cos, self._sin, self._mark, self._cells,
+            p.unmapped, p.stopped_needs_road, p.stopped_off_facades, self._cos, self._sin,
+            self._mark, self._cells,
             self._stats, flat[:flat.size - flat.size % 8].view(np.uint64), res)
         if n < 0:  # checked before any state was changed
             raise ValueError(f"moving_cells outside the {rows} x {cols} window")
@@ -218,7 +231,7 @@ class UnmappedCue:
         """``(components, 8)`` float64 of the last step, one row a component in the order
         found (row-major scan; columns ``STAT_*``): cells, road cells, in or next to a
         building (0/1), seen moving (0/1), width and length (m), cells relabelled
-        ``unmapped``, cells turned from ``stopped`` to ``static`` (step 4)."""
+        ``unmapped``, cells turned from ``stopped`` to ``static`` (steps 4 and 5)."""
         return self._stats[:self.components]
 
 
@@ -274,7 +287,8 @@ def _update_columns(decision, from_decision, age_s, moved, r, br, c0, c1, off_c,
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _unmapped_pass(decision, labels, has_labels, from_decision, seen_cells, age_s, moved,
                    off_r, off_c, dr, dc, dt, max_width, min_age, relabel_unmapped,
-                   stopped_needs_road, cos, sin, mark, cells, stats, dec_words, res
+                   stopped_needs_road, off_facades, cos, sin, mark, cells, stats, dec_words,
+                   res
                    ):  # pragma: no cover - compiled
     """The state update, then the components (module docstring). ``max_width`` in cells.
     Seen moving: with ``from_decision`` the cells decided moving, else the flat window
@@ -427,8 +441,10 @@ def _unmapped_pass(decision, labels, has_labels, from_decision, seen_cells, age_
             stats[n_comp, 4] = width * res
             stats[n_comp, 5] = length * res
             unstopped = 0
-            if stopped_needs_road and has_labels and road == 0 and not any_moved:
-                for q in range(first, n_cells):  # step 4: what step 3 left stopped
+            facade = (off_facades and has_labels and near_building and not any_moved
+                      and width <= max_width + 1e-9)
+            if (stopped_needs_road and has_labels and road == 0 and not any_moved) or facade:
+                for q in range(first, n_cells):  # steps 4 and 5: what step 3 left stopped
                     i = cells[q]
                     if flat[i] == _STOPPED:
                         flat[i] = _STATIC

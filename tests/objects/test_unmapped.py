@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -238,19 +239,23 @@ def _reference(seq, params, res):
                     if (labels[r, c] == CONTEXT_OTHER
                             and age[(win.row0 + r, win.col0 + c)] >= params.min_age_s - 1e-3):
                         out[r, c] = D["unmapped"]
-            # step 4: stopped needs the road or motion
-            if (params.stopped_needs_road and not (labels[rr, cc] == CONTEXT_ROAD).any()
-                    and not any(key in moved for key in keys)):
+            # step 4: stopped needs the road or motion; step 5: a façade is not stopped
+            never_moved = not any(key in moved for key in keys)
+            if ((params.stopped_needs_road and not (labels[rr, cc] == CONTEXT_ROAD).any()
+                 and never_moved)
+                    or (params.stopped_off_facades and building[rr, cc].any() and never_moved
+                        and width <= params.max_width_m / res + 1e-9)):
                 left = out[rr, cc] == D["stopped"]
                 out[rr[left], cc[left]] = D["static"]
         outs.append(out)
     return outs
 
 
-@pytest.mark.parametrize("stopped_needs_road", [False, True])
+@pytest.mark.parametrize(("stopped_needs_road", "stopped_off_facades"),
+                         [(False, False), (True, False), (False, True), (True, True)])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_random_shifting_windows_match_the_reference(seed: int, stopped_needs_road: bool
-                                                     ) -> None:
+def test_random_shifting_windows_match_the_reference(seed: int, stopped_needs_road: bool,
+                                                     stopped_off_facades: bool) -> None:
     rng = np.random.default_rng(seed)
     shape = (12, 15)
     codes = np.array([D["free"], D["unknown"], D["static"], D["stopped"], D["moving"],
@@ -262,7 +267,8 @@ def test_random_shifting_windows_match_the_reference(seed: int, stopped_needs_ro
                        size=(200, 200), p=[0.8, 0.15, 0.05])
     world_dec = rng.choice(codes, size=(200, 200), p=p).astype(np.uint8)
     params = UnmappedParams(max_width_m=0.8, min_age_s=0.2,
-                            stopped_needs_road=stopped_needs_road)
+                            stopped_needs_road=stopped_needs_road,
+                            stopped_off_facades=stopped_off_facades)
     cue = UnmappedCue(params, shape, RES)
     state = UnmappedState.fresh(shape)
     win = Window(RES, *shape, 80, 80)
@@ -289,8 +295,11 @@ def test_random_shifting_windows_match_the_reference(seed: int, stopped_needs_ro
         relabelled += int((w == D["unmapped"]).sum())
         unstopped += int(((dec == D["stopped"]) & (w == D["static"])).sum())
     assert relabelled > 50  # the test exercises the relabelling (97-167 cells on seeds 0-2)
-    # ... and step 4 when on (it turns stopped cells static), never when off
-    assert (unstopped > 50) if stopped_needs_road else unstopped == 0
+    # ... and steps 4 and 5 when on (they turn stopped cells static), never when off
+    assert (unstopped > 50) if stopped_needs_road else (unstopped > 0) == stopped_off_facades
+    if stopped_off_facades:  # step 5 changes cells that step 4 alone leaves stopped
+        without = _reference(seq, replace(params, stopped_off_facades=False), RES)
+        assert sum(int((w != v).sum()) for w, v in zip(want, without, strict=True)) > 10
 
 
 def test_moving_object_cells_takes_the_moving_records_only() -> None:
@@ -342,7 +351,7 @@ def test_defaults_turn_the_cue_on_and_read_its_keys() -> None:
     config = load_config()
     assert unmapped_enabled(config)
     assert UnmappedParams.from_config(config) == UnmappedParams(
-        0.55, 0.1, unmapped=True, stopped_needs_road=True)
+        0.55, 0.1, unmapped=True, stopped_needs_road=True, stopped_off_facades=True)
 
 
 @pytest.mark.parametrize(("text", "message"), [
@@ -351,6 +360,7 @@ def test_defaults_turn_the_cue_on_and_read_its_keys() -> None:
     ("unmapped_min_age_s = -0.1", r"objects.unmapped_min_age_s = -0.1 is outside \[0.0, "),
     ('unmapped_min_age_s = "long"', r"objects.unmapped_min_age_s must be float, got str"),
     ('unmapped_cue = "yes"', r"objects.unmapped_cue must be bool, got str"),
+    ("stopped_off_facades = 1", r"objects.stopped_off_facades must be bool, got int"),
     ("unmapped_max_length_m = 3.0", r"unknown key objects.unmapped_max_length_m"),
 ])
 def test_bad_values_are_named(tmp_path: Path, text: str, message: str) -> None:
