@@ -65,12 +65,11 @@ def _nan_to_none(v: float) -> float | None:
     return None if isinstance(v, float) and math.isnan(v) else v
 
 
-def simulate(req: SimRequest) -> dict[str, Any]:
-    """Simulate the drive of ``req`` and write ``req.out_dir``; returns a summary."""
-    wall0 = time.perf_counter()
+def plan(req: SimRequest, layers: Any) -> tuple[Any, ...]:
+    """The drive of ``req`` before any scan is cast: ``(scene, lidar profile, scan times,
+    ego trajectory, agents, sensor rng, pose rng)`` from its seed (``layers``: the map's,
+    :func:`read_map_layers`)."""
     cfg, sim = req.config, req.config["sim"]
-    layers = read_map_layers(req.map_path, req.roads_path)
-    out = _prepare(req.out_dir, req.overwrite)
     rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(req.seed).spawn(4)]
     scene_rng, traffic_rng, sensor_rng, pose_rng = rngs
     crs = pyproj.CRS.from_user_input(cfg["map"]["crs"]) if cfg["map"]["crs"] else None
@@ -78,13 +77,23 @@ def simulate(req: SimRequest) -> dict[str, Any]:
                         crs, scene_rng, sim["furniture_spacing_m"])
     profile = lidar_mod.make_profile(req.profile, _nan_to_none(sim["range_noise_m"]),
                                      _nan_to_none(sim["dropout"]))
-    n_scans = max(1, int(round(req.seconds * SCAN_HZ)))
-    t_scan = np.arange(n_scans) / SCAN_HZ
+    t_scan = np.arange(max(1, int(round(req.seconds * SCAN_HZ)))) / SCAN_HZ
     start_xy = _start_xy(scene, sim)
     ego = plan_ego(scene, req.seconds, sim["ego_max_speed_m_per_s"], traffic_rng, start_xy)
-    size_m, res = cfg["grid"]["window_size_m"], cfg["grid"]["cell_size_m"]
     agents = populate(scene, ego, t_scan, traffic_rng, sim["moving_cars"], sim["pedestrians"],
-                      sim["parked_car_spacing_m"], size_m / 2 + 30.0)
+                      sim["parked_car_spacing_m"], cfg["grid"]["window_size_m"] / 2 + 30.0)
+    return scene, profile, t_scan, ego, agents, sensor_rng, pose_rng
+
+
+def simulate(req: SimRequest) -> dict[str, Any]:
+    """Simulate the drive of ``req`` and write ``req.out_dir``; returns a summary."""
+    wall0 = time.perf_counter()
+    cfg, sim = req.config, req.config["sim"]
+    layers = read_map_layers(req.map_path, req.roads_path)
+    out = _prepare(req.out_dir, req.overwrite)
+    scene, profile, t_scan, ego, agents, sensor_rng, pose_rng = plan(req, layers)
+    n_scans = len(t_scan)
+    size_m, res = cfg["grid"]["window_size_m"], cfg["grid"]["cell_size_m"]
     lidar_xy = _lidar_positions(ego, t_scan, profile.mount_xyz_m)
     region = _region(lidar_xy, size_m, res)
     static = np.full(region.shape, FREE, dtype=np.uint8)

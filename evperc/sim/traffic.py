@@ -31,6 +31,10 @@ PAVEMENT_EXTRA_M = 2.6     # pedestrians walk this far beyond the parked cars' c
 STOP_SPEED_M_S = 0.1
 ACCEL_WINDOW_S = 2.0
 STEP_S = 0.05
+#: the ego vehicle's body in base_link (x forward from the rear axle, y left), metres: rear,
+#: front, half width (a 4.6 m x 1.7 m car; the lidar mounts lie on it: ibeo4 at the front
+#: bumper, x = 3.7, hdl64 on the roof, x = 1.5)
+EGO_BODY_M = (-0.9, 3.7, 0.85)
 
 
 @dataclass(frozen=True)
@@ -186,7 +190,7 @@ def populate(scene: Scene, ego: Trajectory, stamps_s: np.ndarray, rng: np.random
     agents = Agents(np.array(cols[1], dtype=np.int8), *(np.array(c, dtype=np.float64)
                                                          for c in cols[2:5]), role,
                     np.stack(xs, 1), np.stack(ys, 1), np.stack(hs, 1), np.stack(vs, 1))
-    return _drop_clashes(agents, scene)
+    return _drop_clashes(_drop_through_ego(agents, ego, stamps_s), scene)
 
 
 def _offsets(role: str, cols: list, i: int, kerb: float, t: np.ndarray) -> np.ndarray:
@@ -215,6 +219,37 @@ def _empty_agents(frames: int) -> Agents:
     return Agents(z.astype(np.int8), z, z, z, z.astype(str), zz, zz, zz, zz)
 
 
+def ego_bodies(ego: Trajectory, stamps_s: np.ndarray) -> np.ndarray:
+    """The ego's body (:data:`EGO_BODY_M`) at each of ``stamps_s``: shapely polygons."""
+    x, y, h, _ = ego.pose(np.asarray(stamps_s, np.float64))
+    rear, front, half = EGO_BODY_M
+    u = np.array([rear, front, front, rear])
+    w = np.array([-half, -half, half, half])
+    c, s = np.cos(h)[:, None], np.sin(h)[:, None]
+    return shapely.polygons(np.stack([x[:, None] + c * u - s * w,
+                                      y[:, None] + s * u + c * w], axis=-1))
+
+
+def _drop_through_ego(agents: Agents, ego: Trajectory, stamps_s: np.ndarray) -> Agents:
+    """Drop the agents whose footprint overlaps the ego's body at a scan time. Agents follow
+    their walks blind to the ego: a car in the ego's lane at another speed drove through it,
+    and the truth called the cells around the lidar — inside a car whose faces the rays,
+    starting within it, never hit — visible and moving (up to 1,228 such cell-frames in a
+    10 s drive)."""
+    if len(agents) == 0 or len(stamps_s) == 0:
+        return agents
+    bad = np.zeros(len(agents), dtype=bool)
+    for k, body in enumerate(ego_bodies(ego, stamps_s)):
+        bad[shapely.intersects(agents.at(k).polygons(), body)] = True
+    return _keep(agents, ~bad)
+
+
+def _keep(agents: Agents, keep: np.ndarray) -> Agents:
+    return Agents(agents.kind[keep], agents.length[keep], agents.width[keep],
+                  agents.height[keep], agents.role[keep], agents.x[:, keep], agents.y[:, keep],
+                  agents.heading[:, keep], agents.speed[:, keep])
+
+
 def _drop_clashes(agents: Agents, scene: Scene) -> Agents:
     """Drop agents that start inside a building or unmapped object, parked cars within 10 m
     of a junction, and parked cars that overlap an earlier vehicle (first come, first kept)."""
@@ -234,7 +269,4 @@ def _drop_clashes(agents: Agents, scene: Scene) -> Agents:
         gap = np.hypot(first.x[:, None] - junctions[None, :, 0],
                        first.y[:, None] - junctions[None, :, 1]).min(axis=1)
         bad |= (agents.role == "parked") & (gap < 10.0)
-    keep = ~bad
-    return Agents(agents.kind[keep], agents.length[keep], agents.width[keep],
-                  agents.height[keep], agents.role[keep], agents.x[:, keep], agents.y[:, keep],
-                  agents.heading[:, keep], agents.speed[:, keep])
+    return _keep(agents, ~bad)
