@@ -135,6 +135,7 @@ def _from_gnss(reader: Any, config: dict[str, Any],
     """The rigid fit of the fixes logged in ``spans`` (``reader.gnss_spans()``) to the poses
     at their stamps. None if they hold no fix — or, for spans of a long log, fewer usable
     fixes than spans (a GNSS topic too sparse for them: the caller reads every fix)."""
+    sampled = len(spans) > 1
     in_spans = [reader.gnss_fixes(a, b) for a, b in spans]
     fixes = np.concatenate(in_spans)
     if len(fixes) < len(spans):
@@ -146,9 +147,9 @@ def _from_gnss(reader: Any, config: dict[str, Any],
                  "lidar positions", reader.path)
         world_xy = _fix_positions(reader, in_spans, None)
     valid = ~np.isnan(world_xy).any(axis=1)  # fixes outside the pose span
-    if len(spans) > 1 and valid.sum() < len(spans):
+    if sampled and valid.sum() < len(spans):
         return None
-    if len(spans) > 1:
+    if sampled:
         log.info("%s: a long log: its GNSS fixes read in %d spans of %.0f s spread over it",
                  reader.path, len(spans), (spans[0][1] - spans[0][0]) * 1e-9)
     return georef_mod.from_gnss(world_xy[valid], fixes[valid][:, [2, 1]], crs)

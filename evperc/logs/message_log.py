@@ -465,8 +465,8 @@ class LogReader:
         longer than :data:`GNSS_SPANS` spans of :data:`GNSS_SPAN_S` and its source reads a span
         without reading what comes before (``indexed``); then those spans, spread evenly from
         its first message to its last. The fixes share chunks with the scans, so reading all
-        of an hour's fixes decompressed the whole log twice before the first frame (4 s of
-        start-up for a 60 s drive, more than its frames took; docs/performance.md)."""
+        of an hour's fixes decompressed the whole log twice before the first frame (14 s for a
+        5-minute hdl64 drive; docs/performance.md)."""
         width = int(GNSS_SPAN_S * 1e9)
         start, end = self.source.start_ns, self.source.end_ns
         if (start is None or end is None or not self.source.indexed

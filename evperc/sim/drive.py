@@ -21,7 +21,7 @@ import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pyproj
@@ -65,9 +65,20 @@ def _nan_to_none(v: float) -> float | None:
     return None if isinstance(v, float) and math.isnan(v) else v
 
 
-def plan(req: SimRequest, layers: Any) -> tuple[Any, ...]:
-    """The drive of ``req`` before any scan is cast: ``(scene, lidar profile, scan times,
-    ego trajectory, agents, sensor rng, pose rng)`` from its seed (``layers``: the map's,
+class DrivePlan(NamedTuple):
+    """A drive before any scan is cast (:func:`plan`)."""
+
+    scene: Scene
+    profile: lidar_mod.LidarProfile
+    t_scan: np.ndarray
+    ego: Trajectory
+    agents: Agents
+    sensor_rng: np.random.Generator
+    pose_rng: np.random.Generator
+
+
+def plan(req: SimRequest, layers: Any) -> DrivePlan:
+    """The drive of ``req`` before any scan is cast, from its seed (``layers``: the map's,
     :func:`read_map_layers`)."""
     cfg, sim = req.config, req.config["sim"]
     rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(req.seed).spawn(4)]
@@ -82,7 +93,7 @@ def plan(req: SimRequest, layers: Any) -> tuple[Any, ...]:
     ego = plan_ego(scene, req.seconds, sim["ego_max_speed_m_per_s"], traffic_rng, start_xy)
     agents = populate(scene, ego, t_scan, traffic_rng, sim["moving_cars"], sim["pedestrians"],
                       sim["parked_car_spacing_m"], cfg["grid"]["window_size_m"] / 2 + 30.0)
-    return scene, profile, t_scan, ego, agents, sensor_rng, pose_rng
+    return DrivePlan(scene, profile, t_scan, ego, agents, sensor_rng, pose_rng)
 
 
 def simulate(req: SimRequest) -> dict[str, Any]:

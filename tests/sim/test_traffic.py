@@ -81,7 +81,7 @@ def test_simulated_agents_never_overlap_the_ego(profile: str, seconds: float, se
                      roads_path=DATA / "helsinki_roads.geojson", profile=profile,
                      seconds=seconds, seed=seed)
     layers = read_map_layers(req.map_path, req.roads_path)
-    _, _, t_scan, ego, agents, _, _ = plan(req, layers)
-    assert len(agents) > 10
-    for k, body in enumerate(ego_bodies(ego, t_scan)):
-        assert not shapely.intersects(agents.at(k).polygons(), body).any(), k
+    drive = plan(req, layers)
+    assert len(drive.agents) > 10
+    for k, body in enumerate(ego_bodies(drive.ego, drive.t_scan)):
+        assert not shapely.intersects(drive.agents.at(k).polygons(), body).any(), k
