@@ -123,6 +123,8 @@ class McapSource:
     path: Path
     kind: str = "mcap"
     indexed: bool = False
+    #: a time-range read goes through the chunk index (an indexed file)
+    seeks: bool = False
     topics: dict[str, TopicInfo] = field(default_factory=dict)
     start_ns: int | None = None
     end_ns: int | None = None
@@ -174,7 +176,7 @@ class McapSource:
             return False
         if summary is None or not summary.chunk_indexes:
             return False
-        self.indexed = True
+        self.indexed = self.seeks = True
         self._summary = summary
         for channel in summary.channels.values():
             self._add_channel(channel, summary.schemas.get(channel.schema_id))

@@ -463,13 +463,13 @@ class LogReader:
         """The spans of log time ``[start_ns, end_ns)`` whose GNSS fixes geo-reference the log
         (:func:`evperc.runner.geo_reference`): the whole log, ``[(None, None)]``, unless it is
         longer than :data:`GNSS_SPANS` spans of :data:`GNSS_SPAN_S` and its source reads a span
-        without reading what comes before (``indexed``); then those spans, spread evenly from
+        without reading what comes before (``seeks``); then those spans, spread evenly from
         its first message to its last. The fixes share chunks with the scans, so reading all
         of an hour's fixes decompressed the whole log twice before the first frame (14 s for a
         5-minute hdl64 drive; docs/performance.md)."""
         width = int(GNSS_SPAN_S * 1e9)
         start, end = self.source.start_ns, self.source.end_ns
-        if (start is None or end is None or not self.source.indexed
+        if (start is None or end is None or not self.source.seeks
                 or end - start <= GNSS_SPANS * width):
             return [(None, None)]
         step = (end - start - width) / (GNSS_SPANS - 1)

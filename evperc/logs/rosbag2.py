@@ -49,3 +49,11 @@ class Rosbag2Source(RosbagsSource):
     @classmethod
     def _open_error(cls, path: Path, why: str) -> LogError:
         return LogError(f"{path}: cannot read this ROS 2 bag ({why})")
+
+    @classmethod
+    def _seeks(cls, path: Path) -> bool:
+        """sqlite3 storage selects a time range by query; an MCAP storage file is scanned
+        from its start when it has no chunk index (a recording cut short), which rosbags does
+        not tell apart here: taken as not seeking."""
+        bag = path if path.is_dir() else path.parent
+        return not any(bag.glob("*.mcap"))

@@ -63,6 +63,7 @@ class RosbagsSource:
         self._deserialize = (store.deserialize_ros1 if self.message_encoding == "ros1"
                              else store.deserialize_cdr)
         self.indexed = True  # both bag kinds stream in log-time order
+        self.seeks = self._seeks(path)
         self.stop_reason: str | None = None
         self._bag = reader
         self._lock = threading.Lock()  # one file handle / sqlite connection for all streams
@@ -84,6 +85,12 @@ class RosbagsSource:
     @classmethod
     def _schema_encoding(cls, fmt: str) -> str:
         return {"MSG": "ros2msg", "IDL": "ros2idl"}.get(fmt, "")
+
+    @classmethod
+    def _seeks(cls, path: Path) -> bool:
+        """Whether a time-range read skips what comes before (a ROS 1 bag: its index by
+        connection and time, in memory)."""
+        return True
 
     @classmethod
     def _reader(cls, path: Path) -> Any:

@@ -40,13 +40,16 @@ class LogSource(Protocol):
     """What :class:`evperc.logs.message_log.LogReader` needs of a source.
 
     ``end_ns`` is the log time of the last message (inclusive); ``indexed`` is True when
-    ``iter_raw`` yields log-time order; ``stop_reason`` is None unless the data ended early
-    (damaged or truncated), in which case ``iter_raw`` stopped there after one warning.
+    ``iter_raw`` yields log-time order; ``seeks`` is True when ``iter_raw(start_ns=…)`` goes
+    to that time without reading the log before it (an index by time); ``stop_reason`` is
+    None unless the data ended early (damaged or truncated), in which case ``iter_raw``
+    stopped there after one warning.
     """
 
     kind: str
     path: Path
     indexed: bool
+    seeks: bool
     topics: dict[str, TopicInfo]
     start_ns: int | None
     end_ns: int | None

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pyproj
+import pytest
 
 from evperc.config import load_config
 from evperc.logs import message_log
@@ -78,11 +79,45 @@ def test_a_short_log_is_read_whole(tmp_path):
     assert open_log(path).gnss_spans() == [(None, None)]
 
 
-def test_an_unindexed_source_is_read_whole(tmp_path):
+def test_a_source_that_cannot_seek_is_read_whole(tmp_path):
     """An unindexed file is read from its start for every span: one pass instead."""
     path, _ = _drive(tmp_path, 100.0)
     reader = open_log(path)
-    reader.source.indexed = False
+    assert reader.source.seeks
+    reader.source.seeks = False
+    assert reader.gnss_spans() == [(None, None)]
+
+
+@pytest.mark.parametrize("kind", ["rosbag1", "rosbag2_sqlite"])
+def test_bags_are_geo_referenced_from_their_spans(tmp_path, kind):
+    """A ROS 1 bag (its index by time in memory) and a ROS 2 sqlite3 bag (a query per span)
+    seek by time: the same spans, the same fit, from a fraction of the fixes."""
+    from tests.bag_writers import write_rosbag1, write_rosbag2_sqlite
+
+    src, n = _drive(tmp_path, 400.0, rate_hz=5.0)
+    bag = (write_rosbag1(src, tmp_path / "long.bag") if kind == "rosbag1"
+           else write_rosbag2_sqlite(src, tmp_path / "long_bag"))
+    reader = open_log(bag)
+    assert reader.source.seeks
+    assert len(reader.gnss_spans()) == message_log.GNSS_SPANS
+    counts = _counting(reader)
+    georef = geo_reference(reader, load_config(overrides={"map.crs": UTM35}), need_crs=True)
+    assert abs(georef.heading_rad - HEADING) < 1e-7
+    np.testing.assert_allclose(georef.T_crs_world[:2, 3], [ORIGIN_E, ORIGIN_N], atol=1e-3)
+    assert counts["/fix"] <= message_log.GNSS_SPANS * (message_log.GNSS_SPAN_S * 5 + 1)
+
+
+def test_a_ros2_bag_with_mcap_storage_is_read_whole(tmp_path):
+    """rosbags scans an MCAP storage file from its start when it has no chunk index, and
+    does not say which: such a bag is not taken to seek."""
+    from tests.mcap_writers import write_rosbags_mcap
+
+    t = [S0 + i * 100 * MS for i in range(3)]
+    write_rosbags_mcap(tmp_path / "bag", clouds=[(s, np.array([[5.0, 0.0, 0.5]]), "base_link")
+                                                  for s in t],
+                       odometry=[(s, transform(x=0.1 * i)) for i, s in enumerate(t)])
+    reader = open_log(tmp_path / "bag")
+    assert not reader.source.seeks
     assert reader.gnss_spans() == [(None, None)]
 
 
