@@ -1,0 +1,249 @@
+#!/usr/bin/env python3
+"""Where a run's classification goes wrong on simulated drives, against the truth (the
+diagnoses of docs/evaluation.md § "Since 2026-12-04, fourth session").
+
+Reads the runs and drives of a `scripts/evaluation_study.py` work directory (the map runs):
+
+    python scripts/diagnose_misses.py stopped  --work W --tag TAG --profile hdl64 --seeds 1,…,10
+    python scripts/diagnose_misses.py objects  --work W --tag TAG --profile ibeo4 --seeds 1,…,10
+    python scripts/diagnose_misses.py observed --work W --tag TAG --profile ibeo4 --seeds 1,…,5
+    python scripts/diagnose_misses.py coast    --work W --tag TAG --profile ibeo4 --seeds 1,…,10
+    python scripts/diagnose_misses.py ego      --work W --profile hdl64 --seeds 1,…,26
+
+- stopped: the visible cells decided ``stopped`` that the truth does not hold S, by distance
+  to the nearest truth S cell, and those far from every S cell next to a building's cells;
+  the scores of three decision rules on the same runs (façade strips static, the static
+  cells of components holding ``stopped`` cells stopped, car-shaped static components
+  stopped).
+- objects: the agent-frames with a visible truth-M cell that no moving record holds, by
+  agent role, by the agent's visible cells, and by where in the agent's episode they fall.
+- observed: the observed truth-M cells not decided moving, by whether their agent has a
+  visible cell in the frame and whether it is detected there.
+- coast: a forward prediction of lost moving tracks (their last cells carried at their
+  velocity into cells the scan does not see, for N frames), scored on observed cells.
+- ego: truth agents within 1 m of the lidar (inside the ego vehicle), per drive.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+import evperc
+from evperc.eval.metrics import TRUTH_CODES, _pairs
+from evperc.geo.window import Window, overlap
+from evperc.output.objects import OBJECT_STATES
+from evperc.sim.truth import load_truth
+
+SECONDS = {"ibeo4": 20, "hdl64": 10}
+BLOCK = np.ones((3, 3), bool)
+
+
+def frames(work: Path, tag: str, profile: str, seed: int) -> Iterator[tuple[Any, ...]]:
+    """(run frame, truth frame, run slices, truth slices, decision codes, roles) of a drive."""
+    name = f"{profile}-s{seed}-{SECONDS[profile]}s"
+    run = evperc.load(work / "runs" / tag / f"{name}-map")
+    truth = load_truth(work / "drives" / name / "truth")
+    roles = {a["id"]: a["role"] for a in truth.agents}
+    codes = dict(run.decision_codes)
+    for f, t in _pairs(run.frames, truth.frames):
+        dec = np.asarray(f.decision)
+        ov = overlap(Window(truth.resolution_m, *dec.shape, int(f.origin[0]),
+                            int(f.origin[1])), t.window)
+        if ov is not None:
+            yield f, t, ov[0], ov[1], codes, roles
+
+
+def stopped(args: argparse.Namespace) -> None:
+    n = collections.Counter()
+    theta = np.arange(16) * np.pi / 16
+    for seed in args.seeds:
+        for f, t, (rr, rc), (tr, tc), codes, _ in frames(args.work, args.tag, args.profile, seed):
+            d, cls = np.asarray(f.decision)[rr, rc], t.classes[tr, tc]
+            vis = np.asarray(t.visible[tr, tc], bool)
+            truth_s, decided_s = cls == TRUTH_CODES["stopped"], d == codes["stopped"]
+            n["truth S"] += int((truth_s & vis).sum())
+            n["decided S"] += int((decided_s & vis).sum())
+            n["right S"] += int((truth_s & decided_s & vis).sum())
+            wrong = decided_s & vis & ~truth_s
+            to_s = ndimage.distance_transform_edt(~truth_s)
+            n["wrong S"] += int(wrong.sum())
+            n["wrong S next to a truth S cell"] += int((wrong & (to_s < 1.5)).sum())
+            far = wrong & (to_s > 4.1)
+            building = ndimage.binary_dilation(cls == TRUTH_CODES["infrastructure"], BLOCK)
+            n["wrong S > 4 cells from S"] += int(far.sum())
+            n["... of which next to a building"] += int((far & building).sum())
+            occupied = np.isin(d, [codes["static"], codes["stopped"], codes["unmapped"]])
+            comp, k = ndimage.label(occupied, BLOCK)
+            width, length = np.zeros(k + 1), np.zeros(k + 1)
+            for i, box in enumerate(ndimage.find_objects(comp), 1):
+                r, c = np.nonzero(comp[box] == i)
+                extent = np.ptp(np.outer(c, np.cos(theta)) + np.outer(r, np.sin(theta)), axis=0)
+                along = (int(np.argmin(extent)) + 8) % 16
+                length[i] = (extent[along] + 1.0) * t.window.resolution_m
+                width[i] = len(r) / (extent[along] + 1.0) * t.window.resolution_m
+            at_building = np.zeros(k + 1, bool)
+            at_building[np.unique(comp[building & occupied])] = True
+            holds_s = np.zeros(k + 1, bool)
+            holds_s[np.unique(comp[decided_s])] = True
+            at_building[0] = holds_s[0] = False
+            rules = {"facade strips static": (decided_s, at_building[comp] & (width[comp] <= 0.55)),
+                     "static of components with stopped cells stopped":
+                         (d == codes["static"], holds_s[comp]),
+                     "car-shaped static components stopped":
+                         (d == codes["static"], ~at_building[comp] & (width[comp] >= 1.0)
+                          & (length[comp] >= 2.5) & (length[comp] <= 7.0))}
+            for name, (cells, rule) in rules.items():
+                changed = cells & rule & vis
+                n[f"{name}: S"] += int((changed & truth_s).sum())
+                n[f"{name}: not S"] += int((changed & ~truth_s).sum())
+    for key, value in n.items():
+        print(f"{key}: {value}")
+
+    def f1(right: int, decided: int) -> str:
+        return f"P {right / decided:.3f} R {right / n['truth S']:.3f} F1 " \
+               f"{2 * right / (decided + n['truth S']):.3f}"
+    print("decisions:", f1(n["right S"], n["decided S"]))
+    s, o = n["facade strips static: S"], n["facade strips static: not S"]
+    print("facade strips static:", f1(n["right S"] - s, n["decided S"] - s - o))
+    for name in ("static of components with stopped cells stopped",
+                 "car-shaped static components stopped"):
+        s, o = n[f"{name}: S"], n[f"{name}: not S"]
+        print(f"{name}:", f1(n["right S"] + s, n["decided S"] + s + o))
+
+
+def objects(args: argparse.Namespace) -> None:
+    n = collections.Counter()
+    for seed in args.seeds:
+        rows = []  # (frame, agent, role, found, visible cells)
+        for k, (f, t, (rr, rc), (tr, tc), _, roles) in enumerate(
+                frames(args.work, args.tag, args.profile, seed)):
+            agent = np.where(t.classes[tr, tc] == TRUTH_CODES["moving"], t.agent[tr, tc], 0)
+            vis = np.asarray(t.visible[tr, tc], bool)
+            recs = f.objects
+            moving = np.isin(f.object_labels()[rr, rc],
+                             recs["track_id"][recs["state"] == OBJECT_STATES["moving"]])
+            for a in np.unique(agent[vis & (agent > 0)]):
+                cells = agent == a
+                rows.append((k, int(a), roles.get(int(a), "?"), bool((cells & moving).any()),
+                             int((cells & vis).sum())))
+        found_at = collections.defaultdict(list)
+        for k, a, _, found, _ in rows:
+            if found:
+                found_at[a].append(k)
+        for k, a, role, found, visible in rows:
+            n[f"{role}: agent-frames"] += 1
+            if found:
+                continue
+            n[f"{role}: missed"] += 1
+            n["missed with one visible cell" if visible == 1 else "missed, more cells"] += 1
+            ks = found_at[a]
+            n["never found" if not ks else "before its first detection" if k < min(ks)
+              else "after its last" if k > max(ks) else "between detections"] += 1
+    for key, value in sorted(n.items()):
+        print(f"{key}: {value}")
+
+
+def observed(args: argparse.Namespace) -> None:
+    n = collections.Counter()
+    for seed in args.seeds:
+        for f, t, (rr, rc), (tr, tc), codes, _ in frames(args.work, args.tag, args.profile,
+                                                         seed):
+            d = np.asarray(f.decision)[rr, rc]
+            moving = (t.classes[tr, tc] == TRUTH_CODES["moving"]) & t.observed[tr, tc]
+            agent = t.agent[tr, tc]
+            size = int(agent.max(initial=0)) + 1
+            seen = np.bincount(agent[moving & t.visible[tr, tc]], minlength=size) > 0
+            detected = np.bincount(agent[moving & (d == codes["moving"])], minlength=size) > 0
+            missed = moving & (d != codes["moving"])
+            n["observed truth M"] += int(moving.sum())
+            n["decided moving"] += int((moving & (d == codes["moving"])).sum())
+            n["missed, agent invisible in the frame"] += int((missed & ~seen[agent]).sum())
+            n["missed, agent visible and detected"] += int((missed & seen[agent]
+                                                           & detected[agent]).sum())
+            n["missed, agent visible, not detected"] += int((missed & seen[agent]
+                                                            & ~detected[agent]).sum())
+    for key, value in n.items():
+        print(f"{key}: {value}")
+
+
+def coast(args: argparse.Namespace) -> None:
+    horizons = [0, 2, 5, 8]
+    scores = {h: np.zeros(3, np.int64) for h in horizons}  # right, decided, truth
+    for seed in args.seeds:
+        last: dict[int, tuple] = {}  # track -> (frame, stamp, lattice rows, cols, vx, vy)
+        for k, (f, t, (rr, rc), (tr, tc), codes, _) in enumerate(
+                frames(args.work, args.tag, args.profile, seed)):
+            dec = np.asarray(f.decision)
+            rows, cols = dec.shape
+            row0, col0 = int(f.origin[0]), int(f.origin[1])
+            recs, cells = f.objects, np.asarray(f.object_cells, np.int64)
+            ends = np.cumsum(recs["cell_count"].astype(np.int64))
+            present = set(recs["track_id"].tolist())
+            for i, rec in enumerate(recs):
+                if rec["state"] == OBJECT_STATES["moving"]:
+                    own = cells[ends[i] - rec["cell_count"]:ends[i]]
+                    last[int(rec["track_id"])] = (k, f.stamp_ns, own // cols + row0,
+                                                  own % cols + col0, *rec["velocity_m_per_s"])
+            obs = np.asarray(t.observed[tr, tc], bool)
+            truth = t.classes[tr, tc] == TRUTH_CODES["moving"]
+            unseen = ~np.asarray(t.visible[tr, tc], bool) & np.isin(
+                dec[rr, rc], [codes["unknown"], codes["free"], codes["moving"]])
+            res = t.window.resolution_m
+            for h in horizons:
+                pred = dec[rr, rc] == codes["moving"]
+                for track, (k0, stamp, r0, c0, vx, vy) in last.items():
+                    if track in present or not 0 < k - k0 <= h:
+                        continue
+                    dt = (f.stamp_ns - stamp) * 1e-9
+                    r = r0 + int(round(vy * dt / res)) - row0 - rr.start
+                    c = c0 + int(round(vx * dt / res)) - col0 - rc.start
+                    ok = (r >= 0) & (r < pred.shape[0]) & (c >= 0) & (c < pred.shape[1])
+                    r, c = r[ok], c[ok]
+                    take = unseen[r, c]
+                    pred[r[take], c[take]] = True
+                scores[h] += [(pred & truth & obs).sum(), (pred & obs).sum(), (truth & obs).sum()]
+    for h, (right, decided, truth) in scores.items():
+        print(f"coast {h} frames: observed moving P {right / decided:.3f} R {right / truth:.3f} "
+              f"F1 {2 * right / (decided + truth):.3f}")
+
+
+def ego(args: argparse.Namespace) -> None:
+    for seed in args.seeds:
+        name = f"{args.profile}-s{seed}-{SECONDS[args.profile]}s"
+        truth = load_truth(args.work / "drives" / name / "truth")
+        frames_near, visible = collections.Counter(), collections.Counter()
+        for t in truth.frames:
+            rows, cols = t.classes.shape
+            reach = int(np.ceil(1.0 / truth.resolution_m))
+            near = t.agent[rows // 2 - reach:rows // 2 + reach + 1,
+                           cols // 2 - reach:cols // 2 + reach + 1]
+            for a in np.unique(near[near > 0]):
+                frames_near[int(a)] += 1
+                visible[int(a)] += int(((t.agent == a) & t.visible
+                                        & (t.classes == TRUTH_CODES["moving"])).sum())
+        if frames_near:
+            print(name, {a: (frames_near[a], visible[a]) for a in frames_near},
+                  "(agent: frames within 1 m of the lidar, visible truth-M cells then)")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("what", choices=["stopped", "objects", "observed", "coast", "ego"])
+    parser.add_argument("--work", type=Path, required=True)
+    parser.add_argument("--tag", default="", help="the runs' config tag (WORK/runs/TAG)")
+    parser.add_argument("--profile", choices=sorted(SECONDS), required=True)
+    parser.add_argument("--seeds", type=lambda s: [int(x) for x in s.split(",")], required=True)
+    args = parser.parse_args()
+    {"stopped": stopped, "objects": objects, "observed": observed, "coast": coast,
+     "ego": ego}[args.what](args)
+
+
+if __name__ == "__main__":
+    main()
