@@ -8,6 +8,7 @@ Reads the runs and drives of a `scripts/evaluation_study.py` work directory (the
     python scripts/diagnose_misses.py objects  --work W --tag TAG --profile ibeo4 --seeds 1,…,10
     python scripts/diagnose_misses.py observed --work W --tag TAG --profile ibeo4 --seeds 1,…,5
     python scripts/diagnose_misses.py coast    --work W --tag TAG --profile ibeo4 --seeds 1,…,10
+    python scripts/diagnose_misses.py episodes --work W --tag TAG --profile ibeo4 --seeds 1,…,10
     python scripts/diagnose_misses.py ego      --work W --profile hdl64 --seeds 1,…,26
 
 - stopped: the visible cells decided ``stopped`` that the truth does not hold S, by distance
@@ -21,6 +22,9 @@ Reads the runs and drives of a `scripts/evaluation_study.py` work directory (the
   visible cell in the frame and whether it is detected there.
 - coast: a forward prediction of lost moving tracks (their last cells carried at their
   velocity into cells the scan does not see, for N frames), scored on observed cells.
+- episodes: the moving episodes (observed cells, as ``evperc evaluate``'s latency) and
+  those missed, by the agent's role, by the range of its nearest visible cell from the
+  sensor over the episode and by the most cells of it visible in one frame.
 - ego: truth agents within 1 m of the lidar (inside the ego vehicle), per drive.
 """
 
@@ -36,7 +40,7 @@ import numpy as np
 from scipy import ndimage
 
 import evperc
-from evperc.eval.metrics import TRUTH_CODES, _pairs
+from evperc.eval.metrics import TRUTH_CODES, _pairs, evaluate
 from evperc.geo.window import Window, overlap
 from evperc.output.objects import OBJECT_STATES
 from evperc.sim.truth import load_truth
@@ -214,6 +218,39 @@ def coast(args: argparse.Namespace) -> None:
               f"F1 {2 * right / (decided + truth):.3f}")
 
 
+RANGES_M = (20.0, 40.0)
+
+
+def episodes(args: argparse.Namespace) -> None:
+    n: collections.Counter = collections.Counter()
+    for seed in args.seeds:
+        name = f"{args.profile}-s{seed}-{SECONDS[args.profile]}s"
+        run = evperc.load(args.work / "runs" / args.tag / f"{name}-map")
+        truth = load_truth(args.work / "drives" / name / "truth")
+        roles = {a["id"]: a["role"] for a in truth.agents}
+        pairs = list(_pairs(run.frames, truth.frames))
+        for e in evaluate(run, truth, cells="observed")["latency_frames"]["per_episode"]:
+            near_m, cells = np.inf, 0  # nearest visible cell (m), most visible cells a frame
+            for _, t in pairs[e["onset_frame"]:e["end_frame"]]:
+                seen = (t.agent == e["agent"]) & (t.classes == TRUTH_CODES["moving"]) & t.visible
+                if seen.any():
+                    x, y = t.window.cell_centres()
+                    rows, cols = np.nonzero(seen)
+                    near_m = min(near_m, float(np.hypot(x[cols] - t.sensor_pose[0],
+                                                        y[rows] - t.sensor_pose[1]).min()))
+                    cells = max(cells, int(seen.sum()))
+            ring = ("< 20 m" if near_m < RANGES_M[0] else "20-40 m" if near_m < RANGES_M[1]
+                    else ">= 40 m")
+            size = "1 cell" if cells <= 1 else "2-3 cells" if cells <= 3 else ">= 4 cells"
+            missed = e["latency_frames"] is None
+            for key in (f"role {roles.get(e['agent'], '?')}", f"nearest {ring}",
+                        f"most visible {size}"):
+                n[key, missed] += 1
+    for key in sorted({k for k, _ in n}):
+        total = n[key, True] + n[key, False]
+        print(f"{key}: {n[key, True]} missed of {total} episodes")
+
+
 def ego(args: argparse.Namespace) -> None:
     for seed in args.seeds:
         name = f"{args.profile}-s{seed}-{SECONDS[args.profile]}s"
@@ -235,14 +272,15 @@ def ego(args: argparse.Namespace) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("what", choices=["stopped", "objects", "observed", "coast", "ego"])
+    parser.add_argument("what", choices=["stopped", "objects", "observed", "coast", "episodes",
+                                         "ego"])
     parser.add_argument("--work", type=Path, required=True)
     parser.add_argument("--tag", default="", help="the runs' config tag (WORK/runs/TAG)")
     parser.add_argument("--profile", choices=sorted(SECONDS), required=True)
     parser.add_argument("--seeds", type=lambda s: [int(x) for x in s.split(",")], required=True)
     args = parser.parse_args()
     {"stopped": stopped, "objects": objects, "observed": observed, "coast": coast,
-     "ego": ego}[args.what](args)
+     "episodes": episodes, "ego": ego}[args.what](args)
 
 
 if __name__ == "__main__":

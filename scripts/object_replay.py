@@ -263,6 +263,9 @@ def scores(run: Any, truth: Any) -> dict[str, Any]:
             "episodes": lat["episodes"], "missed": lat["missed"],
             "obs_episodes": o["latency_frames"]["episodes"],
             "obs_missed": o["latency_frames"]["missed"],
+            "obs_missed_near": o["latency_frames_within_one_cell"]["missed"],
+            "oc_near": (obj.get("within_one_cell", {}).get("moving_matched", 0),
+                        obj.get("within_one_cell", {}).get("moving_found", 0)),
             "oP": obj.get("precision"), "oR": obj.get("recall"),
             "oc": (obj.get("moving_matched", 0), obj.get("moving_reported", 0),
                    obj.get("moving_found", 0), obj.get("moving_truth", 0)),
@@ -309,13 +312,16 @@ def print_means(table: dict[str, dict[str, dict[str, Any]]]) -> None:
     """docs/evaluation.md's convention: ±1-cell P / R as the mean over the seeds, missed
     episodes pooled on the observed cells."""
     print("\n| set | profile | P ±1 cell (mean of seeds) | R ±1 cell (mean) | missed episodes "
-          "(observed cells, pooled) | (visible cells, pooled) |")
-    print("|---|---|---|---|---|---|")
+          "(observed cells, pooled; within one cell) | (visible cells, pooled) | object P / R "
+          "(pooled) | within one cell | observed F1 (mean) |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for s, runs in table.items():
         for profile in sorted({n.split("-")[0] for n in runs}):
             p = pooled([r for n, r in runs.items() if n.startswith(profile)])
             print(f"| {s or 'defaults'} | {profile} | {p['tP_mean']:.3f} | {p['tR_mean']:.3f} | "
-                  f"{p['obs_missed']} / {p['obs_episodes']} | {p['missed']} / {p['episodes']} |")
+                  f"{p['obs_missed']} / {p['obs_episodes']}; {p['obs_missed_near']} | "
+                  f"{p['missed']} / {p['episodes']} | {p['oP']:.3f} / {p['oR']:.3f} | "
+                  f"{p['oP_near']:.3f} / {p['oR_near']:.3f} | {p['obsF1_mean']:.3f} |")
 
 
 def pooled(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -334,6 +340,9 @@ def pooled(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "P": ratio(sc[0], sc[1]), "R": ratio(sc[0], sc[2]),
             "missed": sum(r["missed"] for r in rows), "episodes": sum(r["episodes"] for r in rows),
             "oP": ratio(oc[0], oc[1]), "oR": ratio(oc[2], oc[3]),
+            "oP_near": ratio(sum(r["oc_near"][0] for r in rows), oc[1]),
+            "oR_near": ratio(sum(r["oc_near"][1] for r in rows), oc[3]),
+            "obs_missed_near": sum(r["obs_missed_near"] for r in rows),
             "obsF1_mean": float(np.mean([r["obsF1"] for r in rows if r["obsF1"] is not None]))}
 
 

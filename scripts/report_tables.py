@@ -18,7 +18,9 @@
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
 tables), except the missed episodes and the object counts, which are pooled over the seeds.
 Moving cells are scored strictly (the truth's centre-in convention, docs/truth-format.md) and
-within one cell (``moving_within_one_cell`` of evperc.eval.metrics: the 8-neighbourhood).
+within one cell (``moving_within_one_cell`` of evperc.eval.metrics: the 8-neighbourhood);
+objects and missed episodes as well (``objects.within_one_cell``,
+``latency_frames_within_one_cell``: a record's cells or an agent's widened by one cell).
 """
 
 from __future__ import annotations
@@ -72,7 +74,8 @@ def _get(m: dict[str, Any], *path: str) -> float | None:
 def _missed(ms: list[dict[str, Any]]) -> str:
     eps = sum(m["latency_frames"]["episodes"] for m in ms)
     missed = sum(m["latency_frames"]["missed"] for m in ms)
-    return f"{missed} of {eps}"
+    near = sum(m["latency_frames_within_one_cell"]["missed"] for m in ms)
+    return f"{missed} of {eps} ({near} within one cell)"
 
 
 def main() -> int:
@@ -132,8 +135,8 @@ def main() -> int:
 
     print("\n### Objects (defaults, visible cells, pooled over the seeds)\n")
     print("| profile | map | moving objects reported | matched | precision | true moving "
-          "(agent-frames) | found | recall | track switches |")
-    print("|" + "---|" * 9)
+          "(agent-frames) | found | recall | track switches | P / R within one cell |")
+    print("|" + "---|" * 10)
     for profile in profiles:
         for k, with_map in ((0, "with"), (1, "without")):
             obj = [m["objects"] for m in runs(profile, "default", "visible")[k]]
@@ -146,8 +149,12 @@ def main() -> int:
             sw = sum(o["track_switches"] for o in obj)
             p = f"{mat / rep:.3f}" if rep else "–"
             r = f"{fnd / tru:.3f}" if tru else "–"
+            near_p = (f"{sum(o['within_one_cell']['moving_matched'] for o in obj) / rep:.3f}"
+                      if rep else "–")
+            near_r = (f"{sum(o['within_one_cell']['moving_found'] for o in obj) / tru:.3f}"
+                      if tru else "–")
             print(f"| {profile} | {with_map} | {rep:,} | {mat:,} | {p} | {tru:,} | {fnd:,} | "
-                  f"{r} | {sw} |")
+                  f"{r} | {sw} | {near_p} / {near_r} |")
     return 0
 
 

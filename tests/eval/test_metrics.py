@@ -250,3 +250,37 @@ def test_object_precision_recall_and_track_switches_by_hand(tmp_path: Path) -> N
     assert obj["track_switches"] == 1
     # a run without object lists has no object scores
     assert evaluate(fake_run([{"stamp": 0, "decision": dec}]), truth)["objects"] is None
+
+
+def test_objects_and_episodes_within_one_cell_by_hand(tmp_path: Path) -> None:
+    """A one-cell person reported in the cell beside its footprint: no match strictly, a
+    match within one cell; two cells away: no match either way; a missed episode strictly
+    is detected within one cell when a cell decided moving touches the agent's."""
+    # row of 7 cells: agent 1 (a person) at cell 1, agent 2 at cell 5
+    classes, agent = [[F, M, F, F, F, M, F]], [[0, 1, 0, 0, 0, 2, 0]]
+    truth = load_truth(write_truth(tmp_path, [
+        {"stamp": 0, "classes": classes, "agent": agent},
+        {"stamp": 1, "classes": classes, "agent": agent}], agents=2))
+    run = SimpleNamespace(decision_codes=CODES, frames=[
+        # track 5 at cell 2 (beside agent 1), track 6 at cell 3 (two cells from both)
+        _objects_frame(0, [[FREE, FREE, MOV, MOV, FREE, FREE, FREE]],
+                       [(5, 1, [2]), (6, 1, [3])]),
+        # track 5 at cell 0 (beside agent 1 on the other side); agent 2's own cell moving
+        _objects_frame(1, [[MOV, FREE, FREE, FREE, FREE, MOV, FREE]],
+                       [(5, 1, [0]), (7, 1, [5])])])
+    m = evaluate(run, truth)
+    obj = m["objects"]
+    # strictly: reported 2 + 2, matched 0 + 1 (track 7), true 2 + 2, found 0 + 1
+    assert (obj["moving_reported"], obj["moving_matched"]) == (4, 1)
+    assert (obj["moving_truth"], obj["moving_found"]) == (4, 1)
+    near = obj["within_one_cell"]
+    # within one cell: track 5 matches agent 1 in both frames, track 6 never (cells 2 and 4
+    # beside it are not M), track 7 agent 2: matched 1 + 2, found 1 (agent 1) + 2
+    assert (near["moving_matched"], near["moving_found"]) == (3, 3)
+    assert near["precision"] == 0.75 and near["recall"] == 0.75
+    # episodes: agent 1 never has its own cell decided moving (missed strictly), but has a
+    # moving neighbour in frame 0 (latency 0 within one cell); agent 2 detected at frame 1
+    lat, lat_near = m["latency_frames"], m["latency_frames_within_one_cell"]
+    assert (lat["episodes"], lat["detected"], lat["missed"]) == (2, 1, 1)
+    assert (lat_near["episodes"], lat_near["detected"], lat_near["missed"]) == (2, 2, 0)
+    assert sorted(e["latency_frames"] for e in lat_near["per_episode"]) == [0, 1]
