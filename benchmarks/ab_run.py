@@ -47,6 +47,22 @@ def run_tree(tree: Path, name: str, sim: Path, config: Path) -> dict:
     return json.loads((out / "manifest.json").read_text())["summary"]
 
 
+OBJECT_STAGES = ("objects", "unmapped")
+
+
+def object_share(summary: dict) -> tuple[float, float] | None:
+    """The object stages' (``OBJECT_STAGES``) share of a frame: their main-thread CPU time
+    over the CPU time of every thread, and their wall time (the stage timer) over the frame's
+    (1 / frames/s); None for a tree whose summary has no stage CPU times (before 2026-12-04)."""
+    stage_cpu = summary.get("stage_cpu_ms_per_frame")
+    if stage_cpu is None:
+        return None
+    cpu = sum(stage_cpu.get(k, 0.0) for k in OBJECT_STAGES)
+    wall = sum(summary["stage_ms_per_frame"].get(k, 0.0) for k in OBJECT_STAGES)
+    return (cpu / sum(summary["cpu_ms_per_frame"].values()),
+            wall * summary["frames_per_s"] / 1e3)
+
+
 def main(argv: list[str]) -> None:
     seconds = 10  # workload (a)
     if argv[:1] == ["--seconds"]:
@@ -73,6 +89,13 @@ def main(argv: list[str]) -> None:
         print(f"{name}: median {statistics.median(fps):.1f} frames/s ({min(fps):.1f}-"
               f"{max(fps):.1f}); CPU ms/frame main / decode / writer {cpu['main']:.2f} / "
               f"{cpu['decode']:.2f} / {cpu['writer']:.2f}")
+        shares = [object_share(s) for s in summaries]
+        if None not in shares:
+            cpu_share = [c for c, _ in shares]
+            wall_share = statistics.median(w for _, w in shares)
+            print(f"{name}: object stages' share of a frame, median (range): CPU "
+                  f"{statistics.median(cpu_share):.1%} ({min(cpu_share):.1%}-"
+                  f"{max(cpu_share):.1%}), wall {wall_share:.1%}")
     names = list(runs)
     for i, a in enumerate(names):
         for b in names[:i]:

@@ -60,6 +60,12 @@ def test_run_writes_a_complete_loadable_output(drive: Path, small_config: Path,
     stages = manifest["summary"]["stage_ms_per_frame"]
     assert {"decode", "sensor", "fusion", "read", "writer_thread"} <= set(stages)
     assert all(v >= 0 for v in stages.values()) and stages["decode"] > 0
+    # the main thread's stages in CPU time: its laps cover the frame loop, so they add up
+    # to the thread's CPU over it (rounded to 1 µs a stage; the loop's set-up is not lapped)
+    stage_cpu = manifest["summary"]["stage_cpu_ms_per_frame"]
+    assert {"fusion", "read", "write"} <= set(stage_cpu) <= set(stages)
+    assert all(v >= 0 for v in stage_cpu.values())
+    assert 0.9 * cpu["main"] <= sum(stage_cpu.values()) <= cpu["main"] + 0.01
     assert (out / "config.toml").read_text().count("window_size_m = 40.0") == 1
     run_ = evperc.load(out)
     frames = list(run_.frames)
