@@ -25,6 +25,7 @@ from evperc.geo.crs import working_crs
 from evperc.geo.maps import MapData, check_overlap, load_map, load_map_cached
 from evperc.geo.prior import CONTEXT_BUILDING, PriorRasteriser
 from evperc.geo.window import Window
+from evperc.gil_kept import positive, warm_up_gil_kept
 from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
@@ -433,6 +434,7 @@ class Pipeline:
         fused_step(state.pg, state.zeta, free, occupied, labels, self.betas, 0.1, self.params,
                    out=out, flags=state.flags, focal=state.focal, gate=gate)
         count_codes(out.decision, len(DECISION_CODES))
+        warm_up_gil_kept()
         if self.objects is not None:
             ObjectStage(self.request.config, tiny.shape).step(
                 TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0,
@@ -441,6 +443,8 @@ class Pipeline:
             warm_up_boxes(self.boxes.params)
             if self.objects.moving_min_cells > 0 or self.moving_needs_object:
                 unfill_small(out.decision.copy(), np.zeros(1, np.int64), None)
+            if self.moving_needs_object:
+                unfill_unconfirmed(out.decision.copy(), np.zeros(1, np.int64))
             if self.backfill_frames > 0:
                 warm_up_backfill()
         if self.unmapped is not None:
@@ -607,7 +611,7 @@ class Pipeline:
         if self.objects is not None:  # clusters and tracks (evperc.objects), from the layers
             if state.tracks is None:
                 state.tracks = TrackerState()
-            occupied_now = inputs.occupied > 0
+            occupied_now = positive(inputs.occupied)  # numpy's > would release the GIL
             if inputs.hits is not None and self.cluster_on == "all_returns":
                 occupied_now |= inputs.hits
             elif inputs.hits is not None:  # "all_returns_join": the hit-only cells join any

@@ -22,7 +22,7 @@ ALLOWED = {
     "eval": {"geo", "output", "fusion", "sim"},
     "sim": {"geo", "logs", "output", "fusion"},
 }
-SHARED = {"dst", "errors", "config", "progress", "__init__"}
+SHARED = {"dst", "errors", "config", "progress", "gil_kept", "__init__"}
 
 
 def _module_name(path: Path) -> str:

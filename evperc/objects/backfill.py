@@ -44,6 +44,7 @@ nothing (nothing says the object is there)."""
 
 from __future__ import annotations
 
+import bisect
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
@@ -53,6 +54,7 @@ import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
+from evperc.gil_kept import in_sorted, sorted_copy, sorted_unique
 from evperc.objects.boxes import BoxParams, VehicleBoxes
 from evperc.objects.stage import fills_decision, objects_enabled
 from evperc.objects.tracking import TrackerState
@@ -109,7 +111,7 @@ class Candidates:
         self.taken = np.zeros(len(ids), np.bool_)
 
     def _find(self, track: int) -> int:
-        k = int(np.searchsorted(self.ids, track))
+        k = bisect.bisect_left(self.ids, track)  # not np.searchsorted: keeps the GIL
         return k if k < len(self.ids) and self.ids[k] == track and not self.taken[k] else -1
 
     def __contains__(self, track: int) -> bool:
@@ -152,11 +154,10 @@ def candidates(state: TrackerState, objects: np.ndarray) -> Candidates:
 
 
 def _in_sorted(values: np.ndarray, ascending: np.ndarray) -> np.ndarray:
-    """Which of ``values`` are in ``ascending`` (sorted)."""
-    if len(ascending) == 0:
-        return np.zeros(len(values), np.bool_)
-    at = np.minimum(np.searchsorted(ascending, values), len(ascending) - 1)
-    return ascending[at] == values
+    """Which of ``values`` are in ``ascending`` (sorted; :func:`evperc.plumbing.in_sorted`,
+    which keeps the GIL)."""
+    return in_sorted(np.ascontiguousarray(values, np.int64),
+                     np.ascontiguousarray(ascending, np.int64))
 
 
 class Backfill:
@@ -202,7 +203,7 @@ class Backfill:
                 for k in held.candidates.matching(new):
                     track = int(held.candidates.ids[k])
                     cells, age = held.candidates.pop(track)
-                    fill(held, track, cells, age, moving[int(np.searchsorted(ids, track))],
+                    fill(held, track, cells, age, moving[bisect.bisect_left(ids, track)],
                          self.gap_cells, self.extent_m, self.fill_decision)
             if self.bridge_reach >= 0:
                 reported = frame.objects["track_id"].astype(np.int64)
@@ -254,8 +255,7 @@ class Backfill:
         was fused."""
         if self.boxes is None or not held.added or held.speaks is None:
             return held
-        only = _in_sorted(held.objects["track_id"].astype(np.int64),
-                          np.sort(np.asarray(held.added, np.int64)))
+        only = _in_sorted(held.objects["track_id"], np.array(sorted(held.added), np.int64))
         objects, cells = self.boxes.complete(held.objects, held.object_cells, held.window,
                                              held.speaks, held.decision,
                                              returns=held.returns, only=only)
@@ -301,7 +301,7 @@ def fill(held: HeldFrame, track: int, lattice: np.ndarray, age: int,
             if gap_cells > 0 and len(objects) else -1)
     if into >= 0:  # a fragment: its cells join the record beside it
         a, b = int(ends[into] - counts[into]), int(ends[into])
-        joined = np.union1d(old_cells[a:b].astype(np.int64), cells)
+        joined = sorted_unique(np.concatenate([old_cells[a:b].astype(np.int64), cells]))
         record = objects[into:into + 1].copy()
         _set_geometry(record, held, joined)
         objects = objects.copy()
@@ -317,7 +317,7 @@ def fill(held: HeldFrame, track: int, lattice: np.ndarray, age: int,
     record["velocity_m_per_s"] = report["velocity_m_per_s"]
     record["speed_sigma_m_per_s"] = report["speed_sigma_m_per_s"]
     _set_geometry(record, held, cells)
-    at = int(np.searchsorted(objects["track_id"], track))  # records stay in id order
+    at = bisect.bisect_left(objects["track_id"], track)  # records stay in id order
     offset = int(ends[at - 1]) if at else 0
     grown = np.empty(len(objects) + 1, OBJECT_DTYPE)  # (concatenating records is slow)
     grown[:at], grown[at], grown[at + 1:] = objects[:at], record[0], objects[at:]
@@ -344,14 +344,14 @@ def bridge_cells(held: HeldFrame, velocity_m_per_s: np.ndarray,
     offsets = np.arange(-reach, reach + 1)
     near = (predicted[:, None, None, :] + np.stack(np.meshgrid(
         offsets, offsets, indexing="ij"), axis=-1)[None]).reshape(-1, 2)
-    records = np.sort(np.asarray(held.object_cells, np.int64))
+    records = sorted_copy(np.asarray(held.object_cells, np.int64))
     flat = _window_flat(w, near)
     flat = flat[held.occupied.reshape(-1)[flat] != 0]
     flat = flat[~_in_sorted(flat, records)]
     if flat.size and held.speaks is not None:
         silent = _window_flat(w, predicted)
         silent = silent[~_spoken(held.speaks, silent) & ~_in_sorted(silent, records)]
-        flat = _sorted_unique(np.concatenate([flat, silent]))
+        flat = sorted_unique(np.concatenate([flat, silent]))
     return _lattice(w, flat)
 
 
@@ -360,13 +360,7 @@ def _window_flat(window: Window, lattice: np.ndarray) -> np.ndarray:
     r = lattice[:, 0] - window.row0
     c = lattice[:, 1] - window.col0
     inside = (r >= 0) & (r < window.rows) & (c >= 0) & (c < window.cols)
-    return _sorted_unique(r[inside] * window.cols + c[inside])
-
-
-def _sorted_unique(values: np.ndarray) -> np.ndarray:
-    """``np.unique`` of a short array (sorted, duplicates dropped), without its hashing."""
-    values = np.sort(values)
-    return values[np.concatenate(([True], values[1:] != values[:-1]))] if values.size else values
+    return sorted_unique(np.ascontiguousarray(r[inside] * window.cols + c[inside], np.int64))
 
 
 def _spoken(speaks: Any, flat: np.ndarray) -> np.ndarray:

@@ -56,6 +56,7 @@ import numba
 import numpy as np
 
 from evperc.geo.window import Window
+from evperc.gil_kept import sorted_unique
 from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
 
 _MOVING = OBJECT_STATES["moving"]
@@ -185,18 +186,6 @@ def _geometry(cells: np.ndarray, cols: int, row0: int, col0: int, res: float,
     extent[1] = bbox[3] - bbox[1]
 
 
-@numba.njit(cache=True, nogil=True)
-def _sorted_unique(a: np.ndarray) -> np.ndarray:
-    """np.unique of an int64 array."""
-    if len(a) == 0:
-        return a.copy()
-    s = np.sort(a)
-    keep = np.ones(len(s), np.bool_)
-    for i in range(1, len(s)):
-        keep[i] = s[i] != s[i - 1]
-    return s[keep]
-
-
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _complete(tid, moving, count, vel, cells, rows, cols, row0, col0, res, stamp, speaks_a,
               speaks_b, frames, h_id, h_stamp, h_n, h_xy):
@@ -272,7 +261,7 @@ def _complete(tid, moving, count, vel, cells, rows, cols, row0, col0, res, stamp
                 if r >= 0 and r < rows and c >= 0 and c < cols:
                     buf[m] = r * cols + c
                     m += 1
-        add = _sorted_unique(buf[:m])
+        add = sorted_unique(buf[:m])
         own_sorted = np.sort(own)
         keep = np.zeros(len(add), np.bool_)
         na = 0
@@ -406,7 +395,7 @@ def _merge(moving, age, tid, streak, full, full_n, cells, count, cols, row0, col
                     d = min(d, max(abs(ra - obs[b] // cols), abs(ca - obs[b] % cols)))
             if d > gap:
                 continue
-            both = _sorted_unique(np.concatenate((si, obs)))
+            both = sorted_unique(np.concatenate((si, obs)))
             lox = np.inf
             loy = np.inf
             hix = -np.inf
@@ -421,7 +410,7 @@ def _merge(moving, age, tid, streak, full, full_n, cells, count, cols, row0, col
             if max(hix - lox + res, hiy - loy + res) > extent_m + 1e-9:
                 continue
             owner[j] = i
-            joined[i] = _sorted_unique(np.concatenate((joined[i], joined[j])))
+            joined[i] = sorted_unique(np.concatenate((joined[i], joined[j])))
             seen[i] = both
             merged = True
             break

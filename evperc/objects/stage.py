@@ -196,14 +196,28 @@ def unfill_unconfirmed(decision: np.ndarray, moving_cells: np.ndarray | None,
     a conflict no track confirms — on SemanticKITTI 09, where nothing moves, 194 of 277
     static points decided moving; a moving object's own frames before its report are the
     backfill's to fill. ``static``: the cell holds a return (as :func:`unfill_small`)."""
-    flat = decision.reshape(-1)
-    cells = np.flatnonzero(flat == MOVING)
-    if cells.size == 0:
-        return 0
     held = _NO_CELLS if moving_cells is None else np.asarray(moving_cells, np.int64)
     if small_moving is not None and small_moving.size:
         held = np.concatenate([held, np.asarray(small_moving, np.int64)])
-    return int(_unfill(flat, cells, held, STATIC, MOVING))
+    return int(_unfill_unheld(decision.reshape(-1), held, STATIC, MOVING))
+
+
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def _unfill_unheld(flat, held, static, moving):  # pragma: no cover - compiled
+    """:func:`unfill_unconfirmed`: every cell of ``flat`` decided ``moving`` and not in
+    ``held`` decided ``static``; returns how many (one scan of the window: ``flat ==
+    MOVING`` and ``np.flatnonzero`` in numpy released the GIL twice a frame)."""
+    order = np.sort(held)
+    changed = 0
+    for c in range(flat.shape[0]):
+        if flat[c] != moving:
+            continue
+        at = np.searchsorted(order, c)
+        if at < order.shape[0] and order[at] == c:
+            continue
+        flat[c] = static
+        changed += 1
+    return changed
 
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")

@@ -34,6 +34,7 @@ import numpy as np
 
 from evperc import config as config_mod
 from evperc.errors import OutputError, WriteError
+from evperc.gil_kept import copy_layer
 from evperc.output import mass_tiles
 from evperc.output.layers import MASS_TILE, StoredOutputs
 from evperc.output.manifest import FORMAT_VERSION, MANIFEST, read_manifest
@@ -379,7 +380,8 @@ class RunWriter:
             raise RuntimeError("hold() without frame_slot()")
         slot, self._reserved = self._reserved, None
         layers = self._chunk.layers  # the ring: the same layers for both chunks
-        held = HeldLayers(layers.decision[slot].copy(), layers.betp[slot, 4].copy(),
+        # copied by a compiled pass: numpy's copy of a layer releases the GIL (gil_kept)
+        held = HeldLayers(copy_layer(layers.decision[slot]), copy_layer(layers.betp[slot, 4]),
                           int(layers.mass_bytes[slot]))
         self._pool.submit(self._deflate_held, layers, slot, held)
         return held
