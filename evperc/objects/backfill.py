@@ -265,8 +265,11 @@ class Backfill:
                 counts = objects["cell_count"].astype(np.int64)
                 ends = np.cumsum(counts)
                 flat = held.decision.reshape(-1)
+                # int64 indices: numpy's assignment through a uint32 index array (the
+                # records' cells) takes its general path, which releases the GIL
+                cells64 = np.asarray(cells, np.int64)
                 for k in np.flatnonzero(only):
-                    flat[cells[ends[k] - counts[k]:ends[k]]] = MOVING
+                    flat[cells64[ends[k] - counts[k]:ends[k]]] = MOVING
         return held
 
 
