@@ -10,6 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 import evperc
 from evperc.config import load_config
@@ -33,6 +36,24 @@ def test_moving_cells_outside_the_moving_objects_are_decided_static() -> None:
     dec[0, 0] = D["moving"]
     assert unfill_unconfirmed(dec, None) == 2  # no object list: no cell keeps moving
     assert not (dec == D["moving"]).any()
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(1, 4), st.integers(1, 40), st.data())
+def test_the_compiled_scan_is_the_rule_on_random_grids(rows: int, cols: int,
+                                                        data: st.DataObject) -> None:
+    """Random grids of every width (whole 8-cell words, a tail after them, moving cells
+    in any byte of a word), against the rule in numpy (np.isin the oracle)."""
+    codes = st.sampled_from([D["free"], D["moving"], D["static"], D["unknown"]])
+    dec = data.draw(arrays(np.uint8, (rows, cols), elements=codes))
+    held = data.draw(arrays(np.int64, st.integers(0, 12),
+                            elements=st.integers(0, rows * cols - 1)))
+    expected = dec.copy().reshape(-1)
+    moving = np.flatnonzero(expected == D["moving"])
+    unheld = moving[~np.isin(moving, held)]
+    expected[unheld] = D["static"]
+    assert unfill_unconfirmed(dec, held) == len(unheld)
+    np.testing.assert_array_equal(dec.reshape(-1), expected)
 
 
 def test_a_small_groups_cells_are_left_to_their_own_rule() -> None:
