@@ -17,7 +17,8 @@ Reads the runs and drives of a `scripts/evaluation_study.py` work directory (the
   cells of components holding ``stopped`` cells stopped, car-shaped static components
   stopped).
 - objects: the agent-frames with a visible truth-M cell that no moving record holds, by
-  agent role, by the agent's visible cells, and by where in the agent's episode they fall.
+  agent role, by the agent's visible cells, and by where in the agent's episode they fall;
+  and per role the agent-frames found, by the range of their nearest visible cell.
 - observed: the observed truth-M cells not decided moving, by whether their agent has a
   visible cell in the frame and whether it is detected there.
 - coast: a forward prediction of lost moving tracks (their last cells carried at their
@@ -122,6 +123,15 @@ def stopped(args: argparse.Namespace) -> None:
         print(f"{name}:", f1(n["right S"] + s, n["decided S"] + s + o))
 
 
+RANGES_M = (20.0, 40.0)
+
+
+def _ring(range_m: float) -> str:
+    """The range bucket of :data:`RANGES_M` a distance (m) falls in."""
+    return ("< 20 m" if range_m < RANGES_M[0] else "20-40 m" if range_m < RANGES_M[1]
+            else ">= 40 m")
+
+
 def objects(args: argparse.Namespace) -> None:
     n = collections.Counter()
     for seed in args.seeds:
@@ -133,10 +143,16 @@ def objects(args: argparse.Namespace) -> None:
             recs = f.objects
             moving = np.isin(f.object_labels()[rr, rc],
                              recs["track_id"][recs["state"] == OBJECT_STATES["moving"]])
+            x, y = t.window.cell_centres()
             for a in np.unique(agent[vis & (agent > 0)]):
                 cells = agent == a
-                rows.append((k, int(a), roles.get(int(a), "?"), bool((cells & moving).any()),
-                             int((cells & vis).sum())))
+                role, found = roles.get(int(a), "?"), bool((cells & moving).any())
+                rows.append((k, int(a), role, found, int((cells & vis).sum())))
+                r, c = np.nonzero(cells & vis)
+                near_m = float(np.hypot(x[tc][c] - t.sensor_pose[0],
+                                        y[tr][r] - t.sensor_pose[1]).min())
+                n[f"{role}: found by range {_ring(near_m)}"] += found
+                n[f"{role}: agent-frames by range {_ring(near_m)}"] += 1
         found_at = collections.defaultdict(list)
         for k, a, _, found, _ in rows:
             if found:
@@ -218,9 +234,6 @@ def coast(args: argparse.Namespace) -> None:
               f"F1 {2 * right / (decided + truth):.3f}")
 
 
-RANGES_M = (20.0, 40.0)
-
-
 def episodes(args: argparse.Namespace) -> None:
     n: collections.Counter = collections.Counter()
     for seed in args.seeds:
@@ -239,8 +252,7 @@ def episodes(args: argparse.Namespace) -> None:
                     near_m = min(near_m, float(np.hypot(x[cols] - t.sensor_pose[0],
                                                         y[rows] - t.sensor_pose[1]).min()))
                     cells = max(cells, int(seen.sum()))
-            ring = ("< 20 m" if near_m < RANGES_M[0] else "20-40 m" if near_m < RANGES_M[1]
-                    else ">= 40 m")
+            ring = _ring(near_m)
             size = "1 cell" if cells <= 1 else "2-3 cells" if cells <= 3 else ">= 4 cells"
             missed = e["latency_frames"] is None
             for key in (f"role {roles.get(e['agent'], '?')}", f"nearest {ring}",
