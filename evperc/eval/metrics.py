@@ -418,17 +418,15 @@ def format_report(metrics: dict[str, Any], other: dict[str, Any] | None = None,
                              f"{tol['decided']}), R {num(tol['recall']).strip()} "
                              f"({tol['found']}/{tol['support']}), F1 {num(tol['f1']).strip()}")
         obj = m.get("objects")
-        if obj is not None:
-            lines.append(f"objects ({n}): moving P {num(obj['precision']).strip()} "
-                         f"({obj['moving_matched']}/{obj['moving_reported']}), R "
-                         f"{num(obj['recall']).strip()} ({obj['moving_found']}/"
-                         f"{obj['moving_truth']}), track switches {obj['track_switches']}")
-            near = obj.get("within_one_cell")
-            if near is not None:
-                lines.append(f"objects within one cell ({n}): moving P "
-                             f"{num(near['precision']).strip()} ({near['moving_matched']}/"
-                             f"{obj['moving_reported']}), R {num(near['recall']).strip()} "
-                             f"({near['moving_found']}/{obj['moving_truth']})")
+        if obj is not None:  # strict, then within one cell
+            for label, scores, tail in (
+                    (f"objects ({n})", obj, f", track switches {obj['track_switches']}"),
+                    (f"objects within one cell ({n})", obj.get("within_one_cell"), "")):
+                if scores is not None:
+                    lines.append(f"{label}: moving P {num(scores['precision']).strip()} "
+                                 f"({scores['moving_matched']}/{obj['moving_reported']}), R "
+                                 f"{num(scores['recall']).strip()} ({scores['moving_found']}/"
+                                 f"{obj['moving_truth']}){tail}")
         lines.append(f"moving-object latency ({n}): {lat['episodes']} episodes, "
                      f"{lat['detected']} detected, {lat['missed']} missed; frames mean "
                      f"{num(lat['mean']).strip()}, median {num(lat['median']).strip()}, "
