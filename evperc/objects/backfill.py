@@ -154,7 +154,7 @@ def candidates(state: TrackerState, objects: np.ndarray) -> Candidates:
 
 
 def _in_sorted(values: np.ndarray, ascending: np.ndarray) -> np.ndarray:
-    """Which of ``values`` are in ``ascending`` (sorted; :func:`evperc.plumbing.in_sorted`,
+    """Which of ``values`` are in ``ascending`` (sorted; :func:`evperc.gil_kept.in_sorted`,
     which keeps the GIL)."""
     return in_sorted(np.ascontiguousarray(values, np.int64),
                      np.ascontiguousarray(ascending, np.int64))
