@@ -12,7 +12,13 @@
         --config configs/ablation/no_arrival_evidence.toml --config configs/ibeo4.toml \\
         --config configs/ablation/ground_prior.toml --config configs/ablation/no_rehit.toml \\
         --config configs/ablation/rehit_any_gap.toml --config configs/ablation/speed_1.toml \\
-        --config configs/ablation/no_low_groups.toml
+        --config configs/ablation/no_low_groups.toml --config configs/ablation/no_isolated.toml \\
+        --config configs/ablation/no_backfill.toml --config configs/ablation/no_bridge.toml \\
+        --config configs/ablation/no_needs_object.toml \\
+        --config configs/ablation/arrival_any_count.toml \\
+        --config configs/ablation/no_ego_clearance.toml \\
+        --config configs/ablation/no_vehicle_boxes.toml \\
+        --config configs/ablation/no_stopped_off_facades.toml
     .venv/bin/python scripts/report_tables.py --work W
 
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
@@ -51,7 +57,16 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("re-hit after any gap, 1.0 s", "configs/ablation/rehit_any_gap.toml"),
              ("tracker speed floor 1.0 m/s", "configs/ablation/speed_1.toml"),
              ("no low-group rule (small moving groups kept)",
-              "configs/ablation/no_low_groups.toml"))
+              "configs/ablation/no_low_groups.toml"),
+             ("no isolated small clusters", "configs/ablation/no_isolated.toml"),
+             ("no backfill (the causal output)", "configs/ablation/no_backfill.toml"),
+             ("no bridged gaps", "configs/ablation/no_bridge.toml"),
+             ("moving cells without an object kept", "configs/ablation/no_needs_object.toml"),
+             ("an arrival from any count of moving cells",
+              "configs/ablation/arrival_any_count.toml"),
+             ("no ego clearance", "configs/ablation/no_ego_clearance.toml"),
+             ("no vehicle boxes", "configs/ablation/no_vehicle_boxes.toml"),
+             ("no façade rule for stopped", "configs/ablation/no_stopped_off_facades.toml"))
 
 
 #: the scores of the headline and ablation rows, in column order
