@@ -20,7 +20,8 @@ Reads the runs and drives of a `scripts/evaluation_study.py` work directory (the
   agent role, by the agent's visible cells, and by where in the agent's episode they fall;
   and per role the agent-frames found, by the range of their nearest visible cell.
 - observed: the observed truth-M cells not decided moving, by whether their agent has a
-  visible cell in the frame and whether it is detected there.
+  visible cell in the frame and whether it is detected there; and the observed-cell recall
+  (and F1) a method reaches at best when it reports only the agents visible in the frame.
 - coast: a forward prediction of lost moving tracks (their last cells carried at their
   velocity into cells the scan does not see, for N frames), scored on observed cells.
 - episodes: the moving episodes (observed cells, as ``evperc evaluate``'s latency) and
@@ -183,6 +184,7 @@ def observed(args: argparse.Namespace) -> None:
             detected = np.bincount(agent[moving & (d == codes["moving"])], minlength=size) > 0
             missed = moving & (d != codes["moving"])
             n["observed truth M"] += int(moving.sum())
+            n["... of agents invisible in the frame"] += int((moving & ~seen[agent]).sum())
             n["decided moving"] += int((moving & (d == codes["moving"])).sum())
             n["missed, agent invisible in the frame"] += int((missed & ~seen[agent]).sum())
             n["missed, agent visible and detected"] += int((missed & seen[agent]
@@ -191,6 +193,10 @@ def observed(args: argparse.Namespace) -> None:
                                                             & ~detected[agent]).sum())
     for key, value in n.items():
         print(f"{key}: {value}")
+    # what a method that reports only the agents it sees in the frame can reach at best
+    bound = 1.0 - n["... of agents invisible in the frame"] / max(n["observed truth M"], 1)
+    print(f"recall bound (agents visible in the frame): {bound:.3f}; F1 bound at precision 1: "
+          f"{2 * bound / (1 + bound):.3f}")
 
 
 def coast(args: argparse.Namespace) -> None:

@@ -41,6 +41,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import evaluation_study as study  # noqa: E402
 
+from evperc.eval.metrics import VISIBLE_FRAME_BUCKETS  # noqa: E402
+
 ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("**defaults**", "default"),
              ("with the free margin (d_s 0.5 m)", "configs/ablation/free_margin.toml"),
@@ -147,6 +149,22 @@ def main() -> int:
                 obs = runs(profile, name, "observed")[k]
                 print(f"| {profile} | {label} | {with_map} | {scores(ms, with_map)} | "
                       f"{_missed(obs)} |")
+
+    print("\n### Missed episodes by frames visible (observed cells, with the map, pooled)\n")
+    buckets = [f"{lo}-{hi}" if hi is not None else f"{lo}+"
+               for lo, hi in VISIBLE_FRAME_BUCKETS]
+    print("| profile | method | " + " | ".join(f"visible in {b} frames" for b in buckets)
+          + " |")
+    print("|" + "---|" * (len(buckets) + 2))
+    for profile in profiles:
+        for label, name in ABLATIONS[:2]:
+            obs = runs(profile, name, "observed")[0]
+            cells = []
+            for b in buckets:
+                missed = sum(m["latency_frames"]["by_visible_frames"][b]["missed"] for m in obs)
+                eps = sum(m["latency_frames"]["by_visible_frames"][b]["episodes"] for m in obs)
+                cells.append(f"{missed} of {eps}")
+            print(f"| {profile} | {label} | " + " | ".join(cells) + " |")
 
     print("\n### Objects (defaults, visible cells, pooled over the seeds)\n")
     print("| profile | map | moving objects reported | matched | precision | true moving "

@@ -33,7 +33,10 @@ class M. Its onset is the first frame of the episode in which a ray of that fram
 crosses one of the agent's cells (``visible``); it is detected at the first frame from the
 onset on in which at least one of its M cells is decided ``moving``. Latency = detection −
 onset in frames (0 = detected in the first scan that sees it). Episodes never visible are
-not counted; visible ones never detected are ``missed``. Within one cell
+not counted; visible ones never detected are ``missed``. Each episode's ``visible_frames``
+counts its frames from the onset with a visible cell of the agent, and ``by_visible_frames``
+splits the episodes and the missed ones by it (1–4, 5–9, 10 and more frames): a tracker that
+confirms an object over three frames cannot report one glimpsed in fewer. Within one cell
 (``latency_frames_within_one_cell``): detected at the first frame in which one of its M
 cells is decided ``moving`` or has a neighbour (8-neighbourhood) that is — the one-cell
 tolerance of the cell scores: a walking person is one cell, and its returns as often fall in
@@ -368,6 +371,7 @@ def _latency(rows: list[tuple[np.ndarray, ...]], stamps: np.ndarray) -> dict[str
                 onset = start + int(seen[0])
                 hit = np.flatnonzero(detected[onset:end, agent])
                 ep = {"agent": agent, "onset_frame": int(onset), "end_frame": int(end),
+                      "visible_frames": len(seen),
                       "latency_frames": int(hit[0]) if len(hit) else None,
                       "latency_s": (float(stamps[onset + hit[0]] - stamps[onset]) / 1e9
                                     if len(hit) else None)}
@@ -378,7 +382,26 @@ def _latency(rows: list[tuple[np.ndarray, ...]], stamps: np.ndarray) -> dict[str
             "mean": float(lat.mean()) if len(lat) else None,
             "median": float(np.median(lat)) if len(lat) else None,
             "max": int(lat.max()) if len(lat) else None,
+            "by_visible_frames": _by_visible_frames(episodes),
             "per_episode": episodes}
+
+
+#: the ``by_visible_frames`` buckets of the episodes: frames with a visible cell of the agent
+#: (1-4: under half a second at 10 Hz, shorter than the tracker's confirmation and evidence;
+#: 10 and more: a second and more)
+VISIBLE_FRAME_BUCKETS = ((1, 4), (5, 9), (10, None))
+
+
+def _by_visible_frames(episodes: list[dict[str, Any]]) -> dict[str, dict[str, int]]:
+    """Episodes and missed episodes per :data:`VISIBLE_FRAME_BUCKETS` bucket of their
+    ``visible_frames``, keyed "1-4", "5-9", "10+"."""
+    out = {}
+    for low, high in VISIBLE_FRAME_BUCKETS:
+        eps = [e for e in episodes
+               if e["visible_frames"] >= low and (high is None or e["visible_frames"] <= high)]
+        out[f"{low}-{high}" if high is not None else f"{low}+"] = {
+            "episodes": len(eps), "missed": sum(e["latency_frames"] is None for e in eps)}
+    return out
 
 
 def format_report(metrics: dict[str, Any], other: dict[str, Any] | None = None,
@@ -431,6 +454,9 @@ def format_report(metrics: dict[str, Any], other: dict[str, Any] | None = None,
                      f"{lat['detected']} detected, {lat['missed']} missed; frames mean "
                      f"{num(lat['mean']).strip()}, median {num(lat['median']).strip()}, "
                      f"max {lat['max'] if lat['max'] is not None else '-'}")
+        lines.append(f"missed episodes by frames visible ({n}): " + ", ".join(
+            f"{k} frames {b['missed']} of {b['episodes']}"
+            for k, b in lat["by_visible_frames"].items()))
         near_lat = m.get("latency_frames_within_one_cell")
         if near_lat is not None:
             lines.append(f"moving-object latency within one cell ({n}): "

@@ -155,6 +155,27 @@ def test_latency_per_moving_episode(tmp_path: Path) -> None:
     assert lat["mean"] == 2.0 and lat["max"] == 2
     ep = [e for e in lat["per_episode"] if e["agent"] == 1][0]
     assert ep["onset_frame"] == 1 and ep["latency_s"] == pytest.approx(20e-9)
+    assert sorted(e["visible_frames"] for e in lat["per_episode"]) == [3, 4]
+    assert lat["by_visible_frames"] == {"1-4": {"episodes": 2, "missed": 1},
+                                        "5-9": {"episodes": 0, "missed": 0},
+                                        "10+": {"episodes": 0, "missed": 0}}
+
+
+def test_missed_episodes_by_frames_visible(tmp_path: Path) -> None:
+    # 12 frames, three agents moving throughout: agent 1 visible in all but frames 3 and 7
+    # (10 frames) and decided moving at frame 5; agent 2 visible in frames 4-9 (6), never
+    # decided moving; agent 3 visible in frame 11 only (1), never decided moving
+    frames, run = [], []
+    for k in range(12):
+        frames.append({"stamp": 10 * k, "classes": [[M, M, M]], "agent": [[1, 2, 3]],
+                       "visible": [[k not in (3, 7), 4 <= k <= 9, k == 11]]})
+        run.append({"stamp": 10 * k, "decision": [[MOV if k == 5 else STA, STA, STA]]})
+    lat = evaluate(fake_run(run), load_truth(write_truth(tmp_path, frames, agents=3)))[
+        "latency_frames"]
+    assert {e["agent"]: e["visible_frames"] for e in lat["per_episode"]} == {1: 10, 2: 6, 3: 1}
+    assert lat["by_visible_frames"] == {"1-4": {"episodes": 1, "missed": 1},
+                                        "5-9": {"episodes": 1, "missed": 1},
+                                        "10+": {"episodes": 1, "missed": 0}}
 
 
 def write_run(out: Path, decision: np.ndarray, stamp: int) -> None:
