@@ -151,8 +151,7 @@ def main() -> int:
                       f"{_missed(obs)} |")
 
     print("\n### Missed episodes by frames visible (observed cells, with the map, pooled)\n")
-    buckets = [f"{lo}-{hi}" if hi is not None else f"{lo}+"
-               for lo, hi in VISIBLE_FRAME_BUCKETS]
+    buckets = list(VISIBLE_FRAME_BUCKETS)
     print("| profile | method | " + " | ".join(f"visible in {b} frames" for b in buckets)
           + " |")
     print("|" + "---|" * (len(buckets) + 2))

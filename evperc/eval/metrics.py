@@ -386,21 +386,21 @@ def _latency(rows: list[tuple[np.ndarray, ...]], stamps: np.ndarray) -> dict[str
             "per_episode": episodes}
 
 
-#: the ``by_visible_frames`` buckets of the episodes: frames with a visible cell of the agent
-#: (1-4: under half a second at 10 Hz, shorter than the tracker's confirmation and evidence;
-#: 10 and more: a second and more)
-VISIBLE_FRAME_BUCKETS = ((1, 4), (5, 9), (10, None))
+#: the ``by_visible_frames`` buckets of the episodes, by key: the least and most frames with
+#: a visible cell of the agent (1-4: under half a second at 10 Hz, shorter than the
+#: tracker's confirmation and evidence; 10 and more: a second and more)
+VISIBLE_FRAME_BUCKETS = {"1-4": (1, 4), "5-9": (5, 9), "10+": (10, None)}
 
 
 def _by_visible_frames(episodes: list[dict[str, Any]]) -> dict[str, dict[str, int]]:
     """Episodes and missed episodes per :data:`VISIBLE_FRAME_BUCKETS` bucket of their
-    ``visible_frames``, keyed "1-4", "5-9", "10+"."""
+    ``visible_frames``."""
     out = {}
-    for low, high in VISIBLE_FRAME_BUCKETS:
+    for key, (low, high) in VISIBLE_FRAME_BUCKETS.items():
         eps = [e for e in episodes
                if e["visible_frames"] >= low and (high is None or e["visible_frames"] <= high)]
-        out[f"{low}-{high}" if high is not None else f"{low}+"] = {
-            "episodes": len(eps), "missed": sum(e["latency_frames"] is None for e in eps)}
+        out[key] = {"episodes": len(eps),
+                    "missed": sum(e["latency_frames"] is None for e in eps)}
     return out
 
 
