@@ -11,78 +11,50 @@ from evperc.config import load_config
 from evperc.fusion.twin import DECISION_CODES as D
 from evperc.fusion.twin import FusionParams, decide, fusion_step, sensor_masses, vacuous
 from evperc.geo.prior import CONTEXT_BUILDING, CONTEXT_OTHER, CONTEXT_ROAD, prior_masses
-from evperc.objects.unmapped import (
-    STAT_UNSTOPPED,
-    UnmappedCue,
-    UnmappedParams,
-    UnmappedState,
-    unmapped_enabled,
-)
+from evperc.objects.unmapped import STAT_UNSTOPPED, UnmappedParams, unmapped_enabled
+from tests.objects.unmapped_grids import DT, SHAPE, free_window, run_cue, street_labels
 
-RES = 0.5
-SHAPE = (14, 20)
-DT = 0.1
 ON = UnmappedParams(max_width_m=0.55, min_age_s=0.1, stopped_needs_road=True)
 OFF = UnmappedParams(max_width_m=0.55, min_age_s=0.1, stopped_needs_road=False)
 
 
-def _street() -> np.ndarray:
-    """Rows 0-5 road, rows 6-13 pavement (other), a building at rows 11-13, cols 16-19."""
-    labels = np.full(SHAPE, CONTEXT_OTHER, np.uint8)
-    labels[0:6] = CONTEXT_ROAD
-    labels[11:14, 16:20] = CONTEXT_BUILDING
-    return labels
-
-
-def _free() -> np.ndarray:
-    return np.full(SHAPE, D["free"], np.uint8)
-
-
 def _run(decisions, labels, params=ON, moving_cells=None):
-    cue = UnmappedCue(params, SHAPE, RES)
-    state = UnmappedState.fresh(SHAPE)
-    out = []
-    for k, dec in enumerate(decisions):
-        dec = dec.copy()
-        cue.step(state, dec, labels, DT,
-                 moving_cells=None if moving_cells is None else moving_cells[k])
-        out.append(dec)
-    return out, cue
+    return run_cue(decisions, labels, params, moving_cells)
 
 
 def test_facade_strip_off_the_road_is_not_stopped() -> None:
-    dec = _free()
+    dec = free_window()
     dec[10, 12:16] = D["stopped"]     # returns along the façade: (10, 15) is 8-next to the
     dec[10, 11] = D["static"]         # building cell (11, 16); one component of 5 cells, no
     # road cell, never moving; near the building, so not unmapped (step 3): step 4 makes
     # its 4 stopped cells static, the static one stays
-    (final,), cue = _run([dec], _street())
+    (final,), cue = _run([dec], street_labels())
     want = dec.copy()
     want[10, 11:16] = D["static"]
     np.testing.assert_array_equal(final, want)
     (row,) = cue.stats
     assert row[STAT_UNSTOPPED] == 4
     # the rule off: the fusion's decision stands
-    (final,), _ = _run([dec], _street(), OFF)
+    (final,), _ = _run([dec], street_labels(), OFF)
     np.testing.assert_array_equal(final, dec)
 
 
 def test_parked_car_across_the_kerb_stays_stopped() -> None:
-    dec = _free()
+    dec = free_window()
     dec[4:8, 2:10] = D["stopped"]     # 2 m x 4 m across the kerb: rows 4-5 are road, so the
     dec[7, 2] = D["static"]           # whole component stays as it is, its pavement rows too
-    (final,), _ = _run([dec], _street())
+    (final,), _ = _run([dec], street_labels())
     np.testing.assert_array_equal(final, dec)
 
 
 def test_off_road_thing_seen_moving_stays_stopped() -> None:
-    moving, still = _free(), _free()
+    moving, still = free_window(), free_window()
     moving[8:10, 3:8] = D["moving"]   # a car that drove onto the pavement (frame 0) ...
     still[8:10, 3:8] = D["stopped"]   # ... and stopped there: its cells were seen moving
     still[8, 12] = D["stopped"]       # a lone cell never seen moving, age 0 at frame 1 (free
     # at frame 0): too young for unmapped (step 3), so step 4 makes it static; at frame 2
     # (age 0.1 s) step 3 makes it unmapped first
-    out, _ = _run([moving, still, still], _street())
+    out, _ = _run([moving, still, still], street_labels())
     want = still.copy()
     want[8, 12] = D["static"]
     np.testing.assert_array_equal(out[1], want)
@@ -91,15 +63,15 @@ def test_off_road_thing_seen_moving_stays_stopped() -> None:
     # with an object list: motion means being in a moving object, not a moving decision
     cells = [np.array([r * SHAPE[1] + c for r in (8, 9) for c in range(3, 8)]),
              np.zeros(0, np.int64), np.zeros(0, np.int64)]
-    out, _ = _run([moving, still, still], _street(), moving_cells=cells)
+    out, _ = _run([moving, still, still], street_labels(), moving_cells=cells)
     np.testing.assert_array_equal(out[2], want)
     none = [np.zeros(0, np.int64)] * 3
-    out, _ = _run([moving, still, still], _street(), moving_cells=none)
+    out, _ = _run([moving, still, still], street_labels(), moving_cells=none)
     assert (out[1][8:10, 3:8] == D["static"]).all()   # never in a moving object
 
 
 def test_without_a_map_nothing_changes() -> None:
-    dec = _free()
+    dec = free_window()
     dec[10, 12:16] = D["stopped"]
     (final,), _ = _run([dec], None)
     np.testing.assert_array_equal(final, dec)
@@ -154,7 +126,7 @@ def test_a_facade_return_after_free_scans_is_stopped_by_the_fusion_and_static_af
     for context, want in ((CONTEXT_OTHER, D["static"]), (CONTEXT_ROAD, D["stopped"])):
         labels = np.full(SHAPE, CONTEXT_OTHER, np.uint8)
         labels[5, 5], labels[5, 6] = context, CONTEXT_BUILDING
-        dec = _free()
+        dec = free_window()
         dec[5, 5] = (other if context == CONTEXT_OTHER else road)[-1]
         (final,), _ = _run([dec], labels, moving_cells=[np.zeros(0, np.int64)])
         assert final[5, 5] == want

@@ -8,44 +8,23 @@ import numpy as np
 
 from evperc.config import load_config
 from evperc.fusion.twin import DECISION_CODES as D
-from evperc.geo.prior import CONTEXT_BUILDING, CONTEXT_OTHER, CONTEXT_ROAD
-from evperc.objects.unmapped import STAT_UNSTOPPED, UnmappedCue, UnmappedParams, UnmappedState
+from evperc.objects.unmapped import STAT_UNSTOPPED, UnmappedParams
+from tests.objects.unmapped_grids import free_window, run_cue, street_labels
 
-RES = 0.5
-SHAPE = (14, 20)
-DT = 0.1
 ON = UnmappedParams(max_width_m=0.55, min_age_s=0.1, stopped_needs_road=True,
                     stopped_off_facades=True)
 OFF = UnmappedParams(max_width_m=0.55, min_age_s=0.1, stopped_needs_road=True)
-
-
-def _street() -> np.ndarray:
-    """Rows 0-5 road, rows 6-13 pavement (other); a building on the road's edge at rows 0-3,
-    cols 14-19 (its face along col 13 and row 4 is road context)."""
-    labels = np.full(SHAPE, CONTEXT_OTHER, np.uint8)
-    labels[0:6] = CONTEXT_ROAD
-    labels[0:4, 14:20] = CONTEXT_BUILDING
-    return labels
-
-
-def _free() -> np.ndarray:
-    return np.full(SHAPE, D["free"], np.uint8)
+#: rows 0-5 road, rows 6-13 pavement (other); a building on the road's edge at rows 0-3,
+#: cols 14-19 (its face along col 13 and row 4 is road context)
+STREET = street_labels((slice(0, 4), slice(14, 20)))
 
 
 def _run(decisions, params=ON, moving_cells=None):
-    cue = UnmappedCue(params, SHAPE, RES)
-    state = UnmappedState.fresh(SHAPE)
-    out = []
-    for k, dec in enumerate(decisions):
-        dec = dec.copy()
-        cue.step(state, dec, _street(), DT,
-                 moving_cells=None if moving_cells is None else moving_cells[k])
-        out.append(dec)
-    return out, cue
+    return run_cue(decisions, STREET, params, moving_cells)
 
 
 def test_facade_strip_on_the_road_is_not_stopped() -> None:
-    dec = _free()
+    dec = free_window()
     dec[0:4, 13] = D["stopped"]      # the façade's returns in the road cells along its face:
     dec[4, 13] = D["static"]         # one component of 5 cells, a line (width 1 cell = 0.5 m
     # <= 0.55 m), on the road (so step 4 leaves it), 8-next to the building, never moving:
@@ -62,7 +41,7 @@ def test_facade_strip_on_the_road_is_not_stopped() -> None:
 
 
 def test_car_parked_against_the_wall_stays_stopped() -> None:
-    dec = _free()
+    dec = free_window()
     dec[0:4, 13] = D["stopped"]      # the façade strip ...
     dec[0:4, 9:13] = D["stopped"]    # ... joined by a car 2 m x 2 m beside it: one component
     # of 20 cells, 4 cells long, 5 wide (width 20 / 4 = 5 cells = 2.5 m): not a strip
@@ -71,7 +50,7 @@ def test_car_parked_against_the_wall_stays_stopped() -> None:
 
 
 def test_strip_away_from_buildings_stays_stopped() -> None:
-    dec = _free()
+    dec = free_window()
     dec[5, 2:8] = D["stopped"]       # a line of stopped cells on the road, 3 m from any
     # building (a car's near face seen edge-on): nothing near a building, left as it is
     (final,), _ = _run([dec])
@@ -79,7 +58,7 @@ def test_strip_away_from_buildings_stays_stopped() -> None:
 
 
 def test_strip_seen_moving_stays_stopped() -> None:
-    moving, still = _free(), _free()
+    moving, still = free_window(), free_window()
     moving[0:4, 13] = D["moving"]    # something moved along the face (frame 0) ...
     still[0:4, 13] = D["stopped"]    # ... and stopped there (frame 1): seen moving, kept
     out, _ = _run([moving, still])

@@ -25,49 +25,26 @@ from evperc.objects.unmapped import (
     unmapped_enabled,
 )
 from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES, moving_object_cells
+from tests.objects.unmapped_grids import DT, RES, SHAPE, free_window, run_cue, street_labels
 
-RES = 0.5
-SHAPE = (14, 20)
-DT = 0.1  # 10 Hz
 PARAMS = UnmappedParams(max_width_m=0.55, min_age_s=0.1)
-
-
-def _street() -> np.ndarray:
-    """Map context: rows 0-5 road, rows 6-13 pavement (other), a building at rows 11-13,
-    cols 16-19."""
-    labels = np.full(SHAPE, CONTEXT_OTHER, np.uint8)
-    labels[0:6] = CONTEXT_ROAD
-    labels[11:14, 16:20] = CONTEXT_BUILDING
-    return labels
-
-
-def _free() -> np.ndarray:
-    return np.full(SHAPE, D["free"], np.uint8)
 
 
 def _frames(decisions: list[np.ndarray], labels: np.ndarray | None, params=PARAMS,
             moving_cells=None) -> list[np.ndarray]:
     """Each decision after the cue, the window fixed; ``moving_cells``: per frame or None."""
-    cue = UnmappedCue(params, SHAPE, RES)
-    state = UnmappedState.fresh(SHAPE)
-    out = []
-    for k, dec in enumerate(decisions):
-        dec = dec.copy()
-        cells = None if moving_cells is None else moving_cells[k]
-        cue.step(state, dec, labels, DT, moving_cells=cells)
-        out.append(dec)
-    return out
+    return run_cue(decisions, labels, params, moving_cells)[0]
 
 
 def test_pole_and_fence_become_unmapped_once_old_enough() -> None:
-    dec = _free()
+    dec = free_window()
     dec[8, 3] = D["static"]                  # a pole: one cell, width 1 / 1 cell = 0.5 m
     fence = [(6 + k, 8 + k) for k in range(6)]
     for r, c in fence:
         dec[r, c] = D["stopped"]
     # length along 45°: centres 5·√2 apart, + 1 cell = 8.07 cells; width 6 / 8.07 = 0.74
     # cell = 0.37 m <= 0.55
-    first, second = _frames([dec, dec], _street())
+    first, second = _frames([dec, dec], street_labels())
     np.testing.assert_array_equal(first, dec)            # age 0 < 0.1 s: not yet
     want = dec.copy()
     want[8, 3] = D["unmapped"]
@@ -77,99 +54,99 @@ def test_pole_and_fence_become_unmapped_once_old_enough() -> None:
 
 
 def test_straight_fence_width_is_one_cell() -> None:
-    dec = _free()
+    dec = free_window()
     dec[9, 2:14] = D["static"]               # 12 cells in a row: 12 / (11 + 1) = 1 cell
     cue = UnmappedCue(PARAMS, SHAPE, RES)
     state = UnmappedState.fresh(SHAPE)
-    cue.step(state, dec.copy(), _street(), DT)
-    n = cue.step(state, dec, _street(), DT)
+    cue.step(state, dec.copy(), street_labels(), DT)
+    n = cue.step(state, dec, street_labels(), DT)
     assert n == 12 and (dec[9, 2:14] == D["unmapped"]).all()
     (row,) = cue.stats
     assert row[0] == 12 and row[4] == pytest.approx(0.5) and row[5] == pytest.approx(6.0)
 
 
 def test_parked_car_block_tree_blob_and_l_stay() -> None:
-    dec = _free()
+    dec = free_window()
     dec[6:10, 2:11] = D["stopped"]           # a parked car, 4 x 9 cells (2 m x 4.5 m) on the
     # pavement: width 36 / 9 = 4 cells = 2 m
     dec[7:9, 14:16] = D["static"]            # a 2 x 2 blob: width 4 / 2 = 2 cells = 1 m
     dec[12, 2] = D["static"]                 # an L of three cells: thinnest across 135°
     dec[12, 3] = D["static"]                 # (extent 0.71 cell), length along 45°
     dec[13, 3] = D["static"]                 # 1.41 + 1 = 2.41 cells: width 3 / 2.41 = 0.62 m
-    final = _frames([dec] * 3, _street())[-1]
+    final = _frames([dec] * 3, street_labels())[-1]
     np.testing.assert_array_equal(final, dec)
     # a wider limit admits the L (0.62 m) but not the blob (1 m)
-    wide = _frames([dec] * 3, _street(), UnmappedParams(max_width_m=0.7, min_age_s=0.1))[-1]
+    wide = _frames([dec] * 3, street_labels(), UnmappedParams(max_width_m=0.7, min_age_s=0.1))[-1]
     want = dec.copy()
     want[12, 2] = want[12, 3] = want[13, 3] = D["unmapped"]
     np.testing.assert_array_equal(wide, want)
 
 
 def test_road_cells_and_components_touching_the_road_stay() -> None:
-    dec = _free()
+    dec = free_window()
     dec[3, 4] = D["stopped"]                 # a pole-sized thing on the road
     dec[4:8, 10] = D["static"]               # a thin strip across the kerb (rows 4-5 road):
     # one component with road cells: none of it is relabelled, not even rows 6-7
-    final = _frames([dec] * 3, _street())[-1]
+    final = _frames([dec] * 3, street_labels())[-1]
     np.testing.assert_array_equal(final, dec)
 
 
 def test_facade_returns_next_to_a_building_stay() -> None:
-    dec = _free()
+    dec = free_window()
     dec[10, 15] = D["static"]                # 8-next to the building cell (11, 16)
     dec[8, 15] = D["static"]                 # two cells from it: furniture
-    final = _frames([dec] * 3, _street())[-1]
+    final = _frames([dec] * 3, street_labels())[-1]
     want = dec.copy()
     want[8, 15] = D["unmapped"]
     np.testing.assert_array_equal(final, want)
 
 
 def test_a_cell_once_moving_stays() -> None:
-    moving, still = _free(), _free()
+    moving, still = free_window(), free_window()
     moving[8, 3] = D["moving"]               # seen moving at frame 0 (a pedestrian) ...
     still[8, 3] = D["static"]                # ... then standing
     still[8, 9] = D["static"]                # a pole nearby, never moving
-    final = _frames([moving, still, still, still], _street())[-1]
+    final = _frames([moving, still, still, still], street_labels())[-1]
     want = still.copy()
     want[8, 9] = D["unmapped"]
     np.testing.assert_array_equal(final, want)
     # with the object list: the cell was decided moving but was in no moving object (a pole
     # flagged at first sight): relabelled; a cell of a moving object is not
     no_objects = [np.zeros(0, np.int64)] * 4
-    final = _frames([moving, still, still, still], _street(), moving_cells=no_objects)[-1]
+    final = _frames([moving, still, still, still], street_labels(), moving_cells=no_objects)[-1]
     want[8, 3] = D["unmapped"]
     np.testing.assert_array_equal(final, want)
     in_object = [np.array([8 * SHAPE[1] + 9])] + no_objects[1:]
-    final = _frames([still] * 4, _street(), moving_cells=in_object)[-1]
+    final = _frames([still] * 4, street_labels(), moving_cells=in_object)[-1]
     want = still.copy()
     want[8, 3] = D["unmapped"]               # (8, 9) was in a moving object at frame 0
     np.testing.assert_array_equal(final, want)
 
 
 def test_component_with_a_cell_once_moving_stays_whole() -> None:
-    first, later = _free(), _free()
+    first, later = free_window(), free_window()
     first[8, 3] = D["moving"]
     later[8, 3:6] = D["static"]              # the moving cell's component: all of it stays
-    final = _frames([first, later, later], _street())[-1]
+    final = _frames([first, later, later], street_labels())[-1]
     np.testing.assert_array_equal(final, later)
 
 
 def test_age_pauses_on_unknown_and_restarts_on_free() -> None:
-    static, unknown, free = _free(), _free(), _free()
+    static, unknown, free = free_window(), free_window(), free_window()
     static[8, 3] = D["static"]
     unknown[8, 3] = D["unknown"]
     # static (age 0), unknown (holds 0), static (0.1): relabelled at the third frame
-    assert _frames([static, unknown, static], _street())[-1][8, 3] == D["unmapped"]
+    assert _frames([static, unknown, static], street_labels())[-1][8, 3] == D["unmapped"]
     # static (0), free (reset), static (0 again): not yet
-    assert _frames([static, free, static], _street())[-1][8, 3] == D["static"]
+    assert _frames([static, free, static], street_labels())[-1][8, 3] == D["static"]
     # a longer minimum age: 0, 0.1, 0.2, 0.3 -> relabelled at the fourth frame only
     slow = UnmappedParams(max_width_m=0.55, min_age_s=0.3)
-    got = [f[8, 3] for f in _frames([static] * 4, _street(), slow)]
+    got = [f[8, 3] for f in _frames([static] * 4, street_labels(), slow)]
     assert got == [D["static"]] * 3 + [D["unmapped"]]
 
 
 def test_without_a_map_nothing_changes() -> None:
-    dec = _free()
+    dec = free_window()
     dec[8, 3] = D["static"]
     dec[9, 2:14] = D["stopped"]
     final = _frames([dec] * 3, None)[-1]
@@ -182,16 +159,16 @@ def test_state_follows_the_window_and_resets_entering_cells() -> None:
     cue = UnmappedCue(PARAMS, SHAPE, RES)
     state = UnmappedState.fresh(SHAPE)
     labels = np.full(SHAPE, CONTEXT_OTHER, np.uint8)
-    a = _free()
+    a = free_window()
     a[8, 3] = D["static"]
     cue.step(state, a.copy(), labels, DT, offset=(0, 0), shift=(0, 0))
-    b = _free()
+    b = free_window()
     b[7, 1] = D["static"]
     offset = (1, 2)  # FusionState.move_to: (0 + 1) % 14, (0 + 2) % 20
     cue.step(state, b, labels, DT, offset=offset, shift=(1, 2))
     assert b[7, 1] == D["unmapped"]
     # the window moves back west by 19 columns: every column enters, the state is reset
-    c = _free()
+    c = free_window()
     c[7, 1] = D["static"]
     cue.step(state, c, labels, DT, offset=(1, (2 - 19) % 20), shift=(0, -19))
     assert c[7, 1] == D["static"]
