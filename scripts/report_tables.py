@@ -68,7 +68,8 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
               "configs/ablation/arrival_any_count.toml"),
              ("no ego clearance", "configs/ablation/no_ego_clearance.toml"),
              ("no vehicle boxes", "configs/ablation/no_vehicle_boxes.toml"),
-             ("no façade rule for stopped", "configs/ablation/no_stopped_off_facades.toml"))
+             ("no façade rule for stopped", "configs/ablation/no_stopped_off_facades.toml"),
+             ("motion evidence never expires", "configs/ablation/no_evidence_expiry.toml"))
 
 
 #: the scores of the headline and ablation rows, in column order

@@ -104,6 +104,11 @@ class TrackingParams:
     #: least this far from the sensor passes no motion test (the recording vehicle's own
     #: returns ride along with it); 0 = off
     ego_clearance_m: float = 0.0
+    #: objects.evidence_expires: the motion evidence counts are kept at most
+    #: ``motion_evidence_frames``, and each association whose velocity fails the test takes
+    #: one frame off each: a track that stood still that long shows fresh evidence before it
+    #: is reported moving again (:func:`track_step`); False = the counts only grow
+    evidence_expires: bool = False
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> TrackingParams:
@@ -122,7 +127,8 @@ class TrackingParams:
             arrival_share=float(o.get("arrival_share", 0.0)),
             arrival_min_cells=int(o.get("arrival_min_cells", 0)),
             centroid_sigma_per_m=float(o.get("centroid_sigma_per_m", 0.0)),
-            ego_clearance_m=float(o.get("ego_clearance_m", 0.0)))
+            ego_clearance_m=float(o.get("ego_clearance_m", 0.0)),
+            evidence_expires=bool(o.get("evidence_expires", False)))
 
 
 @dataclass
@@ -570,7 +576,7 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                   col0, rows, cols, decision, has_decision, stamp_ns, next_id, gate,
                   history, confirm, max_missed, speed2_min, motion_test, sigma0, need,
                   conflict_cells, vacated_frames, share_min, every_frame, arrival_share,
-                  arrival_cells, sigma_per_m, clearance2, centre_x, centre_y
+                  arrival_cells, sigma_per_m, clearance2, centre_x, centre_y, expires
                   ):  # pragma: no cover - compiled
     """One frame of the tracker (:func:`track_step`, the module docstring) on the state's
     arrays; returns the new arrays, the next id, and the reported (track row, cluster)."""
@@ -783,6 +789,10 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                             free += 1
                     if free / lens[0] >= share_min:
                         o_evidence[j, 1] += 1
+            if expires:  # (reference: expire_evidence)
+                for e in range(2):
+                    kept = min(o_evidence[j, e], need)
+                    o_evidence[j, e] = kept if fast else max(kept - 1, 0)
             moving = fast and max(o_evidence[j, 0], o_evidence[j, 1]) >= need
             o_flags[j, 1] = 1 if moving else 0
             if moving and o_hits[j] >= confirm:
@@ -879,7 +889,9 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
     > 0, a cluster of which at least that share of the cells is decided moving (free
     before, occupied now: the object arrived in cells seen free), and at least
     ``arrival_min_cells`` of them, counts ``motion_evidence_frames`` frames of conflict
-    evidence at once.
+    evidence at once. With ``evidence_expires`` each count is then kept at most
+    ``motion_evidence_frames`` N, and lowered by one in an association whose velocity fails
+    the test: e ← min(e + Δe, N) if the velocity passes, else max(min(e + Δe, N) − 1, 0).
 
     One compiled pass over the tracks (``_track_kernel``); the predicted centroids and
     their distances to the clusters (``_distances``) are numpy's formulas op for op, so the
@@ -904,7 +916,7 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
         bool(params.evidence_every_frame), float(params.arrival_share),
         int(params.arrival_min_cells),
         float(params.centroid_sigma_per_m), float(params.ego_clearance_m) ** 2,
-        *ego_cell_centre(window))
+        *ego_cell_centre(window), bool(params.evidence_expires))
     (state.id, state.hits, state.missed, state.flags, state.hist_n, state.hist_t,
      state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
      state.past_n, state.past, state.next_id, rows, cl) = out

@@ -301,6 +301,13 @@ def vacated_share(footprint: np.ndarray, decision: np.ndarray, window: Window) -
     return free / len(footprint)
 
 
+def expire_evidence(count: int, need: int, fast: bool) -> int:
+    """``objects.evidence_expires``: a count kept at most ``need``, one less in an
+    association whose velocity failed the test, never below 0."""
+    kept = min(count, need)
+    return kept if fast else max(kept - 1, 0)
+
+
 def frame_evidence(t: Track, clusters: Clusters, c: int, decision: np.ndarray | None,
                    window: Window, params: TrackingParams) -> tuple[int, int]:
     """The motion evidence (conflict, vacated) that track ``t``'s association with cluster
@@ -403,6 +410,9 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
             t.conflict_evidence += conflict
             t.vacated_evidence += vacated
         need = params.motion_evidence_frames
+        if params.evidence_expires:
+            t.conflict_evidence = expire_evidence(t.conflict_evidence, need, fast)
+            t.vacated_evidence = expire_evidence(t.vacated_evidence, need, fast)
         t.moving = fast and max(t.conflict_evidence, t.vacated_evidence) >= need
         if t.moving and t.hits >= params.confirm_frames:
             t.ever_moving = True

@@ -4,6 +4,8 @@ expected outcome is worked out in the comments."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES as D
@@ -163,3 +165,40 @@ def test_fill_moving_decides_only_the_moving_objects_cells() -> None:
     expected[0, 0] = expected[0, 1] = expected[1, 1] = D["moving"]
     np.testing.assert_array_equal(dec, expected)
     assert fill_moving(dec, moving_object_cells(objects[:0], cells[:0])) == 0
+
+
+def _go_stop_go(k: int) -> np.ndarray:
+    """A 2 x 3 block: frames 0-5 one cell east a frame with its front column decided moving
+    (2 conflict cells); frames 6-10 standing where frame 5 left it, all static; frames 11-16
+    one cell east a frame again, all static (no conflict), the road behind it unknown (no
+    vacated evidence)."""
+    col = 10 + min(k, 5) + max(k - 10, 0)
+    dec = np.full(SHAPE, D["unknown"], np.uint8)
+    dec[5:7, col:col + 3] = D["static"]
+    if k <= 5:
+        dec[5:7, col + 2] = D["moving"]
+    return dec
+
+
+def test_motion_evidence_expires_while_the_track_stands() -> None:
+    frames = [_go_stop_go(k) for k in range(17)]
+    # history of 3 centroids: the velocity passes from frame 2 (5 m/s, |v|²/s² = 8 >= 4, as
+    # above) to frame 5; at frame 6 the fit of (0, 0.5, 0.5) m is 2.5 m/s, |v|²/s² = 2 < 4,
+    # and 0 from frame 7 to 11; from frame 12 (0, 0.5, 1.0) m passes again.
+    # Conflict evidence in frames 2, 3, 4, 5: moving from frame 4 to 5, stopped from 6.
+    kept = TrackingParams(motion_evidence_frames=3, conflict_cells=2, vacated_frames=3,
+                          vacated_share=0.3, history_frames=3)
+    # the counts only grow: 4 frames of evidence, moving again as soon as the velocity
+    # passes at frame 12, with no evidence since frame 5
+    run = Run(kept)
+    states = [run.step(dec)["state"].tolist() for dec in frames]
+    moving, stopped = [OBJECT_STATES["moving"]], [OBJECT_STATES["stopped"]]
+    assert [k for k, s in enumerate(states) if s == moving] == [4, 5, *range(12, 17)]
+    assert run.state.tracks[0].conflict_evidence == 4
+    # evidence_expires: kept at most 3 (frame 5: 4 -> 3), one off in each of frames 6-11
+    # whose velocity fails (3 -> 0 by frame 8), none gained from frame 12: stopped to the end
+    run = Run(replace(kept, evidence_expires=True))
+    states = [run.step(dec)["state"].tolist() for dec in frames]
+    assert [k for k, s in enumerate(states) if s == moving] == [4, 5]
+    assert all(states[k] == stopped for k in range(6, 17))
+    assert run.state.tracks[0].conflict_evidence == 0

@@ -79,7 +79,8 @@ def _params(rng: np.random.Generator) -> TrackingParams:
         arrival_share=float(rng.choice([0.0, 0.0, 0.3, 0.5, 1.0])),
         arrival_min_cells=int(rng.choice([0, 0, 3, 5])),
         ego_clearance_m=float(rng.choice([0.0, 0.0, 3.0, 8.0])),
-        centroid_sigma_per_m=float(rng.choice([0.0, 0.0, 0.01, 0.05])))
+        centroid_sigma_per_m=float(rng.choice([0.0, 0.0, 0.01, 0.05])),
+        evidence_expires=bool(rng.random() < 0.5))
 
 
 def _assert_same_state(new: TrackerState, old: ref.TrackerState) -> None:
