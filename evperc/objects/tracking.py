@@ -105,9 +105,10 @@ class TrackingParams:
     #: returns ride along with it); 0 = off
     ego_clearance_m: float = 0.0
     #: objects.evidence_expires: the motion evidence counts are kept at most
-    #: ``motion_evidence_frames``, and each association whose velocity fails the test takes
-    #: one frame off each: a track that stood still that long shows fresh evidence before it
-    #: is reported moving again (:func:`track_step`); False = the counts only grow
+    #: ``motion_evidence_frames``, and each association whose fitted speed is under
+    #: ``moving_speed_m_per_s`` takes one frame off each: a track that stood still that long
+    #: shows fresh evidence before it is reported moving again (:func:`track_step`); False =
+    #: the counts only grow
     evidence_expires: bool = False
 
     @staticmethod
@@ -790,9 +791,10 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                     if free / lens[0] >= share_min:
                         o_evidence[j, 1] += 1
             if expires:  # (reference: expire_evidence)
+                still = speed2 < speed2_min
                 for e in range(2):
                     kept = min(o_evidence[j, e], need)
-                    o_evidence[j, e] = kept if fast else max(kept - 1, 0)
+                    o_evidence[j, e] = max(kept - 1, 0) if still else kept
             moving = fast and max(o_evidence[j, 0], o_evidence[j, 1]) >= need
             o_flags[j, 1] = 1 if moving else 0
             if moving and o_hits[j] >= confirm:
@@ -890,8 +892,9 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
     before, occupied now: the object arrived in cells seen free), and at least
     ``arrival_min_cells`` of them, counts ``motion_evidence_frames`` frames of conflict
     evidence at once. With ``evidence_expires`` each count is then kept at most
-    ``motion_evidence_frames`` N, and lowered by one in an association whose velocity fails
-    the test: e ← min(e + Δe, N) if the velocity passes, else max(min(e + Δe, N) − 1, 0).
+    ``motion_evidence_frames`` N, and lowered by one in an association whose fitted speed
+    is under ``moving_speed_m_per_s`` v₀ (the track stands): e ← min(e + Δe, N) if
+    |v| ≥ v₀, else max(min(e + Δe, N) − 1, 0).
 
     One compiled pass over the tracks (``_track_kernel``); the predicted centroids and
     their distances to the clusters (``_distances``) are numpy's formulas op for op, so the

@@ -301,11 +301,11 @@ def vacated_share(footprint: np.ndarray, decision: np.ndarray, window: Window) -
     return free / len(footprint)
 
 
-def expire_evidence(count: int, need: int, fast: bool) -> int:
+def expire_evidence(count: int, need: int, still: bool) -> int:
     """``objects.evidence_expires``: a count kept at most ``need``, one less in an
-    association whose velocity failed the test, never below 0."""
+    association whose fitted speed is under the speed floor (``still``), never below 0."""
     kept = min(count, need)
-    return kept if fast else max(kept - 1, 0)
+    return max(kept - 1, 0) if still else kept
 
 
 def frame_evidence(t: Track, clusters: Clusters, c: int, decision: np.ndarray | None,
@@ -411,8 +411,9 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
             t.vacated_evidence += vacated
         need = params.motion_evidence_frames
         if params.evidence_expires:
-            t.conflict_evidence = expire_evidence(t.conflict_evidence, need, fast)
-            t.vacated_evidence = expire_evidence(t.vacated_evidence, need, fast)
+            still = v[0] * v[0] + v[1] * v[1] < params.moving_speed_m_per_s ** 2
+            t.conflict_evidence = expire_evidence(t.conflict_evidence, need, still)
+            t.vacated_evidence = expire_evidence(t.vacated_evidence, need, still)
         t.moving = fast and max(t.conflict_evidence, t.vacated_evidence) >= need
         if t.moving and t.hits >= params.confirm_frames:
             t.ever_moving = True

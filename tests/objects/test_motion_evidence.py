@@ -195,10 +195,16 @@ def test_motion_evidence_expires_while_the_track_stands() -> None:
     moving, stopped = [OBJECT_STATES["moving"]], [OBJECT_STATES["stopped"]]
     assert [k for k, s in enumerate(states) if s == moving] == [4, 5, *range(12, 17)]
     assert run.state.tracks[0].conflict_evidence == 4
-    # evidence_expires: kept at most 3 (frame 5: 4 -> 3), one off in each of frames 6-11
-    # whose velocity fails (3 -> 0 by frame 8), none gained from frame 12: stopped to the end
+    # evidence_expires: kept at most 3 (frame 5: 4 -> 3), one off in each frame whose fitted
+    # speed is under the 1 m/s floor — frames 7-10 (0 m/s; frames 6 and 11 fit 2.5 m/s, which
+    # fails the motion test but is no standstill) — 3 -> 0 by frame 9, none gained from
+    # frame 12: stopped to the end
     run = Run(replace(kept, evidence_expires=True))
-    states = [run.step(dec)["state"].tolist() for dec in frames]
+    states, counts = [], []
+    for dec in frames:
+        states.append(run.step(dec)["state"].tolist())
+        counts.append(run.state.tracks[0].conflict_evidence)
+    assert counts[2:12] == [1, 2, 3, 3, 3, 2, 1, 0, 0, 0]
     assert [k for k, s in enumerate(states) if s == moving] == [4, 5]
     assert all(states[k] == stopped for k in range(6, 17))
     assert run.state.tracks[0].conflict_evidence == 0
