@@ -18,7 +18,8 @@
         --config configs/ablation/arrival_any_count.toml \\
         --config configs/ablation/no_ego_clearance.toml \\
         --config configs/ablation/no_vehicle_boxes.toml \\
-        --config configs/ablation/no_stopped_off_facades.toml
+        --config configs/ablation/no_stopped_off_facades.toml \\
+        --config configs/ablation/no_evidence_expiry.toml
     .venv/bin/python scripts/report_tables.py --work W
 
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
