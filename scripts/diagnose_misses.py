@@ -133,6 +133,15 @@ def _ring(range_m: float) -> str:
             else ">= 40 m")
 
 
+def _nearest_m(seen: np.ndarray, xs: np.ndarray, ys: np.ndarray, sensor: Any) -> float:
+    """Range (m) from the sensor's x, y to the nearest cell of ``seen`` (bool rows × cols
+    whose cell centres are ``ys`` × ``xs``); inf if it holds none."""
+    rows, cols = np.nonzero(seen)
+    if rows.size == 0:
+        return float("inf")
+    return float(np.hypot(xs[cols] - sensor[0], ys[rows] - sensor[1]).min())
+
+
 def objects(args: argparse.Namespace) -> None:
     n = collections.Counter()
     for seed in args.seeds:
@@ -149,9 +158,7 @@ def objects(args: argparse.Namespace) -> None:
                 cells = agent == a
                 role, found = roles.get(int(a), "?"), bool((cells & moving).any())
                 rows.append((k, int(a), role, found, int((cells & vis).sum())))
-                r, c = np.nonzero(cells & vis)
-                near_m = float(np.hypot(x[tc][c] - t.sensor_pose[0],
-                                        y[tr][r] - t.sensor_pose[1]).min())
+                near_m = _nearest_m(cells & vis, x[tc], y[tr], t.sensor_pose)
                 n[f"{role}: found by range {_ring(near_m)}"] += found
                 n[f"{role}: agent-frames by range {_ring(near_m)}"] += 1
         found_at = collections.defaultdict(list)
@@ -253,10 +260,8 @@ def episodes(args: argparse.Namespace) -> None:
             for _, t in pairs[e["onset_frame"]:e["end_frame"]]:
                 seen = (t.agent == e["agent"]) & (t.classes == TRUTH_CODES["moving"]) & t.visible
                 if seen.any():
-                    x, y = t.window.cell_centres()
-                    rows, cols = np.nonzero(seen)
-                    near_m = min(near_m, float(np.hypot(x[cols] - t.sensor_pose[0],
-                                                        y[rows] - t.sensor_pose[1]).min()))
+                    near_m = min(near_m, _nearest_m(seen, *t.window.cell_centres(),
+                                                    t.sensor_pose))
                     cells = max(cells, int(seen.sum()))
             ring = _ring(near_m)
             size = "1 cell" if cells <= 1 else "2-3 cells" if cells <= 3 else ">= 4 cells"

@@ -200,9 +200,10 @@ def _grow(start, k, n_cells, decision, conflict_fo, now, cols, rows, fo_q, movin
     return n_cells
 
 
-#: bytes of a word with a 1 in each, and with the high bit of each (the zero-byte test)
-_ONES = np.uint64(0x0101010101010101)
-_HIGHS = np.uint64(0x8080808080808080)
+#: a word of 8 bytes each 1 / each with its high bit: ``(x - BYTE_ONES) & ~x & BYTE_HIGHS`` is
+#: non-zero iff the word ``x`` has a zero byte (the word-at-a-time scans of the object stages)
+BYTE_ONES = np.uint64(0x0101010101010101)
+BYTE_HIGHS = np.uint64(0x8080808080808080)
 
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
@@ -233,14 +234,14 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_
                         fo_q, moving, unknown, grows, mark, cells, stats)
         n_clusters += 1
     w_end = 8 * dec_words.shape[0]
-    moving_bytes = np.uint64(moving) * _ONES
+    moving_bytes = np.uint64(moving) * BYTE_ONES
     n_words = dec_words.shape[0]
     w = 0
     while w <= n_words:
         if w < n_words:  # 8 cells at once: the words in which none may seed are skipped
             while w < n_words:
                 x = dec_words[w] ^ moving_bytes  # a zero byte where decided moving
-                hit = (x - _ONES) & ~x & _HIGHS  # non-zero iff x has a zero byte
+                hit = (x - BYTE_ONES) & ~x & BYTE_HIGHS  # non-zero iff x has a zero byte
                 if seed_all:
                     hit |= now_words[w]
                 if hit != 0:
