@@ -18,6 +18,11 @@ the host's speed changes from minute to minute. Raw summaries go to
 scans, simulated once into bench-out/sim-hdl64-60s): the frames' steady state, with the
 run's set-up and its first touch of fresh memory spread over six times more frames
 (docs/performance.md § "The main thread against e996c3d").
+
+``name=TREE@FILE.toml``: that tree's runs take FILE's keys on top of the 200 m window (a
+stage switched off, to measure what it costs in the same rounds), e.g.
+``python benchmarks/ab_run.py 8 e99=/tmp/wt-old new=. noobj=.@configs/ablation/no_objects.toml``
+(docs/performance.md § "The object part on the fusion thread: measured").
 """
 
 from __future__ import annotations
@@ -63,18 +68,29 @@ def object_share(summary: dict) -> tuple[float, float] | None:
             wall * summary["frames_per_s"] / 1e3)
 
 
+def tree_spec(arg: str) -> tuple[str, Path, Path]:
+    """``name=TREE`` or ``name=TREE@FILE.toml`` → (name, tree, the run's config file: the
+    200 m window, then FILE's keys)."""
+    name, rest = arg.split("=", 1)
+    tree, _, extra = rest.partition("@")
+    if not extra:
+        return name, Path(tree).resolve(), bench_run.config_file("window200",
+                                                                 bench_run.WINDOW_200)
+    text = bench_run.WINDOW_200 + Path(extra).read_text()
+    return name, Path(tree).resolve(), bench_run.config_file(f"window200-{name}", text)
+
+
 def main(argv: list[str]) -> None:
     seconds = 10  # workload (a)
     if argv[:1] == ["--seconds"]:
         seconds, argv = int(argv[1]), argv[2:]
     rounds = int(argv[0])
-    trees = [(name, Path(path).resolve()) for name, path in (a.split("=", 1) for a in argv[1:])]
     sim = bench_run.simulate(f"sim-hdl64-{seconds}s", "hdl64", seconds)
-    config = bench_run.config_file("window200", bench_run.WINDOW_200)
-    runs: dict[str, list[dict]] = {name: [] for name, _ in trees}
+    trees = [tree_spec(a) for a in argv[1:]]
+    runs: dict[str, list[dict]] = {name: [] for name, _, _ in trees}
     print("load average before", os.getloadavg(), flush=True)
     for k in range(rounds):
-        for name, tree in trees if k % 2 == 0 else trees[::-1]:
+        for name, tree, config in trees if k % 2 == 0 else trees[::-1]:
             summary = run_tree(tree, name, sim, config)
             runs[name].append(summary)
             cpu = summary["cpu_ms_per_frame"]

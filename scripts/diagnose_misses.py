@@ -7,6 +7,7 @@ Reads the runs and drives of a `scripts/evaluation_study.py` work directory (the
     python scripts/diagnose_misses.py stopped  --work W --tag TAG --profile hdl64 --seeds 1,…,10
     python scripts/diagnose_misses.py objects  --work W --tag TAG --profile ibeo4 --seeds 1,…,10
     python scripts/diagnose_misses.py observed --work W --tag TAG --profile ibeo4 --seeds 1,…,5
+    python scripts/diagnose_misses.py edges    --work W --tag TAG --profile hdl64 --seeds 1,…,10
     python scripts/diagnose_misses.py coast    --work W --tag TAG --profile ibeo4 --seeds 1,…,10
     python scripts/diagnose_misses.py episodes --work W --tag TAG --profile ibeo4 --seeds 1,…,10
     python scripts/diagnose_misses.py ego      --work W --profile hdl64 --seeds 1,…,26
@@ -22,6 +23,9 @@ Reads the runs and drives of a `scripts/evaluation_study.py` work directory (the
 - observed: the observed truth-M cells not decided moving, by whether their agent has a
   visible cell in the frame and whether it is detected there; and the observed-cell recall
   (and F1) a method reaches at best when it reports only the agents visible in the frame.
+- edges: the observed truth-M cells not decided moving of the agents detected in the frame,
+  by agent role: their Chebyshev distance to the nearest cell decided moving, their
+  decision, whether the scan sees them, whether a record holds them.
 - coast: a forward prediction of lost moving tracks (their last cells carried at their
   velocity into cells the scan does not see, for N frames), scored on observed cells.
 - episodes: the moving episodes (observed cells, as ``evperc evaluate``'s latency) and
@@ -206,6 +210,36 @@ def observed(args: argparse.Namespace) -> None:
           f"{2 * bound / (1 + bound):.3f}")
 
 
+def edges(args: argparse.Namespace) -> None:
+    n: collections.Counter = collections.Counter()
+    for seed in args.seeds:
+        for f, t, (rr, rc), (tr, tc), codes, roles in frames(args.work, args.tag, args.profile,
+                                                              seed):
+            names = {v: k for k, v in codes.items()}
+            d = np.asarray(f.decision)[rr, rc]
+            moving = (t.classes[tr, tc] == TRUTH_CODES["moving"]) & t.observed[tr, tc]
+            agent, vis = t.agent[tr, tc], np.asarray(t.visible[tr, tc], bool)
+            decided = d == codes["moving"]
+            size = int(agent.max(initial=0)) + 1
+            seen = np.bincount(agent[moving & vis], minlength=size) > 0
+            detected = np.bincount(agent[moving & decided], minlength=size) > 0
+            missed = moving & ~decided & seen[agent] & detected[agent]
+            if not missed.any():
+                continue
+            reach = ndimage.distance_transform_cdt(~decided, metric="chessboard")
+            held = f.object_labels()[rr, rc] > 0
+            for r, c in zip(*np.nonzero(missed), strict=True):
+                role = roles.get(int(agent[r, c]), "?")
+                dist = int(reach[r, c])
+                n[f"{role}: cells"] += 1
+                n[f"{role}: distance {dist if dist < 3 else '3+'}"] += 1
+                n[f"{role}: decided {names[int(d[r, c])]}"] += 1
+                n[f"{role}: {'visible' if vis[r, c] else 'not visible'} this scan"] += 1
+                n[f"{role}: in a record" if held[r, c] else f"{role}: in no record"] += 1
+    for key, value in sorted(n.items()):
+        print(f"{key}: {value}")
+
+
 def coast(args: argparse.Namespace) -> None:
     horizons = [0, 2, 5, 8]
     scores = {h: np.zeros(3, np.int64) for h in horizons}  # right, decided, truth
@@ -295,15 +329,15 @@ def ego(args: argparse.Namespace) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("what", choices=["stopped", "objects", "observed", "coast", "episodes",
-                                         "ego"])
+    parser.add_argument("what", choices=["stopped", "objects", "observed", "edges", "coast",
+                                         "episodes", "ego"])
     parser.add_argument("--work", type=Path, required=True)
     parser.add_argument("--tag", default="", help="the runs' config tag (WORK/runs/TAG)")
     parser.add_argument("--profile", choices=sorted(SECONDS), required=True)
     parser.add_argument("--seeds", type=lambda s: [int(x) for x in s.split(",")], required=True)
     args = parser.parse_args()
-    {"stopped": stopped, "objects": objects, "observed": observed, "coast": coast,
-     "episodes": episodes, "ego": ego}[args.what](args)
+    {"stopped": stopped, "objects": objects, "observed": observed, "edges": edges,
+     "coast": coast, "episodes": episodes, "ego": ego}[args.what](args)
 
 
 if __name__ == "__main__":
