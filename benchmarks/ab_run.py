@@ -73,11 +73,9 @@ def tree_spec(arg: str) -> tuple[str, Path, Path]:
     200 m window, then FILE's keys)."""
     name, rest = arg.split("=", 1)
     tree, _, extra = rest.partition("@")
-    if not extra:
-        return name, Path(tree).resolve(), bench_run.config_file("window200",
-                                                                 bench_run.WINDOW_200)
-    text = bench_run.WINDOW_200 + Path(extra).read_text()
-    return name, Path(tree).resolve(), bench_run.config_file(f"window200-{name}", text)
+    text = bench_run.WINDOW_200 + (Path(extra).read_text() if extra else "")
+    config = bench_run.config_file(f"window200-{name}" if extra else "window200", text)
+    return name, Path(tree).resolve(), config
 
 
 def main(argv: list[str]) -> None:

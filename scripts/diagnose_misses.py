@@ -182,21 +182,35 @@ def objects(args: argparse.Namespace) -> None:
         print(f"{key}: {value}")
 
 
+def _observed_moving(f: Any, t: Any, run_cells: tuple[slice, slice],
+                     truth_cells: tuple[slice, slice], codes: dict[str, int]
+                     ) -> tuple[np.ndarray, ...]:
+    """Of one frame, on the cells both windows cover: the run's decision, the observed
+    truth-M cells, the truth's agent ids, the cells visible in the frame, the cells decided
+    moving, and per agent id whether an observed M cell of it is visible (``seen``) and
+    whether one is decided moving (``detected``)."""
+    (rr, rc), (tr, tc) = run_cells, truth_cells
+    d = np.asarray(f.decision)[rr, rc]
+    moving = (t.classes[tr, tc] == TRUTH_CODES["moving"]) & t.observed[tr, tc]
+    agent, vis = t.agent[tr, tc], np.asarray(t.visible[tr, tc], bool)
+    decided = d == codes["moving"]
+    size = int(agent.max(initial=0)) + 1
+    seen = np.bincount(agent[moving & vis], minlength=size) > 0
+    detected = np.bincount(agent[moving & decided], minlength=size) > 0
+    return d, moving, agent, vis, decided, seen, detected
+
+
 def observed(args: argparse.Namespace) -> None:
     n = collections.Counter()
     for seed in args.seeds:
-        for f, t, (rr, rc), (tr, tc), codes, _ in frames(args.work, args.tag, args.profile,
-                                                         seed):
-            d = np.asarray(f.decision)[rr, rc]
-            moving = (t.classes[tr, tc] == TRUTH_CODES["moving"]) & t.observed[tr, tc]
-            agent = t.agent[tr, tc]
-            size = int(agent.max(initial=0)) + 1
-            seen = np.bincount(agent[moving & t.visible[tr, tc]], minlength=size) > 0
-            detected = np.bincount(agent[moving & (d == codes["moving"])], minlength=size) > 0
-            missed = moving & (d != codes["moving"])
+        for f, t, run_cells, truth_cells, codes, _ in frames(args.work, args.tag,
+                                                             args.profile, seed):
+            _, moving, agent, _, decided, seen, detected = _observed_moving(
+                f, t, run_cells, truth_cells, codes)
+            missed = moving & ~decided
             n["observed truth M"] += int(moving.sum())
             n["... of agents invisible in the frame"] += int((moving & ~seen[agent]).sum())
-            n["decided moving"] += int((moving & (d == codes["moving"])).sum())
+            n["decided moving"] += int((moving & decided).sum())
             n["missed, agent invisible in the frame"] += int((missed & ~seen[agent]).sum())
             n["missed, agent visible and detected"] += int((missed & seen[agent]
                                                            & detected[agent]).sum())
@@ -213,21 +227,16 @@ def observed(args: argparse.Namespace) -> None:
 def edges(args: argparse.Namespace) -> None:
     n: collections.Counter = collections.Counter()
     for seed in args.seeds:
-        for f, t, (rr, rc), (tr, tc), codes, roles in frames(args.work, args.tag, args.profile,
-                                                              seed):
+        for f, t, run_cells, truth_cells, codes, roles in frames(args.work, args.tag,
+                                                                 args.profile, seed):
             names = {v: k for k, v in codes.items()}
-            d = np.asarray(f.decision)[rr, rc]
-            moving = (t.classes[tr, tc] == TRUTH_CODES["moving"]) & t.observed[tr, tc]
-            agent, vis = t.agent[tr, tc], np.asarray(t.visible[tr, tc], bool)
-            decided = d == codes["moving"]
-            size = int(agent.max(initial=0)) + 1
-            seen = np.bincount(agent[moving & vis], minlength=size) > 0
-            detected = np.bincount(agent[moving & decided], minlength=size) > 0
+            d, moving, agent, vis, decided, seen, detected = _observed_moving(
+                f, t, run_cells, truth_cells, codes)
             missed = moving & ~decided & seen[agent] & detected[agent]
             if not missed.any():
                 continue
             reach = ndimage.distance_transform_cdt(~decided, metric="chessboard")
-            held = f.object_labels()[rr, rc] > 0
+            held = f.object_labels()[run_cells] > 0
             for r, c in zip(*np.nonzero(missed), strict=True):
                 role = roles.get(int(agent[r, c]), "?")
                 dist = int(reach[r, c])
