@@ -200,10 +200,18 @@ def _grow(start, k, n_cells, decision, conflict_fo, now, cols, rows, fo_q, movin
     return n_cells
 
 
-#: a word of 8 bytes each 1 / each with its high bit: ``(x - BYTE_ONES) & ~x & BYTE_HIGHS`` is
-#: non-zero iff the word ``x`` has a zero byte (the word-at-a-time scans of the object stages)
+#: a word of 8 bytes each 1 / each with its high bit (the zero-byte test, :func:`zero_bytes`;
+#: ``np.uint64(code) * BYTE_ONES``: a word of 8 bytes each ``code``)
 BYTE_ONES = np.uint64(0x0101010101010101)
 BYTE_HIGHS = np.uint64(0x8080808080808080)
+
+
+@numba.njit(cache=True, inline="always")
+def zero_bytes(x):  # pragma: no cover - compiled
+    """The high bit of each zero byte of the uint64 word ``x`` (and perhaps of a 0x01 byte
+    above a zero byte): non-zero iff ``x`` has a zero byte — the word-at-a-time scans of the
+    object stages, 8 cells at once."""
+    return (x - BYTE_ONES) & ~x & BYTE_HIGHS
 
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
@@ -241,7 +249,7 @@ def _flood(decision: np.ndarray, conflict_fo: np.ndarray, now: np.ndarray, seed_
         if w < n_words:  # 8 cells at once: the words in which none may seed are skipped
             while w < n_words:
                 x = dec_words[w] ^ moving_bytes  # a zero byte where decided moving
-                hit = (x - BYTE_ONES) & ~x & BYTE_HIGHS  # non-zero iff x has a zero byte
+                hit = zero_bytes(x)
                 if seed_all:
                     hit |= now_words[w]
                 if hit != 0:

@@ -17,7 +17,7 @@ import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
-from evperc.objects.clusters import BYTE_HIGHS, BYTE_ONES, Clusterer, ClusterParams, block_max_at
+from evperc.objects.clusters import BYTE_ONES, Clusterer, ClusterParams, block_max_at, zero_bytes
 from evperc.objects.tracking import TrackerState, TrackingParams, footprint_seeds, track_step
 
 MOVING = DECISION_CODES["moving"]
@@ -217,7 +217,7 @@ def _unfill_unheld(flat, words, held, static, moving):  # pragma: no cover - com
     for w in range(words.shape[0] + 1):
         if w < words.shape[0]:
             x = words[w] ^ moving_bytes  # a zero byte where decided moving
-            if (x - BYTE_ONES) & ~x & BYTE_HIGHS == 0:
+            if zero_bytes(x) == 0:
                 continue
             first, last = 8 * w, 8 * w + 8
         else:  # the cells after the last whole word

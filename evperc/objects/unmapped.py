@@ -70,7 +70,7 @@ import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.prior import CONTEXT_BUILDING, CONTEXT_OTHER, CONTEXT_ROAD
-from evperc.objects.clusters import BYTE_HIGHS, BYTE_ONES
+from evperc.objects.clusters import BYTE_ONES, zero_bytes
 
 #: orientations of the shape test (every 180° / ANGLES; even, so that each has its normal)
 ANGLES = 16
@@ -87,10 +87,10 @@ _MOVING = DECISION_CODES["moving"]
 _STATIC = DECISION_CODES["static"]
 _STOPPED = DECISION_CODES["stopped"]
 _UNMAPPED = DECISION_CODES["unmapped"]
-#: a word of 8 bytes each the code (zero-byte tests: BYTE_ONES, BYTE_HIGHS)
-_STATIC_BYTES = np.uint64(_STATIC * 0x0101010101010101)
-_STOPPED_BYTES = np.uint64(_STOPPED * 0x0101010101010101)
-_UNMAPPED_BYTES = np.uint64(_UNMAPPED * 0x0101010101010101)
+#: a word of 8 bytes each the code (zero-byte tests: :func:`zero_bytes`)
+_STATIC_BYTES = np.uint64(_STATIC) * BYTE_ONES
+_STOPPED_BYTES = np.uint64(_STOPPED) * BYTE_ONES
+_UNMAPPED_BYTES = np.uint64(_UNMAPPED) * BYTE_ONES
 
 
 def unmapped_enabled(config: dict[str, Any]) -> bool:
@@ -341,8 +341,7 @@ def _unmapped_pass(decision, labels, has_labels, from_decision, seen_cells, age_
                 a = x ^ _STATIC_BYTES  # a zero byte where decided static, ...
                 b = x ^ _STOPPED_BYTES
                 e = x ^ _UNMAPPED_BYTES
-                hit = ((((a - BYTE_ONES) & ~a) | ((b - BYTE_ONES) & ~b) | ((e - BYTE_ONES) & ~e))
-                       & BYTE_HIGHS)
+                hit = zero_bytes(a) | zero_bytes(b) | zero_bytes(e)
                 if hit != 0:
                     break
                 w += 1
