@@ -29,7 +29,7 @@ from evperc.gil_kept import positive, warm_up_gil_kept
 from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
-from evperc.objects.backfill import Backfill, HeldFrame, backfill_frames, candidates
+from evperc.objects.backfill import Backfill, HeldFrame, backfill_frames, candidates, held_layers
 from evperc.objects.backfill import warm_up as warm_up_backfill
 from evperc.objects.boxes import BoxParams, VehicleBoxes
 from evperc.objects.boxes import warm_up as warm_up_boxes
@@ -101,6 +101,10 @@ class FrameInputs:
     #: each cell's highest return above the local ground (float32), with
     #: objects.moving_min_height_m only (:func:`evperc.sensor.sensor_grid`, ``heights_out``)
     heights: np.ndarray | None = None
+    #: with objects.backfill_frames > 0, what the frame keeps while it is held: bool layers
+    #: of the cells its scan speaks of and of those holding a return
+    #: (:func:`evperc.objects.backfill.held_layers`)
+    held: tuple[np.ndarray, np.ndarray | None] | None = None
 
 
 def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
@@ -555,10 +559,13 @@ class Pipeline:
         free, occupied = sensor_grid(scan.points, scan.planar, inputs.t_crs, inputs.window,
                                      self.sensor_params, kinds_out=kinds, hits_out=hits,
                                      heights_out=heights)
+        held = (held_layers(free, occupied, heights)
+                if self.objects is not None and self.backfill_frames > 0 else None)
         seconds = {**inputs.seconds, "sensor": time.perf_counter() - t0}
         labelling = (scan, inputs.t_crs, kinds) if kinds is not None else None
         return replace(inputs, free=free, occupied=occupied, seconds=seconds, scan=None,
-                       t_crs=None, labelling=labelling, hits=hits, heights=heights)
+                       t_crs=None, labelling=labelling, hits=hits, heights=heights,
+                       held=held)
 
     def inputs(self, after_index: int, defer: threading.Event | None = None
                ) -> Iterator[tuple[int, FrameInputs]]:
@@ -622,8 +629,7 @@ class Pipeline:
                 inputs.stamp_ns, occupied_now=occupied_now, heights=inputs.heights)
             if self.backfill_frames > 0:  # the backfill's gaps (objects.bridge_gaps), boxes
                 frame["occupied_now"] = occupied_now
-                frame["speaks"] = (inputs.free, inputs.occupied)
-                frame["returns"] = inputs.heights
+                frame["speaks"], frame["returns"] = inputs.held
             if self.footprint.frames > 0:  # motion-compensated footprints (objects/footprint.py)
                 if state.footprints is None:
                     state.footprints = FootprintState()

@@ -103,14 +103,13 @@ def complete_boxes(objects: np.ndarray, cells: np.ndarray, window: Window,
     if not params.enabled or len(objects) == 0:
         return objects, cells
     if isinstance(scan_speaks, tuple):
-        speaks_a, speaks_b = (np.ascontiguousarray(layer, np.float32).reshape(-1)
-                              for layer in scan_speaks)
+        speaks_a, speaks_b = (_flat_layer(layer) for layer in scan_speaks)
     else:
-        speaks_a = speaks_b = np.ascontiguousarray(scan_speaks, np.float32).reshape(-1)
+        speaks_a = speaks_b = _flat_layer(scan_speaks)
     if scratch is None:
         scratch = np.zeros(window.rows * window.cols, np.uint8)
-    held_returns = (_NO_RETURNS if returns is None
-                    else np.ascontiguousarray(returns, np.float32).reshape(-1))
+    held_returns = (_flat_layer(returns) if returns is not None
+                    else _NO_RETURNS[bool(speaks_a.dtype == np.uint8)])
     moving = objects["state"] == _MOVING
     if only is not None:
         moving &= np.asarray(only, np.bool_)
@@ -129,6 +128,16 @@ def complete_boxes(objects: np.ndarray, cells: np.ndarray, window: Window,
     out = objects.copy()
     _set_geometry(out, changed, full_n, centroid, bbox, extent)
     return out, full.astype(np.uint32)
+
+
+def _flat_layer(layer: np.ndarray) -> np.ndarray:
+    """A layer the boxes read as ``> 0``, flat and without a copy: a bool one as its 0/1
+    bytes (a held frame's, :mod:`evperc.objects.backfill`), any other as float32 (the
+    sensor grid's)."""
+    layer = np.asarray(layer)
+    if layer.dtype == np.bool_ or layer.dtype == np.uint8:
+        return np.ascontiguousarray(layer).reshape(-1).view(np.uint8)
+    return np.ascontiguousarray(layer, np.float32).reshape(-1)
 
 
 class VehicleBoxes:
@@ -262,7 +271,9 @@ def _extend(lo, hi, sensor, size):  # pragma: no cover - compiled
     return hi - size, hi
 
 
-_NO_RETURNS = np.zeros(1, np.float32)
+#: the ``returns`` argument without a returns layer, by whether the speaks layers are bytes
+#: (one compiled variant per argument dtype)
+_NO_RETURNS = {False: np.zeros(1, np.float32), True: np.zeros(1, np.uint8)}
 #: by decision code: the decisions a box does not take (the grid remembers an obstacle)
 _STATIC_CODES = np.zeros(256, np.bool_)
 _STATIC_CODES[[DECISION_CODES[n] for n in ("static", "stopped", "unmapped",
@@ -271,8 +282,8 @@ _STATIC_CODES[[DECISION_CODES[n] for n in ("static", "stopped", "unmapped",
 
 def warm_up(params: BoxParams) -> None:
     """Load (or compile) the compiled passes for the runner's argument types (float32
-    sensor-grid layers) on a made-up moving vehicle: the first real frame is not charged a
-    cache load. Changes nothing."""
+    sensor-grid layers, and the bool layers of the backfill's held frames) on a made-up
+    moving vehicle: the first real frame is not charged a cache load. Changes nothing."""
     if not params.enabled:
         return
     window = Window(0.5, 8, 8, 0, 0)
@@ -283,3 +294,6 @@ def warm_up(params: BoxParams) -> None:
     record["velocity_m_per_s"] = (1.0, 0.0)
     complete_boxes(record, np.array([1, 9, 17, 25], np.uint32), window, layers,
                    np.zeros(window.shape, np.uint8), params, returns=layers[0])
+    held = np.zeros(window.shape, np.bool_)  # a held frame's layers (the backfill's)
+    complete_boxes(record, np.array([1, 9, 17, 25], np.uint32), window, held,
+                   np.zeros(window.shape, np.uint8), params, returns=held)

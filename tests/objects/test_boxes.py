@@ -179,6 +179,34 @@ def test_the_compiled_boxes_equal_the_per_record_reference() -> None:
     assert changed > 10  # the comparison is not vacuous
 
 
+def test_a_held_frames_bool_layers_give_the_float_layers_boxes() -> None:
+    """The backfill's held frames keep bool layers (:func:`held_layers`: the cells where
+    m({F}) > 0 or m({O}) > 0, and heights > 0) instead of the sensor grid's float32 ones: the
+    boxes read both as ``> 0``, so every record and cell is the same (the float path is the
+    one checked against the reference above); the layers themselves are numpy's compares."""
+    from evperc.objects.backfill import held_layers
+    changed = 0
+    for seed in range(30):
+        rng = np.random.default_rng(100 + seed)
+        objects, cells, window, (free, occupied), heights = _random_frame(rng)
+        heights = heights * rng.choice([0.4, np.inf], window.shape)  # planar scans: +inf
+        returns = heights if rng.random() < 0.7 else None
+        decision = rng.choice(np.array(list(D.values()), np.uint8), window.shape,
+                              p=[0.1, 0.6, 0.05, 0.1, 0.05, 0.05, 0.05])
+        speaks, held_returns = held_layers(free, occupied, returns)
+        assert np.array_equal(speaks, (free > 0) | (occupied > 0))
+        assert (held_returns is None) == (returns is None)
+        assert returns is None or np.array_equal(held_returns, returns > 0)
+        floats = complete_boxes(objects, cells, window, (free, occupied), decision, PARAMS,
+                                returns=returns)
+        bools = complete_boxes(objects, cells, window, speaks, decision, PARAMS,
+                               returns=held_returns)
+        assert floats[1].tobytes() == bools[1].tobytes(), seed
+        assert floats[0].tobytes() == bools[0].tobytes(), seed
+        changed += floats[0] is not objects
+    assert changed > 10  # boxes were added: the comparison is not vacuous
+
+
 def test_a_run_adds_box_cells_to_its_moving_records(tmp_path) -> None:
     """Through `evperc run`: the street drive's crossing object (a 2 m square, seen at its
     2 m wide south face: a vehicle by the rear test) with and without boxes. The tracker does
