@@ -19,6 +19,13 @@ scans, simulated once into bench-out/sim-hdl64-60s): the frames' steady state, w
 run's set-up and its first touch of fresh memory spread over six times more frames
 (docs/performance.md § "The main thread against e996c3d").
 
+``--warm N`` (before the rounds): N more rounds first, run and not counted — a new tree's
+first run compiles its kernels into its numba cache.
+
+Beside the frames/s ratio, every pair gets the ratio of the CPU time a frame of all the
+run's threads (the older tree's over the newer's: above 1 when the newer spends less): on
+two cores kept ~80 % busy it follows the throughput, with less of the host's noise.
+
 ``name=TREE@FILE.toml``: that tree's runs take FILE's keys on top of the 200 m window (a
 stage switched off, to measure what it costs in the same rounds), e.g.
 ``python benchmarks/ab_run.py 8 e99=/tmp/wt-old new=. noobj=.@configs/ablation/no_objects.toml``
@@ -68,6 +75,11 @@ def object_share(summary: dict) -> tuple[float, float] | None:
             wall * summary["frames_per_s"] / 1e3)
 
 
+def frame_cpu_ms(summary: dict) -> float:
+    """CPU ms a frame of all the run's threads (main, decode, writer, other)."""
+    return sum(summary["cpu_ms_per_frame"].values())
+
+
 def tree_spec(arg: str) -> tuple[str, Path, Path]:
     """``name=TREE`` or ``name=TREE@FILE.toml`` → (name, tree, the run's config file: the
     200 m window, then FILE's keys)."""
@@ -80,13 +92,21 @@ def tree_spec(arg: str) -> tuple[str, Path, Path]:
 
 def main(argv: list[str]) -> None:
     seconds = 10  # workload (a)
-    if argv[:1] == ["--seconds"]:
-        seconds, argv = int(argv[1]), argv[2:]
+    warm = 0
+    while argv[:1] in (["--seconds"], ["--warm"]):
+        if argv[0] == "--seconds":
+            seconds = int(argv[1])
+        else:
+            warm = int(argv[1])
+        argv = argv[2:]
     rounds = int(argv[0])
     sim = bench_run.simulate(f"sim-hdl64-{seconds}s", "hdl64", seconds)
     trees = [tree_spec(a) for a in argv[1:]]
     runs: dict[str, list[dict]] = {name: [] for name, _, _ in trees}
     print("load average before", os.getloadavg(), flush=True)
+    for _ in range(warm):  # compiled and cached, not counted
+        for name, tree, config in trees:
+            run_tree(tree, name, sim, config)
     for k in range(rounds):
         for name, tree, config in trees if k % 2 == 0 else trees[::-1]:
             summary = run_tree(tree, name, sim, config)
@@ -117,6 +137,10 @@ def main(argv: list[str]) -> None:
                       for x, y in zip(runs[a], runs[b], strict=True)]
             print(f"{a} / {b}: per-round ratio median {statistics.median(ratios):.3f} "
                   f"({min(ratios):.3f}-{max(ratios):.3f}, {len(ratios)} rounds)")
+            cpu = [frame_cpu_ms(y) / frame_cpu_ms(x)
+                   for x, y in zip(runs[a], runs[b], strict=True)]
+            print(f"{a} / {b}: CPU a frame, {b}'s over {a}'s, median "
+                  f"{statistics.median(cpu):.3f} ({min(cpu):.3f}-{max(cpu):.3f})")
     (bench_run.CACHE / "ab_run.json").write_text(json.dumps(runs))
 
 
