@@ -108,8 +108,9 @@ def complete_boxes(objects: np.ndarray, cells: np.ndarray, window: Window,
         speaks_a = speaks_b = _flat_layer(scan_speaks)
     if scratch is None:
         scratch = np.zeros(window.rows * window.cols, np.uint8)
+    # without returns: a dummy of the speaks layers' dtype (one compiled variant per dtype)
     held_returns = (_flat_layer(returns) if returns is not None
-                    else _NO_RETURNS[bool(speaks_a.dtype == np.uint8)])
+                    else np.zeros(1, speaks_a.dtype))
     moving = objects["state"] == _MOVING
     if only is not None:
         moving &= np.asarray(only, np.bool_)
@@ -271,9 +272,6 @@ def _extend(lo, hi, sensor, size):  # pragma: no cover - compiled
     return hi - size, hi
 
 
-#: the ``returns`` argument without a returns layer, by whether the speaks layers are bytes
-#: (one compiled variant per argument dtype)
-_NO_RETURNS = {False: np.zeros(1, np.float32), True: np.zeros(1, np.uint8)}
 #: by decision code: the decisions a box does not take (the grid remembers an obstacle)
 _STATIC_CODES = np.zeros(256, np.bool_)
 _STATIC_CODES[[DECISION_CODES[n] for n in ("static", "stopped", "unmapped",
