@@ -189,7 +189,9 @@ def test_a_held_frames_bool_layers_give_the_float_layers_boxes() -> None:
     for seed in range(30):
         rng = np.random.default_rng(100 + seed)
         objects, cells, window, (free, occupied), heights = _random_frame(rng)
-        heights = heights * rng.choice([0.4, np.inf], window.shape)  # planar scans: +inf
+        # a return's height above the ground, or +inf (a planar scan's cells); 0: no return
+        heights = np.where(heights > 0, rng.choice([0.4, np.inf], window.shape), 0.0
+                           ).astype(np.float32)
         returns = heights if rng.random() < 0.7 else None
         decision = rng.choice(np.array(list(D.values()), np.uint8), window.shape,
                               p=[0.1, 0.6, 0.05, 0.1, 0.05, 0.05, 0.05])
