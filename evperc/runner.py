@@ -627,19 +627,24 @@ class Pipeline:
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
                 inputs.stamp_ns, occupied_now=occupied_now, heights=inputs.heights)
+            # the cells the scan speaks of and those holding a return: the bool layers of
+            # the backfill when made (an eighth of the float layers' bytes to read), else the
+            # sensor grid's layers, read as > 0 (the same records, tested)
+            speaks, returns = (inputs.held if inputs.held is not None
+                               else ((inputs.free, inputs.occupied), inputs.heights))
             if self.backfill_frames > 0:  # the backfill's gaps (objects.bridge_gaps), boxes
                 frame["occupied_now"] = occupied_now
-                frame["speaks"], frame["returns"] = inputs.held
+                frame["speaks"], frame["returns"] = speaks, returns
             if self.footprint.frames > 0:  # motion-compensated footprints (objects/footprint.py)
                 if state.footprints is None:
                     state.footprints = FootprintState()
                 frame["objects"], frame["object_cells"] = complete_footprints(
                     state.footprints, frame["objects"], frame["object_cells"], window,
-                    inputs.stamp_ns, (inputs.free, inputs.occupied), self.footprint)
+                    inputs.stamp_ns, speaks, self.footprint)
             if self.boxes.enabled:  # moving vehicles' far sides (objects/boxes.py)
                 frame["objects"], frame["object_cells"] = self.boxes.complete(
-                    frame["objects"], frame["object_cells"], window,
-                    (inputs.free, inputs.occupied), out.decision, returns=inputs.heights)
+                    frame["objects"], frame["object_cells"], window, speaks, out.decision,
+                    returns=returns)
             moving_cells = moving_object_cells(frame["objects"], frame["object_cells"])
             if self.fill_moving:  # the moving objects' cells decided moving (method.md §8)
                 fill_moving(out.decision, moving_cells)
