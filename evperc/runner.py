@@ -29,7 +29,7 @@ from evperc.gil_kept import positive, warm_up_gil_kept
 from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
-from evperc.objects.backfill import Backfill, HeldFrame, backfill_frames, candidates, held_layers
+from evperc.objects.backfill import Backfill, HeldFrame, backfill_frames, candidates
 from evperc.objects.backfill import warm_up as warm_up_backfill
 from evperc.objects.boxes import BoxParams, VehicleBoxes
 from evperc.objects.boxes import warm_up as warm_up_boxes
@@ -42,6 +42,7 @@ from evperc.objects.stage import (
     fill_moving,
     fills_decision,
     objects_enabled,
+    scan_cells,
     small_moving_cells,
     unfill_small,
     unfill_unconfirmed,
@@ -101,10 +102,10 @@ class FrameInputs:
     #: each cell's highest return above the local ground (float32), with
     #: objects.moving_min_height_m only (:func:`evperc.sensor.sensor_grid`, ``heights_out``)
     heights: np.ndarray | None = None
-    #: with objects.backfill_frames > 0, what the frame keeps while it is held: bool layers
-    #: of the cells its scan speaks of and of those holding a return
-    #: (:func:`evperc.objects.backfill.held_layers`)
-    held: tuple[np.ndarray, np.ndarray | None] | None = None
+    #: with the object stage: bool layers of the cells the scan speaks of and of those
+    #: holding a return (:func:`evperc.objects.stage.scan_cells`), for the footprints, the
+    #: boxes and the backfill
+    scan_cells: tuple[np.ndarray, np.ndarray | None] | None = None
 
 
 def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
@@ -443,6 +444,8 @@ class Pipeline:
             ObjectStage(self.request.config, tiny.shape).step(
                 TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0,
                 occupied_now=occupied > 0)
+            scan_cells(free, occupied, np.zeros(tiny.shape, np.float32))
+            scan_cells(free, occupied, None)
             warm_up_footprints(self.footprint)
             warm_up_boxes(self.boxes.params)
             if self.objects.moving_min_cells > 0 or self.moving_needs_object:
@@ -559,13 +562,12 @@ class Pipeline:
         free, occupied = sensor_grid(scan.points, scan.planar, inputs.t_crs, inputs.window,
                                      self.sensor_params, kinds_out=kinds, hits_out=hits,
                                      heights_out=heights)
-        held = (held_layers(free, occupied, heights)
-                if self.objects is not None and self.backfill_frames > 0 else None)
+        cells = scan_cells(free, occupied, heights) if self.objects is not None else None
         seconds = {**inputs.seconds, "sensor": time.perf_counter() - t0}
         labelling = (scan, inputs.t_crs, kinds) if kinds is not None else None
         return replace(inputs, free=free, occupied=occupied, seconds=seconds, scan=None,
                        t_crs=None, labelling=labelling, hits=hits, heights=heights,
-                       held=held)
+                       scan_cells=cells)
 
     def inputs(self, after_index: int, defer: threading.Event | None = None
                ) -> Iterator[tuple[int, FrameInputs]]:
@@ -627,11 +629,7 @@ class Pipeline:
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
                 inputs.stamp_ns, occupied_now=occupied_now, heights=inputs.heights)
-            # the cells the scan speaks of and those holding a return: the bool layers of
-            # the backfill when made (an eighth of the float layers' bytes to read), else the
-            # sensor grid's layers, read as > 0 (the same records, tested)
-            speaks, returns = (inputs.held if inputs.held is not None
-                               else ((inputs.free, inputs.occupied), inputs.heights))
+            speaks, returns = inputs.scan_cells
             if self.backfill_frames > 0:  # the backfill's gaps (objects.bridge_gaps), boxes
                 frame["occupied_now"] = occupied_now
                 frame["speaks"], frame["returns"] = speaks, returns

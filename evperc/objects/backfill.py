@@ -93,11 +93,11 @@ class HeldFrame:
     stamp_ns: int = 0
     occupied: np.ndarray | None = None
     #: the cells its scan speaks of (seen free or holding a return): a bool layer (the
-    #: runner's) or the sensor grid's (m({F}), m({O})); None: a gap's record is its
-    #: occupied cells only
+    #: runner's, :func:`evperc.objects.stage.scan_cells`) or the sensor grid's (m({F}),
+    #: m({O})); None: a gap's record is its occupied cells only
     speaks: np.ndarray | tuple[np.ndarray, np.ndarray] | None = None
-    #: > 0 (or True) where the cell holds any obstacle return of its scan (the runner's:
-    #: the sensor grid's heights > 0, a bool layer), for the vehicle boxes of the added
+    #: > 0 (or True) where the cell holds any obstacle return of its scan (the runner's: a
+    #: bool layer, the sensor grid's heights > 0), for the vehicle boxes of the added
     #: records; None: the first returns only
     returns: np.ndarray | None = None
 
@@ -461,46 +461,8 @@ def _geometry(cells, cols, betp):  # pragma: no cover - compiled
     return r_lo, r_hi, c_lo, c_hi, r_sum, c_sum, betp_sum
 
 
-def held_layers(free: np.ndarray, occupied: np.ndarray, heights: np.ndarray | None
-                ) -> tuple[np.ndarray, np.ndarray | None]:
-    """What a held frame keeps of its scan's sensor grid (:attr:`HeldFrame.speaks`,
-    :attr:`HeldFrame.returns`): bool layers of the cells the scan speaks of (m({F}) > 0 or
-    m({O}) > 0) and of those holding an obstacle return (``heights`` > 0; None without
-    ``heights``) — a sixth of the float32 layers' memory for the frames in flight. One
-    compiled pass that releases the GIL (the runner calls it in the decode thread, beside
-    the sensor grid)."""
-    speaks = np.empty(free.shape, np.bool_)
-    returns = None if heights is None else np.empty(free.shape, np.bool_)
-    _held_pass(np.ascontiguousarray(free, np.float32).reshape(-1),
-               np.ascontiguousarray(occupied, np.float32).reshape(-1),
-               _NO_HEIGHTS if heights is None
-               else np.ascontiguousarray(heights, np.float32).reshape(-1),
-               heights is not None, speaks.reshape(-1),
-               _NO_FLAGS if returns is None else returns.reshape(-1))
-    return speaks, returns
-
-
-_NO_HEIGHTS = np.zeros(0, np.float32)
-_NO_FLAGS = np.zeros(0, np.bool_)
-
-
-@numba.njit(cache=True, nogil=True)
-def _held_pass(free, occupied, heights, has_heights, speaks, returns
-               ):  # pragma: no cover - compiled
-    zero = np.float32(0.0)
-    for i in range(free.shape[0]):
-        speaks[i] = (free[i] > zero) | (occupied[i] > zero)
-    if has_heights:
-        for i in range(free.shape[0]):
-            returns[i] = heights[i] > zero
-
-
 def warm_up() -> None:
-    """Load the compiled passes of :func:`fill` and :func:`held_layers` (the run's warm-up:
-    not charged to a frame)."""
-    layer = np.zeros((2, 2), np.float32)
-    held_layers(layer, layer, layer)
-    held_layers(layer, layer, None)
+    """Load the compiled passes of :func:`fill` (the run's warm-up: not charged to a frame)."""
     one = np.zeros(1, np.int64)
     _touching_pass(np.zeros((1, 4), np.int64), np.zeros(1, np.bool_), one, one, one, one, one,
                    1, 1, 1)

@@ -179,12 +179,12 @@ def test_the_compiled_boxes_equal_the_per_record_reference() -> None:
     assert changed > 10  # the comparison is not vacuous
 
 
-def test_a_held_frames_bool_layers_give_the_float_layers_boxes() -> None:
-    """The backfill's held frames keep bool layers (:func:`held_layers`: the cells where
+def test_the_scans_bool_layers_give_the_float_layers_boxes() -> None:
+    """The runner gives the boxes bool layers (:func:`scan_cells`: the cells where
     m({F}) > 0 or m({O}) > 0, and heights > 0) instead of the sensor grid's float32 ones: the
     boxes read both as ``> 0``, so every record and cell is the same (the float path is the
     one checked against the reference above); the layers themselves are numpy's compares."""
-    from evperc.objects.backfill import held_layers
+    from evperc.objects.stage import scan_cells
     changed = 0
     for seed in range(30):
         rng = np.random.default_rng(100 + seed)
@@ -195,7 +195,7 @@ def test_a_held_frames_bool_layers_give_the_float_layers_boxes() -> None:
         returns = heights if rng.random() < 0.7 else None
         decision = rng.choice(np.array(list(D.values()), np.uint8), window.shape,
                               p=[0.1, 0.6, 0.05, 0.1, 0.05, 0.05, 0.05])
-        speaks, held_returns = held_layers(free, occupied, returns)
+        speaks, held_returns = scan_cells(free, occupied, returns)
         assert np.array_equal(speaks, (free > 0) | (occupied > 0))
         assert (held_returns is None) == (returns is None)
         assert returns is None or np.array_equal(held_returns, returns > 0)
