@@ -174,10 +174,11 @@ def test_state_follows_the_window_and_resets_entering_cells() -> None:
     assert c[7, 1] == D["static"]
 
 
-def _reference(seq, params, res):
+def _reference(seq, params, res, ages=None):
     """Plain reference over (window, decision, labels, moving mask) frames: ages and moved
     flags in a dict of lattice cells (a cell leaving the window forgets its state),
-    components by scipy.ndimage.label, the width by numpy over the same 16 orientations."""
+    components by scipy.ndimage.label, the width by numpy over the same 16 orientations.
+    ``ages``: a list that receives each frame's ages (window order, −1 where none)."""
     age: dict[tuple[int, int], float] = {}
     moved: set[tuple[int, int]] = set()
     theta = np.arange(16) * (math.pi / 16)
@@ -197,6 +198,10 @@ def _reference(seq, params, res):
                     age[key] = -1.0
                 if mov[r, c]:
                     moved.add(key)
+        if ages is not None:
+            ages.append(np.array([[age.get((win.row0 + r, win.col0 + c), -1.0)
+                                   for c in range(win.cols)] for r in range(win.rows)],
+                                 np.float32))
         out = dec.copy()
         cand = np.isin(dec, [D["static"], D["stopped"], D["unmapped"]])
         comp, n = ndimage.label(cand, structure=np.ones((3, 3)))
@@ -228,11 +233,17 @@ def _reference(seq, params, res):
     return outs
 
 
-@pytest.mark.parametrize(("stopped_needs_road", "stopped_off_facades"),
-                         [(False, False), (True, False), (False, True), (True, True)])
+@pytest.mark.parametrize(("stopped_needs_road", "stopped_off_facades", "unknown_margins"),
+                         [(False, False, False), (True, False, False), (False, True, False),
+                          (True, True, False), (False, False, True), (True, True, True)])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_random_shifting_windows_match_the_reference(seed: int, stopped_needs_road: bool,
-                                                     stopped_off_facades: bool) -> None:
+                                                     stopped_off_facades: bool,
+                                                     unknown_margins: bool) -> None:
+    """The relabelled decisions and the ages (the state, cell by cell) against the plain
+    reference. ``unknown_margins``: each row's first and last 0-3 cells decided unknown in
+    every frame (the window's edges beyond the sensor's range), where a cell's age must
+    pause."""
     rng = np.random.default_rng(seed)
     shape = (12, 15)
     codes = np.array([D["free"], D["unknown"], D["static"], D["stopped"], D["moving"],
@@ -250,7 +261,7 @@ def test_random_shifting_windows_match_the_reference(seed: int, stopped_needs_ro
     state = UnmappedState.fresh(shape)
     win = Window(RES, *shape, 80, 80)
     offset = (0, 0)
-    seq, got = [], []
+    seq, got, got_ages = [], [], []
     for k in range(30):
         shift = (0, 0) if k == 0 else tuple(int(v) for v in rng.integers(-2, 3, size=2))
         if k == 12:
@@ -261,11 +272,22 @@ def test_random_shifting_windows_match_the_reference(seed: int, stopped_needs_ro
         world_dec[redraw] = rng.choice(codes, size=int(redraw.sum()), p=p)
         at = (slice(win.row0, win.row0 + shape[0]), slice(win.col0, win.col0 + shape[1]))
         dec, labels = world_dec[at].copy(), world[at].copy()
+        if unknown_margins:
+            for r in range(shape[0]):
+                lo, hi = (int(v) for v in rng.integers(0, 4, size=2))
+                dec[r, :lo] = D["unknown"]
+                dec[r, shape[1] - hi:] = D["unknown"]
         mov = dec == D["moving"]
         seq.append((win, dec.copy(), labels, mov))
         cue.step(state, dec, labels, DT, offset=offset, shift=shift)
         got.append(dec)
-    want = _reference(seq, params, RES)
+        rows_at = (np.arange(shape[0]) + offset[0]) % shape[0]
+        cols_at = (np.arange(shape[1]) + offset[1]) % shape[1]
+        got_ages.append(state.age_s[np.ix_(rows_at, cols_at)].copy())  # window order
+    want_ages: list[np.ndarray] = []
+    want = _reference(seq, params, RES, want_ages)
+    for k, (g, w) in enumerate(zip(got_ages, want_ages, strict=True)):  # the state, exactly
+        np.testing.assert_array_equal(g, w, err_msg=f"ages, frame {k}")
     relabelled = unstopped = 0
     for k, ((_, dec, _, _), g, w) in enumerate(zip(seq, got, want, strict=True)):
         np.testing.assert_array_equal(g, w, err_msg=f"frame {k}")
