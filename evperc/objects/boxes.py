@@ -133,8 +133,8 @@ def complete_boxes(objects: np.ndarray, cells: np.ndarray, window: Window,
 
 def _flat_layer(layer: np.ndarray) -> np.ndarray:
     """A layer the boxes read as ``> 0``, flat and without a copy: a bool one as its 0/1
-    bytes (a held frame's, :mod:`evperc.objects.backfill`), any other as float32 (the
-    sensor grid's)."""
+    bytes (the runner's, :func:`evperc.objects.stage.scan_cells`), any other as float32
+    (the sensor grid's)."""
     layer = np.asarray(layer)
     if layer.dtype == np.bool_ or layer.dtype == np.uint8:
         return np.ascontiguousarray(layer).reshape(-1).view(np.uint8)
@@ -279,19 +279,16 @@ _STATIC_CODES[[DECISION_CODES[n] for n in ("static", "stopped", "unmapped",
 
 
 def warm_up(params: BoxParams) -> None:
-    """Load (or compile) the compiled passes for the runner's argument types (float32
-    sensor-grid layers, and the bool layers of the backfill's held frames) on a made-up
-    moving vehicle: the first real frame is not charged a cache load. Changes nothing."""
+    """Load (or compile) the compiled passes for the runner's argument types (the scan's
+    bool layers, :func:`evperc.objects.stage.scan_cells`) on a made-up moving vehicle: the
+    first real frame is not charged a cache load. Changes nothing."""
     if not params.enabled:
         return
     window = Window(0.5, 8, 8, 0, 0)
-    layers = (np.zeros(window.shape, np.float32), np.zeros(window.shape, np.float32))
     record = np.zeros(1, OBJECT_DTYPE)
     record["state"] = _MOVING
     record["cell_count"] = 4
     record["velocity_m_per_s"] = (1.0, 0.0)
-    complete_boxes(record, np.array([1, 9, 17, 25], np.uint32), window, layers,
-                   np.zeros(window.shape, np.uint8), params, returns=layers[0])
-    held = np.zeros(window.shape, np.bool_)  # a held frame's layers (the backfill's)
-    complete_boxes(record, np.array([1, 9, 17, 25], np.uint32), window, held,
-                   np.zeros(window.shape, np.uint8), params, returns=held)
+    layer = np.zeros(window.shape, np.bool_)
+    complete_boxes(record, np.array([1, 9, 17, 25], np.uint32), window, layer,
+                   np.zeros(window.shape, np.uint8), params, returns=layer)

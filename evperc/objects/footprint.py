@@ -520,20 +520,19 @@ def complete_footprints(state: FootprintState, objects: np.ndarray, cells: np.nd
 
 def warm_up(params: FootprintParams) -> None:
     """Load (or compile) the compiled passes for the argument types the runner gives them
-    (float32 sensor-grid layers or the backfill's bool layer as ``scan_speaks``, a history
-    of two frames, two moving fragments), on a tiny made-up object list: the first real
-    frames are not charged a cache load (~30–40 ms each). Changes nothing."""
+    (the scan's bool layer as ``scan_speaks``, :func:`evperc.objects.stage.scan_cells`, a
+    history of two frames, two moving fragments), on a tiny made-up object list: the first
+    real frames are not charged a cache load (~30–40 ms each). Changes nothing."""
     if params.frames <= 0:
         return
     window = Window(1.0, 4, 4, 0, 0)
-    layers = (np.zeros(window.shape, np.float32), np.zeros(window.shape, np.float32))
+    speaks = np.zeros(window.shape, np.bool_)
     objects = np.zeros(2, OBJECT_DTYPE)
     objects["track_id"] = (1, 2)
     objects["state"] = _MOVING
     objects["cell_count"] = 1
     objects["velocity_m_per_s"] = (1.0, 0.0)
-    for speaks in (layers, np.zeros(window.shape, np.bool_)):
-        state = FootprintState()
-        for k, cells in enumerate(([0, 2], [1, 3])):
-            complete_footprints(state, objects, np.array(cells, np.uint32), window,
-                                k * 100_000_000, speaks, params)
+    state = FootprintState()
+    for k, cells in enumerate(([0, 2], [1, 3])):
+        complete_footprints(state, objects, np.array(cells, np.uint32), window,
+                            k * 100_000_000, speaks, params)
