@@ -121,6 +121,7 @@ RULES: dict[str, tuple] = {
     "objects.unmapped_max_width_m": ("range", 0.0, 100.0, True, False),
     "objects.unmapped_min_age_s": ("range", 0.0, 3600.0, False, False),
     "input.max_pose_gap_s": ("range", 0.0, 1e6, True, False),
+    "input.pose_check": ("choice", "warn", "error", "off"),
     "input.origin_lat_deg": ("range", -90.0, 90.0, False, False),
     "input.origin_lon_deg": ("range", -180.0, 180.0, False, False),
     "input.origin_heading_deg": ("range", -360.0, 360.0, False, False),

@@ -57,6 +57,7 @@ from evperc.output.writer import HeldLayers, RunWriter, check_output_dir
 from evperc.plumbing import fusion_threads, keep_freed_memory, kernels_cached, prefetched
 from evperc.progress import bar as progress_bar
 from evperc.sensor import SensorParams, sensor_grid
+from evperc.sensor.pose_fit import PoseFit, check_poses
 
 log = logging.getLogger(__name__)
 
@@ -394,6 +395,7 @@ class Pipeline:
         self.clock = StageClock()
         #: frames whose sensor grid the fusion thread computed (:meth:`inputs`, ``defer``)
         self.sensor_grids_in_step = 0
+        self.pose_fit: PoseFit | None = None  # check_poses
         self._gate_buffer: np.ndarray | None = None
         probe = Window.centred_on(0.0, 0.0, self.window_size, self.resolution)
         self.objects = (ObjectStage(config, probe.shape) if objects_enabled(config) else None)
@@ -485,7 +487,29 @@ class Pipeline:
                                   "codes": {"unknown": 0, "static": 9, "moving": 251},
                                   "naming": "the scan's file number" if self.request.point_labels
                                   and hasattr(self.reader, "numbers") else "frame index"}
-                                 if self.request.point_labels else None)}
+                                 if self.request.point_labels else None),
+                # how well the log's poses fit its scans (None: not checked)
+                "pose_fit": self.pose_fit.summary() if self.pose_fit is not None else None}
+
+    def check_poses(self) -> PoseFit | None:
+        """Whether the log's poses fit its scans (:func:`evperc.sensor.pose_fit.check_poses`
+        on the requested span's first scans), kept in ``pose_fit``. ``input.pose_check``:
+        "warn" logs a misfit, "error" stops the run with it (:class:`PoseError`), "off"
+        does not check."""
+        mode = self.request.config["input"].get("pose_check", "warn")
+        if mode == "off":
+            return None
+        scans = self.scans(-1)
+        try:
+            self.pose_fit = check_poses((scan for _, scan in scans), self.sensor_params)
+        finally:
+            scans.close()
+        if self.pose_fit is not None and self.pose_fit.misfit:
+            message = self.pose_fit.message(str(self.request.log_path))
+            if mode == "error":
+                raise PoseError(f"{message} (input.pose_check = \"error\")")
+            log.warning("%s", message)
+        return self.pose_fit
 
     def warm_up_inputs(self) -> bool:
         """Read and prepare the first scan of the requested span, and drop it: the one-off
@@ -756,6 +780,8 @@ def run(request: RunRequest, resume: bool = False,
     # output is created: a run that stops on an input error leaves nothing
     if not pipeline.warm_up_inputs() and not resume:
         raise nothing_fused(request, pipeline.reader.stats)
+    if not resume:
+        pipeline.check_poses()
     if resume:
         writer = RunWriter.resume(out_dir)
         done = writer.manifest["frame_count"]
