@@ -52,7 +52,9 @@ def copy_layer(layer: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
 
 @numba.njit(cache=True)  # keeps the GIL
 def positive(layer: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """``layer > 0`` (bool, the layer's shape)."""
+    """``layer > 0`` (bool, the layer's shape). Not in the frame loop since the clusters'
+    occupied cells come from :func:`evperc.objects.stage.scan_cells` (made in the decode
+    thread); kept for ``benchmarks/gil_handover.py``, which measures its hand-over."""
     return layer > 0
 
 
@@ -63,4 +65,3 @@ def warm_up_gil_kept() -> None:
     sorted_unique(ints)
     in_sorted(ints, ints)
     copy_layer(np.zeros((2, 2), np.uint8))
-    positive(np.zeros((2, 2), np.float32))

@@ -25,7 +25,7 @@ from evperc.geo.crs import working_crs
 from evperc.geo.maps import MapData, check_overlap, load_map, load_map_cached
 from evperc.geo.prior import CONTEXT_BUILDING, PriorRasteriser
 from evperc.geo.window import Window
-from evperc.gil_kept import positive, warm_up_gil_kept
+from evperc.gil_kept import warm_up_gil_kept
 from evperc.logs.factory import open_log
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
@@ -103,10 +103,10 @@ class FrameInputs:
     #: each cell's highest return above the local ground (float32), with
     #: objects.moving_min_height_m only (:func:`evperc.sensor.sensor_grid`, ``heights_out``)
     heights: np.ndarray | None = None
-    #: with the object stage: bool layers of the cells the scan speaks of and of those
-    #: holding a return (:func:`evperc.objects.stage.scan_cells`), for the footprints, the
-    #: boxes and the backfill
-    scan_cells: tuple[np.ndarray, np.ndarray | None] | None = None
+    #: with the object stage: bool layers of the cells the scan speaks of, of those holding
+    #: a return and of those it marks occupied (:func:`evperc.objects.stage.scan_cells`),
+    #: for the clusters, the footprints, the boxes and the backfill
+    scan_cells: tuple[np.ndarray, np.ndarray | None, np.ndarray] | None = None
 
 
 def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
@@ -644,7 +644,7 @@ class Pipeline:
         if self.objects is not None:  # clusters and tracks (evperc.objects), from the layers
             if state.tracks is None:
                 state.tracks = TrackerState()
-            occupied_now = positive(inputs.occupied)  # numpy's > would release the GIL
+            speaks, returns, occupied_now = inputs.scan_cells  # this frame's own layers
             if inputs.hits is not None and self.cluster_on == "all_returns":
                 occupied_now |= inputs.hits
             elif inputs.hits is not None:  # "all_returns_join": the hit-only cells join any
@@ -653,7 +653,6 @@ class Pipeline:
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
                 inputs.stamp_ns, occupied_now=occupied_now, heights=inputs.heights)
-            speaks, returns = inputs.scan_cells
             if self.backfill_frames > 0:  # the backfill's gaps (objects.bridge_gaps), boxes
                 frame["occupied_now"] = occupied_now
                 frame["speaks"], frame["returns"] = speaks, returns

@@ -271,35 +271,53 @@ def _unknown_labels(labels: np.ndarray) -> bool:  # pragma: no cover - compiled
 
 def count_codes(decision: np.ndarray, n_codes: int) -> np.ndarray:
     """Cells per decision code of a uint8 grid (``np.bincount`` without its conversion of
-    the 160,000 codes to intp, ~5× faster; :func:`_count`)."""
+    the 160,000 codes to intp; :func:`_count`)."""
+    if decision.dtype != np.uint8:
+        raise TypeError(f"decision codes must be uint8, got {decision.dtype}")
     counts = np.zeros(max(n_codes, 256), np.int64)
-    _count(np.ascontiguousarray(decision).reshape(-1), counts)
+    codes = np.ascontiguousarray(decision).reshape(-1)
+    _count(codes, codes[:codes.size - codes.size % 8].view(np.uint64), counts)
     if counts[n_codes:].any():
         raise ValueError(f"decision codes beyond {n_codes - 1}")
     return counts[:n_codes]
 
 
 #: sub-histograms of :func:`_count`
-_LANES = 16
+_LANES = 8
+#: a word of eight cells decided ``unknown``, and of eight decided ``free`` (uint64)
+_UNKNOWN_WORD = np.uint64(DECISION_CODES["unknown"] * 0x0101010101010101)
+_FREE_WORD = np.uint64(DECISION_CODES["free"] * 0x0101010101010101)
 
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
-def _count(codes: np.ndarray, counts: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``counts[code] += 1`` for every code, into ``_LANES`` interleaved sub-histograms
-    summed at the end: neighbouring cells mostly share their code, and one histogram made
-    each increment wait for the previous one's store (0.096 -> 0.048 ms on workload (a)'s
-    160,000 cells)."""
-    n = codes.shape[0]
+def _count(codes: np.ndarray, words: np.ndarray, counts: np.ndarray
+           ) -> None:  # pragma: no cover - compiled
+    """``counts[code] += 1`` for every code. ``words``: the codes as uint64 words of eight
+    cells; a word of eight ``unknown`` or eight ``free`` cells (80–95 % of a drive's window)
+    counts eight at once, the others cell by cell into ``_LANES`` interleaved
+    sub-histograms summed at the end (one histogram made each increment wait for the
+    previous one's store). 0.050 -> 0.014 ms on 160,000 cells of workload (a)'s windows
+    (0.096 with one histogram)."""
     lanes = np.zeros((_LANES, counts.shape[0]), np.int64)
-    whole = n - n % _LANES
-    for i in range(0, whole, _LANES):
-        for k in range(_LANES):
-            lanes[k, codes[i + k]] += 1
-    for i in range(whole, n):
+    unknown_words = 0
+    free_words = 0
+    for w in range(words.shape[0]):
+        x = words[w]
+        if x == _UNKNOWN_WORD:
+            unknown_words += 1
+        elif x == _FREE_WORD:
+            free_words += 1
+        else:
+            base = w * 8
+            for k in range(8):
+                lanes[k, codes[base + k]] += 1
+    for i in range(words.shape[0] * 8, codes.shape[0]):
         lanes[0, codes[i]] += 1
     for k in range(_LANES):
         for c in range(counts.shape[0]):
             counts[c] += lanes[k, c]
+    counts[_UNKNOWN_WORD & 0xFF] += 8 * unknown_words
+    counts[_FREE_WORD & 0xFF] += 8 * free_words
 
 
 def vacuous_flags(pg: np.ndarray, zeta: np.ndarray) -> np.ndarray:

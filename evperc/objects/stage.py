@@ -104,23 +104,25 @@ class ObjectStage:
 
 
 def scan_cells(free: np.ndarray, occupied: np.ndarray, heights: np.ndarray | None
-               ) -> tuple[np.ndarray, np.ndarray | None]:
-    """The scan's cells as the footprint completion, the vehicle boxes and the backfill's
-    held frames read them: bool layers of the cells the scan speaks of (m({F}) > 0 or
-    m({O}) > 0) and of those holding an obstacle return (``heights`` > 0; None without
-    ``heights``) — an eighth of the bytes of the float32 layers they are made from, for the
-    passes that read them at scattered cells and the frames held in flight. One compiled
-    pass that releases the GIL (the runner makes them beside the sensor grid, in the decode
-    thread)."""
+               ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """The scan's cells as the object stage, the footprint completion, the vehicle boxes and
+    the backfill's held frames read them: bool layers of the cells the scan speaks of
+    (m({F}) > 0 or m({O}) > 0), of those holding an obstacle return (``heights`` > 0; None
+    without ``heights``) and of those the sensor model marks occupied (m({O}) > 0: the
+    clusters' ``occupied_now``) — an eighth of the bytes of the float32 layers they are made
+    from, for the passes that read them at scattered cells and the frames held in flight.
+    One compiled pass that releases the GIL (the runner makes them beside the sensor grid,
+    in the decode thread, while the grid is in that core's cache)."""
     speaks = np.empty(free.shape, np.bool_)
+    occupied_now = np.empty(free.shape, np.bool_)
     returns = None if heights is None else np.empty(free.shape, np.bool_)
     _scan_cells(np.ascontiguousarray(free, np.float32).reshape(-1),
                 np.ascontiguousarray(occupied, np.float32).reshape(-1),
                 _NO_LAYER if heights is None
                 else np.ascontiguousarray(heights, np.float32).reshape(-1),
-                heights is not None, speaks.reshape(-1),
+                heights is not None, speaks.reshape(-1), occupied_now.reshape(-1),
                 _NO_FLAGS if returns is None else returns.reshape(-1))
-    return speaks, returns
+    return speaks, returns, occupied_now
 
 
 _NO_LAYER = np.zeros(0, np.float32)
@@ -128,11 +130,13 @@ _NO_FLAGS = np.zeros(0, np.bool_)
 
 
 @numba.njit(cache=True, nogil=True)
-def _scan_cells(free, occupied, heights, has_heights, speaks, returns
+def _scan_cells(free, occupied, heights, has_heights, speaks, occupied_now, returns
                 ):  # pragma: no cover - compiled
     zero = np.float32(0.0)
     for i in range(free.shape[0]):
-        speaks[i] = (free[i] > zero) | (occupied[i] > zero)
+        o = occupied[i] > zero
+        occupied_now[i] = o
+        speaks[i] = (free[i] > zero) | o
     if has_heights:
         for i in range(free.shape[0]):
             returns[i] = heights[i] > zero

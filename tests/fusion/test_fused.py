@@ -827,15 +827,30 @@ def test_count_codes_equals_bincount() -> None:
     from evperc.fusion.fused import count_codes
 
     rng = np.random.default_rng(5)
-    for shape in ((400, 400), (7, 3), (0, 5), (1, 17), (3, 16)):  # sizes around 16 lanes
+    for shape in ((400, 400), (7, 3), (0, 5), (1, 17), (3, 16)):  # sizes around 8-cell words
         decision = rng.integers(0, 7, shape).astype(np.uint8)
         np.testing.assert_array_equal(count_codes(decision, 7),
                                       np.bincount(decision.ravel(), minlength=7))
     runs = np.repeat(rng.integers(0, 7, 300), rng.integers(1, 90, 300)).astype(np.uint8)
     np.testing.assert_array_equal(count_codes(runs.reshape(1, -1), 7),
                                   np.bincount(runs, minlength=7))  # long runs of one code
+    # a drive's window: long stretches of unknown (0) and free (1), counted eight cells a
+    # word, between cells of the other codes; lengths not a multiple of 8; a strided view
+    for n in (160_000, 1_003, 9):
+        window = np.where(rng.random(n) < 0.03, rng.integers(2, 7, n),
+                          np.repeat(rng.integers(0, 2, n // 40 + 1), 40)[:n]).astype(np.uint8)
+        np.testing.assert_array_equal(count_codes(window.reshape(1, -1), 7),
+                                      np.bincount(window, minlength=7))
+    strided = rng.integers(0, 2, (40, 64)).astype(np.uint8)[:, ::2]
+    np.testing.assert_array_equal(count_codes(strided, 7),
+                                  np.bincount(strided.ravel(), minlength=7))
     with pytest.raises(ValueError, match="beyond 6"):
         count_codes(np.full((2, 2), 9, np.uint8), 7)
+    with pytest.raises(ValueError, match="beyond 6"):  # one bad code among whole words
+        count_codes(np.concatenate([np.zeros(64, np.uint8), np.array([7], np.uint8),
+                                    np.ones(63, np.uint8)]).reshape(8, 16), 7)
+    with pytest.raises(TypeError, match="uint8"):
+        count_codes(np.zeros((8, 8), np.int64), 7)
 
 
 def test_rows_of_several_blocks_match_numpy() -> None:

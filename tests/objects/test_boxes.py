@@ -195,8 +195,9 @@ def test_the_scans_bool_layers_give_the_float_layers_boxes() -> None:
         returns = heights if rng.random() < 0.7 else None
         decision = rng.choice(np.array(list(D.values()), np.uint8), window.shape,
                               p=[0.1, 0.6, 0.05, 0.1, 0.05, 0.05, 0.05])
-        speaks, held_returns = scan_cells(free, occupied, returns)
+        speaks, held_returns, occupied_now = scan_cells(free, occupied, returns)
         assert np.array_equal(speaks, (free > 0) | (occupied > 0))
+        assert np.array_equal(occupied_now, occupied > 0)
         assert (held_returns is None) == (returns is None)
         assert returns is None or np.array_equal(held_returns, returns > 0)
         floats = complete_boxes(objects, cells, window, (free, occupied), decision, PARAMS,
