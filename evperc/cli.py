@@ -231,8 +231,10 @@ def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None
 
     from evperc.logs.factory import open_log
 
-    info = open_log(log_path, lidar_topic=lidar_topic, pose_topic=pose_topic,
-                    strict=False).info()
+    reader = open_log(log_path, lidar_topic=lidar_topic, pose_topic=pose_topic, strict=False)
+    info = reader.info()
+    fit = _pose_fit(reader)
+    info["pose_fit"] = None if fit is None else fit.summary()
     if as_json:
         click.echo(json.dumps(info, indent=2))
         return
@@ -253,6 +255,39 @@ def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None
         click.echo(f"lidar frame: {info['lidar_frame']}; mean points per scan "
                    f"{info['mean_points_per_scan']:.1f} (first {info['points_sample_scans']} "
                    "scans)")
+    if fit is None:
+        click.echo("poses against the scans: not checked (no posed scans 3 m apart in the first "
+                   "200, or under 200 obstacle returns a scan)")
+    elif fit.misfit:
+        click.echo(f"poses against the scans: DO NOT FIT: {fit.message(str(log_path))}")
+    else:
+        click.echo(f"poses against the scans: fit (scan {fit.second} lies "
+                   f"{fit.offset_norm_m:.2f} m from where its pose puts it against scan "
+                   f"{fit.first}, {fit.moved_m:.1f} m away)")
+
+
+def _pose_fit(reader: Any) -> Any:
+    """`evperc run`'s pose check (:func:`evperc.sensor.pose_fit.check_poses`, the default
+    sensor model) on the log's first scans; None when it cannot be made (no poses, too
+    little motion or too few returns)."""
+    from contextlib import closing
+
+    from evperc.config import default_config
+    from evperc.sensor import SensorParams
+    from evperc.sensor.pose_fit import check_poses
+
+    config = default_config()
+    params = SensorParams.from_config(config["sensor"], config["grid"]["cell_size_m"])
+    quiet = logging.getLogger("evperc")  # the reader's notes on its first scans: a run's
+    level = quiet.level                   # business, not this summary's
+    quiet.setLevel(max(level, logging.WARNING))
+    try:
+        with closing(reader.scans()) as scans:
+            return check_poses(scans, params)
+    except EvpercError:  # no pose source, no lidar topic: `info` says so above
+        return None
+    finally:
+        quiet.setLevel(level)
 
 
 @cli.command("render")

@@ -99,3 +99,14 @@ def test_pose_check_error_stops_before_any_output(tmp_path: Path) -> None:
     assert len(errors) == 1 and "the poses do not fit the scans" in errors[0]
     assert "kitti00.mcap" in errors[0] and "Traceback" not in result.output
     assert not out.exists()
+
+
+@needs_kitti
+def test_info_says_whether_the_poses_fit_the_scans() -> None:
+    bad = CliRunner().invoke(cli, ["info", str(KITTI)])
+    assert bad.exit_code == 0, bad.output
+    assert "poses against the scans: DO NOT FIT: " in bad.output
+    good = CliRunner().invoke(cli, ["info", "--json", str(SEMANTIC_00)])
+    assert good.exit_code == 0, good.output
+    fit = json.loads(good.output)["pose_fit"]
+    assert fit["misfit"] is False and np.hypot(*fit["offset_m"]) <= 0.1

@@ -38,6 +38,8 @@ def test_info_prints_topics_and_counts(tmp_path):
     assert "lidar topic: /points" in lines and "pose source: /odom" in lines
     assert "gnss topic: /fix" in lines
     assert "lidar frame: velodyne; mean points per scan 40.0 (first 3 scans)" in lines
+    # 3 scans 1 m apart: no pair 3 m apart to compare (evperc/sensor/pose_fit.py)
+    assert lines[-1].startswith("poses against the scans: not checked")
 
 
 def test_info_json(tmp_path):
@@ -47,6 +49,7 @@ def test_info_json(tmp_path):
     info = json.loads(result.output)
     assert info["indexed"] is True and info["duration_s"] == 0.25
     assert info["detected"]["lidar_topic"] == "/points"
+    assert info["pose_fit"] is None
 
 
 def test_info_reports_ambiguous_topics_instead_of_failing(tmp_path):
