@@ -1,5 +1,5 @@
 """Do the log's poses fit its scans? A check of the input before the run (docs/architecture.md,
-"Log sources"; docs/evaluation.md § "Since 2026-12-04, ninth session").
+`evperc.sensor`; docs/evaluation.md § "Since 2026-12-04, ninth session").
 
 The grid decides a cell moving where a return lands in space seen free before: with poses
 that misplace a scan by a fraction of a cell, every wall and parked car does that. Wrong
@@ -27,7 +27,8 @@ from motion. So the run compares two scans of its first stretch of driving:
 What it catches: a pose scale or speed error (10 % over 3 m: a 0.3 m offset), poses of
 another frame or time base, a yaw error seen as a lateral offset at range. What it does not:
 a constant error shared by both scans (a time offset at constant speed, a fixed extrinsic),
-errors later in the log. Cost: the scans read until ``B`` and two sensor grids, ~0.1–0.2 s.
+errors later in the log. Cost: the scans read until ``B``, two sensor grids and the search:
+28–73 ms on the simulated hdl64 and SemanticKITTI logs.
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ class PosedScan(Protocol):
     points: np.ndarray
     planar: bool
     T_world_sensor: np.ndarray
+
 
 #: m of horizontal motion between the two scans compared
 BASELINE_M = 3.0
@@ -134,7 +136,7 @@ def obstacle_xy(scan: PosedScan, params: SensorParams, reach_m: float = REACH_M
     ground split) within ``reach_m`` of the sensor."""
     kinds = np.empty(len(scan.points), np.uint8)
     T = np.asarray(scan.T_world_sensor, np.float64)
-    res = 1.0
+    res = 1.0  # the ground split comes before the grid: a one-cell grid is enough
     one_cell = Window(res, 1, 1, math.floor(T[1, 3] / res), math.floor(T[0, 3] / res))
     sensor_grid(scan.points, scan.planar, T, one_cell, params, kinds_out=kinds)
     points = np.asarray(scan.points, np.float64)[kinds == OBSTACLE]
