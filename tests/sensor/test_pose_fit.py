@@ -126,6 +126,19 @@ def _yaw_only(deg: float) -> np.ndarray:
     return T
 
 
+def test_a_geo_referenced_frame_far_from_its_origin() -> None:
+    # poses in UTM-like coordinates (500 km east, 6,700 km north): the same verdict and offset
+    far = pose(500_000.0, 6_700_000.0)
+    far[2, 3] = 0.0
+    error = pose(0.4, -0.3)
+    error[2, 3] = 0.0
+    scans = [PosedScan(s.stamp_ns, s.points, s.planar, far @ s.T_world_sensor, s.frame_id)
+             for s in drive(error=error)]
+    found = check_poses(scans, PARAMS)
+    assert found is not None and found.misfit
+    assert found.offset_m == pytest.approx((-0.4, 0.3), abs=0.1)
+
+
 def test_an_error_below_half_a_cell_is_not_called_a_misfit() -> None:
     error = pose(0.1, 0.0)
     error[2, 3] = 0.0
