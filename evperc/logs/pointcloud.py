@@ -79,8 +79,9 @@ def xyz_indexed_from_packed(data: bytes | bytearray | memoryview | np.ndarray,
     if kept == out.shape[0]:
         return out, None, kept
     finite = np.ones((n_rows, width), bool)
-    for column in (x, y, z):
-        finite &= np.isfinite(column.astype(np.float32))
+    with np.errstate(over="ignore"):  # a float64 beyond float32's range is inf: dropped
+        for column in (x, y, z):
+            finite &= np.isfinite(column.astype(np.float32))
     return out[:kept], np.flatnonzero(finite.ravel()), out.shape[0]
 
 
