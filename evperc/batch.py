@@ -33,7 +33,7 @@ if TYPE_CHECKING:  # the runner (numba, numpy kernels) is imported where a task 
 log = logging.getLogger(__name__)
 
 #: the keys of a result row, in table order
-ROW_KEYS = ("log", "out", "frames", "frames_per_s", "wall_time_s", "status", "error")
+ROW_KEYS = ("log", "out", "frames", "frames_per_s", "wall_time_s", "status", "poses", "error")
 #: ``ok`` and ``resumed`` finished the run now; ``skipped`` was complete already
 SUCCESS = ("ok", "resumed", "skipped")
 
@@ -147,7 +147,20 @@ def process_log(task: RunRequest) -> dict[str, Any]:
         log.debug("%s: unexpected error", task.log_path, exc_info=True)
         row.update(status="error", error=_one_line(f"{type(err).__name__}: {err}"))
     row["wall_time_s"] = round(time.perf_counter() - t0, 3)
+    if row["status"] in SUCCESS:
+        row["poses"] = _poses(task.out_dir)
     return row
+
+
+def _poses(out_dir: Path) -> str | None:
+    """The run's pose check (the manifest's ``pose_fit``, evperc/sensor/pose_fit.py) in a
+    word: ``fit``, ``MISFIT <offset> m``, or None (not checked)."""
+    from evperc.output.manifest import read_manifest
+
+    fit = read_manifest(out_dir).get("pose_fit")
+    if not fit:
+        return None
+    return f"MISFIT {math.hypot(*fit['offset_m']):.2f} m" if fit["misfit"] else "fit"
 
 
 def _skip_resume_or_run(task: RunRequest) -> dict[str, Any]:
@@ -330,10 +343,11 @@ def run_batch(request: BatchRequest, client: Any = None, progress: bool = True
 
 
 def format_table(rows: Sequence[dict[str, Any]]) -> str:
-    """The summary table: log, frames, frames/s, status, error; one line per log."""
-    header = ("log", "frames", "frames/s", "status", "error")
+    """The summary table: log, frames, frames/s, status, poses (does the log's pose fit its
+    scans: evperc/sensor/pose_fit.py), error; one line per log."""
+    header = ("log", "frames", "frames/s", "status", "poses", "error")
     cells = [(Path(r["log"]).name, _cell(r["frames"]), _cell(r["frames_per_s"]), r["status"],
-              r["error"] or "") for r in rows]
+              _cell(r.get("poses")), r["error"] or "") for r in rows]
     widths = [max(len(h), *(len(c[k]) for c in cells)) for k, h in enumerate(header)]
     lines = ["  ".join(v.ljust(w) for v, w in zip(line, widths, strict=True)).rstrip()
              for line in (header, *cells)]

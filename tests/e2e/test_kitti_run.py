@@ -110,3 +110,19 @@ def test_info_says_whether_the_poses_fit_the_scans() -> None:
     assert good.exit_code == 0, good.output
     fit = json.loads(good.output)["pose_fit"]
     assert fit["misfit"] is False and np.hypot(*fit["offset_m"]) <= 0.1
+
+
+@needs_kitti
+def test_batch_rows_say_whether_the_poses_fit(tmp_path: Path) -> None:
+    from evperc.batch import process_log
+    from evperc.config import load_config
+    from evperc.runner import RunRequest
+
+    rows = {}
+    for folder, scans in ((KITTI, 16), (SEMANTIC_00, 10)):
+        log = write_kitti_odometry_mcap(folder, tmp_path / f"{folder.name}.mcap", scans)
+        rows[folder.name] = process_log(RunRequest(log_path=log, out_dir=tmp_path / folder.name,
+                                                   config=load_config()))
+    assert rows["kitti00"]["status"] == rows["00"]["status"] == "ok"
+    assert rows["kitti00"]["poses"].startswith("MISFIT 0.")
+    assert rows["00"]["poses"] == "fit"
