@@ -26,8 +26,9 @@ from motion. So the run compares two scans of its first stretch of driving:
 
 What it catches: a pose scale or speed error (10 % over 3 m: a 0.3 m offset), poses of
 another frame or time base, a yaw error seen as a lateral offset at range. What it does not:
-a constant error shared by both scans (a time offset at constant speed, a fixed extrinsic),
-errors later in the log. Cost: the scans read until ``B``, two sensor grids and the search:
+a constant error shared by both scans (a time offset at constant speed, a fixed extrinsic
+translation), errors later in the log, and errors beyond the search (no rotation is searched:
+a lidar mounted backwards misplaces the second scan by twice the baseline). Cost: the scans read until ``B``, two sensor grids and the search:
 28–73 ms on the simulated hdl64 and SemanticKITTI logs.
 """
 
