@@ -28,8 +28,9 @@ What it catches: a pose scale or speed error (10 % over 3 m: a 0.3 m offset), po
 another frame or time base, a yaw error seen as a lateral offset at range. What it does not:
 a constant error shared by both scans (a time offset at constant speed, a fixed extrinsic
 translation), errors later in the log, and errors beyond the search (no rotation is searched:
-a lidar mounted backwards misplaces the second scan by twice the baseline). Cost: the scans read until ``B``, two sensor grids and the search:
-28–73 ms on the simulated hdl64 and SemanticKITTI logs.
+a lidar mounted backwards misplaces the second scan by twice the baseline). Cost: the scans
+read until ``B``, two sensor grids and the search: 28–73 ms on the simulated hdl64 and
+SemanticKITTI logs.
 """
 
 from __future__ import annotations
@@ -62,6 +63,9 @@ class PosedScan(Protocol):
 
 #: m of horizontal motion between the two scans compared
 BASELINE_M = 3.0
+#: m: a second scan posed farther than this from the first is a jump in the poses (30 m/s
+#: for 0.2 s after the baseline), not a pair to compare: the check stops there
+MAX_BASELINE_M = 9.0
 #: scans read at most to find the second one
 MAX_SCANS = 200
 #: m: the returns compared lie at most this far from their sensor (horizontally)
@@ -201,18 +205,24 @@ def fit_returns(a: np.ndarray, b: np.ndarray) -> tuple[float, float, tuple[float
 def check_poses(scans: Iterable[PosedScan], params: SensorParams) -> PoseFit | None:
     """The :class:`PoseFit` of the first scan of ``scans`` and the first one posed
     :data:`BASELINE_M` away (at most :data:`MAX_SCANS` read), or None when the vehicle did
-    not move that far or a scan has fewer than :data:`MIN_RETURNS` obstacle returns (a
-    sparse sensor: nothing to judge by)."""
+    not move that far, a scan has fewer than :data:`MIN_RETURNS` obstacle returns (a sparse
+    sensor: nothing to judge by), or a pose is not finite or jumps more than
+    :data:`MAX_BASELINE_M` (the raster would span the jump)."""
     first: PosedScan | None = None
     for index, scan in enumerate(scans):
         if index >= MAX_SCANS:
             return None
+        if not np.isfinite(scan.T_world_sensor).all():
+            return None  # a damaged pose: the run's own checks deal with it
         if first is None:
             first = scan
             continue
         moved = float(np.hypot(*(scan.T_world_sensor[:2, 3] - first.T_world_sensor[:2, 3])))
         if moved < BASELINE_M:
             continue
+        if moved > MAX_BASELINE_M:  # a jump, not driving: no common scene to compare
+            log.info("pose check skipped: the poses jump %.0f m between two scans", moved)
+            return None
         a, b = obstacle_xy(first, params), obstacle_xy(scan, params)
         if min(len(a), len(b)) < MIN_RETURNS:
             log.info("pose check skipped: %d and %d obstacle returns within %.0f m (fewer "

@@ -13,6 +13,7 @@ from evperc.logs.scan import PosedScan
 from evperc.sensor.params import SensorParams
 from evperc.sensor.pose_fit import (
     BASELINE_M,
+    MAX_BASELINE_M,
     MAX_SCANS,
     MISFIT_M,
     check_poses,
@@ -154,6 +155,23 @@ def test_no_check_without_motion_or_without_returns() -> None:
     sparse = [PosedScan(s.stamp_ns, s.points[::200], False, s.T_world_sensor, "lidar")
               for s in drive()]
     assert check_poses(sparse, PARAMS) is None  # ~250 obstacle returns a scan
+
+
+def test_a_jump_or_a_broken_pose_is_no_pair_to_compare() -> None:
+    # a GNSS jump of 1,000 km right after the first scan: no raster across it (it would need
+    # 10^14 cells), no verdict
+    jumped = drive()
+    far = pose(1_000_000.0)
+    far[2, 3] = 0.0
+    jumped[2:] = [PosedScan(s.stamp_ns, s.points, False, far @ s.T_world_sensor, "lidar")
+                  for s in jumped[2:]]
+    assert check_poses(jumped, PARAMS) is None
+    broken = drive()
+    T = broken[1].T_world_sensor.copy()
+    T[0, 3] = np.nan
+    broken[1] = PosedScan(broken[1].stamp_ns, broken[1].points, False, T, "lidar")
+    assert check_poses(broken, PARAMS) is None
+    assert MAX_BASELINE_M > BASELINE_M + 0.8  # a fast car's next scan after the baseline
 
 
 def test_at_most_max_scans_are_read() -> None:
