@@ -154,13 +154,17 @@ def process_log(task: RunRequest) -> dict[str, Any]:
 
 def _poses(out_dir: Path) -> str | None:
     """The run's pose check (the manifest's ``pose_fit``, evperc/sensor/pose_fit.py) in a
-    word: ``fit``, ``MISFIT <offset> m``, or None (not checked)."""
+    word: ``fit``, ``MISFIT <offset> m``, ``MISFIT <turn>°``, or None (not checked)."""
     from evperc.output.manifest import read_manifest
 
     fit = read_manifest(out_dir).get("pose_fit")
     if not fit:
         return None
-    return f"MISFIT {math.hypot(*fit['offset_m']):.2f} m" if fit["misfit"] else "fit"
+    if not fit["misfit"]:
+        return "fit"
+    if fit.get("turns"):
+        return f"MISFIT {fit['yaw_deg']:+.1f}°"
+    return f"MISFIT {math.hypot(*fit['offset_m']):.2f} m"
 
 
 def _skip_resume_or_run(task: RunRequest) -> dict[str, Any]:

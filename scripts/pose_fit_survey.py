@@ -6,7 +6,8 @@
         ../shared/data/semantickitti/*
 
 One line per log: the scans compared, the motion between them, the returns compared, the
-share matched at the poses and at the best offset, the offset (m), the verdict and the
+share matched at the poses and at the best offset, the offset (m), the best turn (degrees)
+and its share, the verdict and the
 check's time (the log opened and its first scan read before it, as `evperc run` does); "not
 checked" when the vehicle moved less than 3 m in the first 200 scans or a scan had fewer
 than 200 obstacle returns within 30 m. The default configuration, no map.
@@ -45,7 +46,8 @@ def main() -> None:
         print(f"{path}: scans {fit.first}, {fit.second}; moved {fit.moved_m:.2f} m; returns "
               f"{fit.returns[0]}, {fit.returns[1]}; share {fit.share_at_poses:.3f} -> "
               f"{fit.share_best:.3f}; offset ({fit.offset_m[0]:+.2f}, {fit.offset_m[1]:+.2f}) "
-              f"m; {'MISFIT' if fit.misfit else 'fits'} ({ms:.0f} ms)")
+              f"m; turned {fit.yaw_deg:+.1f} deg: share {fit.share_turned:.3f}; "
+              f"{'MISFIT' if fit.misfit else 'fits'} ({ms:.0f} ms)")
 
 
 if __name__ == "__main__":

@@ -18,19 +18,22 @@ from motion. So the run compares two scans of its first stretch of driving:
    neighbours; the *share* of ``B``'s returns that fall on a marked cell (a return within
    ~0.1–0.3 m of one of ``A``'s) at the poses, and at the best horizontal offset of ``B``
    found by a search (steps of :data:`COARSE_M` within :data:`SEARCH_M`, then of
-   :data:`FINE_M` around the best).
+   :data:`FINE_M` around the best); then the same with ``B`` turned about its sensor, by
+   :data:`TURNS_DEG` (whole degrees, then the half degrees beside the best), the offsets
+   searched near the best one without a turn.
 4. The poses *misfit* when the best offset is at least :data:`MISFIT_M` (half the default
-   cell: a wall misplaced that much lands in the next cell) and raises the share by at
-   least :data:`MISFIT_GAIN` (a real improvement, not the search finding noise). Moving
-   objects lower both shares alike; the static scene decides the offset.
+   cell: a wall misplaced that much lands in the next cell), or the best turn at least
+   :data:`MISFIT_YAW_DEG` (a return 15 m away misplaced by half a cell), and it raises the
+   share by at least :data:`MISFIT_GAIN` (a real improvement, not the search finding
+   noise). Moving objects lower all shares alike; the static scene decides.
 
 What it catches: a pose scale or speed error (10 % over 3 m: a 0.3 m offset), poses of
-another frame or time base, a yaw error seen as a lateral offset at range. What it does not:
-a constant error shared by both scans (a time offset at constant speed, a fixed extrinsic
-translation), errors later in the log, and errors beyond the search (no rotation is searched:
-a lidar mounted backwards misplaces the second scan by twice the baseline). Cost: the scans
-read until ``B``, two sensor grids and the search: 28–73 ms on the simulated hdl64 and
-SemanticKITTI logs.
+another frame or time base, a heading or lidar-yaw error of 1–3° (measured to the half
+degree). What it does not: a constant error shared by both scans (a time offset at constant
+speed, a fixed extrinsic translation), errors later in the log, and errors beyond the search
+(turns beyond 3°, offsets beyond 2 m: a lidar mounted backwards misplaces the second scan by
+twice the baseline). Cost: the scans read until ``B``, two sensor grids and the searches:
+22–161 ms on the simulated and SemanticKITTI logs (``scripts/pose_fit_survey.py``).
 """
 
 from __future__ import annotations
@@ -81,6 +84,17 @@ FINE_M = 0.05
 PLATEAU = 0.01
 #: the second scan's returns used at most (every k-th: deterministic)
 MAX_RETURNS = 20_000
+#: degrees: the turns of a misfit second scan compared (about its sensor), to name a
+#: heading or extrinsic yaw error
+TURN_STEP_DEG = 0.5
+TURNS_DEG = tuple(float(v) for v in np.arange(-3.0, 3.01, TURN_STEP_DEG))
+#: the second scan's returns the turns are compared on at most
+MAX_TURN_RETURNS = 5_000
+#: m: with a turn, the offsets searched within this of the best offset without one
+TURN_SEARCH_M = 0.75
+#: degrees: a best turn at least this large (a return 15 m away misplaced by ~0.26 m, half a
+#: cell) that raises the share by MISFIT_GAIN is a misfit too
+MISFIT_YAW_DEG = 1.0
 #: fewer obstacle returns than this in either scan: too little to judge
 MIN_RETURNS = 200
 #: the verdict: a best offset at least this far (m) ...
@@ -105,6 +119,11 @@ class PoseFit:
     share_at_poses: float
     share_best: float
     offset_m: tuple[float, float]
+    #: the turn (degrees, about the second scan's sensor) and the offset after it that fit
+    #: best (:func:`fit_scans`), and their share; 0 / None when not searched
+    yaw_deg: float = 0.0
+    turned_offset_m: tuple[float, float] | None = None
+    share_turned: float | None = None
 
     @property
     def offset_norm_m(self) -> float:
@@ -114,7 +133,13 @@ class PoseFit:
     def misfit(self) -> bool:
         """The poses misplace the second scan (module docstring, step 4)."""
         return (self.offset_norm_m >= MISFIT_M
-                and self.share_best - self.share_at_poses >= MISFIT_GAIN)
+                and self.share_best - self.share_at_poses >= MISFIT_GAIN) or self.turns
+
+    @property
+    def turns(self) -> bool:
+        """The second scan fits markedly better turned (module docstring, step 4)."""
+        return (abs(self.yaw_deg) >= MISFIT_YAW_DEG and self.share_turned is not None
+                and self.share_turned - self.share_at_poses >= MISFIT_GAIN)
 
     def summary(self) -> dict[str, object]:
         """For the run's manifest."""
@@ -122,7 +147,12 @@ class PoseFit:
                 "moved_m": round(self.moved_m, 3), "returns": list(self.returns),
                 "share_at_poses": round(self.share_at_poses, 4),
                 "share_best": round(self.share_best, 4),
-                "offset_m": [round(v, 3) for v in self.offset_m], "misfit": self.misfit}
+                "offset_m": [round(v, 3) for v in self.offset_m], "misfit": self.misfit,
+                "yaw_deg": self.yaw_deg, "turns": self.turns,
+                "turned_offset_m": (None if self.turned_offset_m is None
+                                    else [round(v, 3) for v in self.turned_offset_m]),
+                "share_turned": (None if self.share_turned is None
+                                 else round(self.share_turned, 4))}
 
     def message(self, log_name: str) -> str:
         """One line: what was found and what to check."""
@@ -131,8 +161,15 @@ class PoseFit:
                 f"match scan {self.first}'s best {self.offset_norm_m:.2f} m from where their "
                 f"poses put them ({share:.0%} of the {self.moved_m:.1f} m driven between them; "
                 f"{self.share_at_poses:.0%} of its returns match at the poses, "
-                f"{self.share_best:.0%} there): expect walls and parked cars decided moving; "
-                "check the pose topic, its frame and stamps, and the lidar's extrinsic")
+                f"{self.share_best:.0%} there{self._turn_text()}): expect walls and parked cars "
+                "decided moving; check the pose topic, its frame and stamps, and the lidar's "
+                "extrinsic")
+
+    def _turn_text(self) -> str:
+        if not self.turns or self.turned_offset_m is None or self.share_turned is None:
+            return ""
+        return (f"; turned {self.yaw_deg:+.1f}° about its sensor and moved "
+                f"{math.hypot(*self.turned_offset_m):.2f} m, {self.share_turned:.0%}")
 
 
 def obstacle_xy(scan: PosedScan, params: SensorParams, reach_m: float = REACH_M
@@ -169,13 +206,10 @@ def _grid(step: float, half: float, centre: tuple[float, float]) -> np.ndarray:
     return np.array([(centre[0] + dx, centre[1] + dy) for dx in steps for dy in steps])
 
 
-def fit_returns(a: np.ndarray, b: np.ndarray) -> tuple[float, float, tuple[float, float]]:
-    """``(share at the poses, best share, best offset (x, y))`` of returns ``b`` on returns
-    ``a`` (both (N, 2) log-frame x, y; module docstring, step 3). The best offset is the
-    mean of the fine offsets whose share is within :data:`PLATEAU` of the best (the
-    share's flat top); (0, 0) when no offset beats the poses."""
-    if len(b) > MAX_RETURNS:
-        b = b[::math.ceil(len(b) / MAX_RETURNS)]
+def _raster(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(marked, origin)``: ``a``'s returns on a raster of :data:`RASTER_M` cells from
+    ``origin``, each widened by its 8 neighbours, over ``a`` and ``b`` and the search's
+    reach."""
     margin = SEARCH_M + COARSE_M + 2 * RASTER_M
     origin = np.minimum(a.min(axis=0), b.min(axis=0)) - margin
     top = np.maximum(a.max(axis=0), b.max(axis=0)) + margin
@@ -187,8 +221,16 @@ def fit_returns(a: np.ndarray, b: np.ndarray) -> tuple[float, float, tuple[float
     for dr in range(3):
         for dc in range(3):
             marked |= hit[dr:dr + rows, dc:dc + cols]
+    return marked, origin
+
+
+def _search(marked: np.ndarray, origin: np.ndarray, b: np.ndarray,
+            centre: tuple[float, float] = (0.0, 0.0), half: float = SEARCH_M
+            ) -> tuple[float, float, tuple[float, float]]:
+    """:func:`fit_returns` on a raster made by :func:`_raster`; the coarse offsets within
+    ``half`` of ``centre``."""
     at_poses = float(_shares(marked, origin, b, np.zeros((1, 2)))[0])
-    coarse = _grid(COARSE_M, SEARCH_M, (0.0, 0.0))
+    coarse = _grid(COARSE_M, half, centre)
     shares = _shares(marked, origin, b, coarse)
     centre = coarse[int(np.argmax(shares))]
     fine = _grid(FINE_M, COARSE_M, (float(centre[0]), float(centre[1])))
@@ -200,6 +242,60 @@ def fit_returns(a: np.ndarray, b: np.ndarray) -> tuple[float, float, tuple[float
     # the middle of that top, not its first offset
     flat = fine[shares >= top - PLATEAU]
     return at_poses, top, (float(flat[:, 0].mean()), float(flat[:, 1].mean()))
+
+
+def _thinned(b: np.ndarray, most: int) -> np.ndarray:
+    return b[::math.ceil(len(b) / most)] if len(b) > most else b
+
+
+def fit_scans(a: np.ndarray, b: np.ndarray, sensor: tuple[float, float]
+              ) -> tuple[tuple[float, float, tuple[float, float]],
+                         tuple[float, float, tuple[float, float]]]:
+    """Returns ``b`` on returns ``a`` (both (N, 2) log-frame x, y; module docstring, step 3):
+    ``(share at the poses, best share, best offset (x, y))`` — the best offset the mean of
+    the fine offsets whose share is within :data:`PLATEAU` of the best (the share's flat
+    top), (0, 0) when no offset beats the poses — and ``(turn, share, offset)`` of ``b``
+    turned about ``sensor`` (:func:`_best_turn`), on one raster."""
+    b = _thinned(b, MAX_RETURNS)
+    marked, origin = _raster(a, b)
+    unturned = _search(marked, origin, b)
+    return unturned, _best_turn(marked, origin, b, sensor, unturned)
+
+
+def _best_turn(marked: np.ndarray, origin: np.ndarray, b: np.ndarray,
+               sensor: tuple[float, float], unturned: tuple[float, float, tuple[float, float]]
+               ) -> tuple[float, float, tuple[float, float]]:
+    """``(yaw, share, offset)``: the turn of ``b`` about ``sensor`` (its sensor's x, y), of
+    :data:`TURNS_DEG`, and the offset after it, that match the most of ``b`` on the raster
+    — what a heading or extrinsic yaw error looks like. ``unturned``: :func:`_search`'s
+    result without a turn; the offsets are searched within :data:`TURN_SEARCH_M` of its
+    offset (a turn moves it little). The whole degrees of :data:`TURNS_DEG` are compared
+    first, then the half degrees beside the best, each on at most :data:`MAX_TURN_RETURNS`
+    returns; ties: the smaller turn."""
+    near = unturned[2]
+    few = _thinned(b, MAX_TURN_RETURNS)
+    shares: dict[float, float] = {}
+
+    def share_at(yaw: float) -> float:
+        if yaw not in shares:
+            shares[yaw] = _search(marked, origin, _turned(few, sensor, yaw), near,
+                                  TURN_SEARCH_M)[1]
+        return shares[yaw]
+
+    best = max(sorted(TURNS_DEG[::2], key=abs), key=share_at)
+    best = max(sorted((best - TURN_STEP_DEG, best, best + TURN_STEP_DEG), key=abs),
+               key=lambda y: share_at(y) if y in TURNS_DEG else -1.0)
+    if best == 0.0:
+        return 0.0, unturned[1], near
+    _, share, offset = _search(marked, origin, _turned(b, sensor, best), near, TURN_SEARCH_M)
+    return best, share, offset
+
+
+def _turned(b: np.ndarray, centre: tuple[float, float], yaw_deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    d = b - centre
+    return np.column_stack([centre[0] + c * d[:, 0] - s * d[:, 1],
+                            centre[1] + s * d[:, 0] + c * d[:, 1]])
 
 
 def check_poses(scans: Iterable[PosedScan], params: SensorParams) -> PoseFit | None:
@@ -228,7 +324,8 @@ def check_poses(scans: Iterable[PosedScan], params: SensorParams) -> PoseFit | N
             log.info("pose check skipped: %d and %d obstacle returns within %.0f m (fewer "
                      "than %d)", len(a), len(b), REACH_M, MIN_RETURNS)
             return None
-        at_poses, best, offset = fit_returns(a, b)
+        (at_poses, best, offset), (yaw, turned_share, turned) = fit_scans(
+            a, b, (float(scan.T_world_sensor[0, 3]), float(scan.T_world_sensor[1, 3])))
         return PoseFit(0, index, (scan.stamp_ns - first.stamp_ns) * 1e-9, moved,
-                       (len(a), len(b)), at_poses, best, offset)
+                       (len(a), len(b)), at_poses, best, offset, yaw, turned, turned_share)
     return None

@@ -17,7 +17,7 @@ from evperc.sensor.pose_fit import (
     MAX_SCANS,
     MISFIT_M,
     check_poses,
-    fit_returns,
+    fit_scans,
 )
 
 SENSOR_HEIGHT = 1.73
@@ -94,7 +94,7 @@ def test_poses_that_fit_are_not_a_misfit() -> None:
     assert found is not None
     assert found.second == 4  # the first scan posed 3 m or more away: 4 × 0.8 m
     assert found.moved_m == pytest.approx(3.2)
-    assert not found.misfit
+    assert not found.misfit and not found.turns and found.yaw_deg == 0.0
     # the middle of the share's flat top, on fine steps of 0.05 m: within two steps of none
     assert found.offset_norm_m <= 0.1
     assert found.share_at_poses > 0.8
@@ -105,7 +105,7 @@ def test_a_misplaced_scan_is_found_and_its_offset_measured(offset: tuple[float, 
     error = pose(*offset)
     error[2, 3] = 0.0
     found = check_poses(drive(error=error), PARAMS)
-    assert found is not None and found.misfit
+    assert found is not None and found.misfit and not found.turns
     # the logged pose puts the scan ``offset`` too far: it fits best moved back by it; to
     # within two fine steps (test_poses_that_fit_are_not_a_misfit)
     assert found.offset_m[0] == pytest.approx(-offset[0], abs=0.1)
@@ -114,11 +114,22 @@ def test_a_misplaced_scan_is_found_and_its_offset_measured(offset: tuple[float, 
     assert found.message("drive.mcap").startswith("drive.mcap: ")
 
 
-def test_a_yaw_error_shows_as_an_offset() -> None:
-    # 2° of heading on the second scan moves returns 10-30 m away by 0.35-1.0 m sideways
-    found = check_poses(drive(error=_yaw_only(2.0)), PARAMS)
-    assert found is not None and found.misfit
-    assert abs(found.offset_m[1]) >= MISFIT_M
+@pytest.mark.parametrize("yaw", [2.0, -1.5, 1.0])
+def test_a_heading_error_is_found_and_its_turn_measured(yaw: float) -> None:
+    # a heading (or lidar yaw) error turns the second scan about its sensor: at 15 m, 1° is
+    # 0.26 m; no offset undoes it, a turn does (the injected turn is the oracle, on the
+    # search's 0.5° steps)
+    found = check_poses(drive(error=_yaw_only(yaw)), PARAMS)
+    assert found is not None and found.misfit and found.turns
+    assert found.yaw_deg == pytest.approx(-yaw, abs=0.25)
+    assert found.turned_offset_m is not None and math.hypot(*found.turned_offset_m) <= 0.1
+    assert found.share_turned - found.share_best >= 0.3  # the turn, not the offset, fits
+    assert f"turned {-yaw:+.1f}°" in found.message("drive.mcap")
+
+
+def test_half_a_degree_is_not_called_a_misfit() -> None:
+    found = check_poses(drive(error=_yaw_only(0.5)), PARAMS)
+    assert found is not None and not found.misfit and abs(found.yaw_deg) <= 0.5
 
 
 def _yaw_only(deg: float) -> np.ndarray:
@@ -187,13 +198,17 @@ def test_at_most_max_scans_are_read() -> None:
     assert BASELINE_M == 3.0
 
 
-def test_fit_returns_finds_a_pure_shift_of_the_same_points() -> None:
+def test_fit_scans_finds_a_pure_shift_and_a_pure_turn_of_the_same_points() -> None:
     rng = np.random.default_rng(3)
     a = np.concatenate([np.column_stack([rng.uniform(-20, 20, 3000), rng.normal(5, 0.02, 3000)]),
                         np.column_stack([rng.normal(-4, 0.02, 3000), rng.uniform(-10, 10, 3000)]),
                         rng.uniform(-20, 20, (400, 2))])
-    at_poses, best, offset = fit_returns(a, a + (0.7, -0.35))
-    assert at_poses < 0.2 and best > 0.95
+    (at_poses, best, offset), (yaw, _, _) = fit_scans(a, a + (0.7, -0.35), (0.0, 0.0))
+    assert at_poses < 0.2 and best > 0.95 and yaw == 0.0
     assert offset == pytest.approx((-0.7, 0.35), abs=0.05)
-    at_poses, best, offset = fit_returns(a, a.copy())
-    assert at_poses == best == 1.0 and offset == (0.0, 0.0)
+    (at_poses, best, offset), (yaw, _, _) = fit_scans(a, a.copy(), (0.0, 0.0))
+    assert at_poses == best == 1.0 and offset == (0.0, 0.0) and yaw == 0.0
+    c, s = math.cos(math.radians(1.5)), math.sin(math.radians(1.5))
+    turned = a @ np.array([[c, s], [-s, c]])  # each row turned +1.5° about the origin
+    _, (yaw, share, offset) = fit_scans(a, turned, (0.0, 0.0))
+    assert yaw == -1.5 and share > 0.95 and math.hypot(*offset) <= 0.05
