@@ -84,8 +84,8 @@ FINE_M = 0.05
 PLATEAU = 0.01
 #: the second scan's returns used at most (every k-th: deterministic)
 MAX_RETURNS = 20_000
-#: degrees: the turns of a misfit second scan compared (about its sensor), to name a
-#: heading or extrinsic yaw error
+#: degrees: the turns of the second scan compared (about its sensor): a heading or lidar-yaw
+#: error
 TURN_STEP_DEG = 0.5
 TURNS_DEG = tuple(float(v) for v in np.arange(-3.0, 3.01, TURN_STEP_DEG))
 #: the second scan's returns the turns are compared on at most
