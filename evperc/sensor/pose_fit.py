@@ -317,12 +317,13 @@ def check_poses(scans: Iterable[PosedScan], params: SensorParams) -> PoseFit | N
         if moved < BASELINE_M:
             continue
         if moved > MAX_BASELINE_M:  # a jump, not driving: no common scene to compare
-            log.info("pose check skipped: the poses jump %.0f m between two scans", moved)
+            log.info("poses not checked against the scans: they jump %.0f m between two "
+                     "scans", moved)
             return None
         a, b = obstacle_xy(first, params), obstacle_xy(scan, params)
         if min(len(a), len(b)) < MIN_RETURNS:
-            log.info("pose check skipped: %d and %d obstacle returns within %.0f m (fewer "
-                     "than %d)", len(a), len(b), REACH_M, MIN_RETURNS)
+            log.info("poses not checked against the scans: %d and %d obstacle returns within "
+                     "%.0f m, under %d (a sparse sensor)", len(a), len(b), REACH_M, MIN_RETURNS)
             return None
         (at_poses, best, offset), (yaw, turned_share, turned) = fit_scans(
             a, b, (float(scan.T_world_sensor[0, 3]), float(scan.T_world_sensor[1, 3])))
