@@ -841,6 +841,10 @@ def test_count_codes_equals_bincount() -> None:
                           np.repeat(rng.integers(0, 2, n // 40 + 1), 40)[:n]).astype(np.uint8)
         np.testing.assert_array_equal(count_codes(window.reshape(1, -1), 7),
                                       np.bincount(window, minlength=7))
+    odd = np.zeros(16_001, np.uint8)  # a layer at an odd address: its words are unaligned
+    odd[1:] = np.repeat(rng.integers(0, 7, 400), 40)
+    np.testing.assert_array_equal(count_codes(odd[1:].reshape(80, 200), 7),
+                                  np.bincount(odd[1:], minlength=7))
     strided = rng.integers(0, 2, (40, 64)).astype(np.uint8)[:, ::2]
     np.testing.assert_array_equal(count_codes(strided, 7),
                                   np.bincount(strided.ravel(), minlength=7))
