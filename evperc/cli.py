@@ -233,8 +233,11 @@ def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None
 
     reader = open_log(log_path, lidar_topic=lidar_topic, pose_topic=pose_topic, strict=False)
     info = reader.info()
-    fit = _pose_fit(reader)
-    info["pose_fit"] = None if fit is None else fit.summary()
+    fits = _pose_fits(reader)
+    info["pose_fit"] = None if fits[0][1] is None else fits[0][1].summary()
+    info["pose_fits_later"] = [{"from_s": round(from_s, 3),
+                                "pose_fit": None if fit is None else fit.summary()}
+                               for from_s, fit in fits[1:]]
     if as_json:
         click.echo(json.dumps(info, indent=2))
         return
@@ -255,21 +258,43 @@ def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None
         click.echo(f"lidar frame: {info['lidar_frame']}; mean points per scan "
                    f"{info['mean_points_per_scan']:.1f} (first {info['points_sample_scans']} "
                    "scans)")
-    if fit is None:
-        click.echo("poses against the scans: not checked (no posed scans 3 m apart in the first "
-                   "200, or under 200 obstacle returns a scan)")
-    elif fit.misfit:
-        click.echo(f"poses against the scans: DO NOT FIT: {fit.message(str(log_path))}")
-    else:
-        click.echo(f"poses against the scans: fit (scan {fit.second} lies "
-                   f"{fit.offset_norm_m:.2f} m from where its pose puts it against scan "
-                   f"{fit.first}, {fit.moved_m:.1f} m away)")
+    for k, (from_s, fit) in enumerate(fits):
+        where = "" if k == 0 else f" from {from_s:.1f} s"
+        if fit is None:
+            click.echo(f"poses against the scans{where}: not checked (no posed scans 3 m apart "
+                       "in the first 200, or under 200 obstacle returns a scan)")
+        elif fit.misfit:
+            click.echo(f"poses against the scans{where}: DO NOT FIT: "
+                       f"{fit.message(str(log_path))}")
+        else:
+            click.echo(f"poses against the scans{where}: fit (scan {fit.second} lies "
+                       f"{fit.offset_norm_m:.2f} m from where its pose puts it against scan "
+                       f"{fit.first}, {fit.moved_m:.1f} m away)")
 
 
-def _pose_fit(reader: Any) -> Any:
+#: `evperc info` checks the poses from the log's start and, for a log longer than three
+#: times this (s) that it can read from any time, from a third and two thirds of it too
+INFO_POSE_PART_S = 30.0
+
+
+def _pose_fits(reader: Any) -> list[tuple[float, Any]]:
     """`evperc run`'s pose check (:func:`evperc.sensor.pose_fit.check_poses`, the default
-    sensor model) on the log's first scans; None when it cannot be made (no poses, too
-    little motion or too few returns)."""
+    sensor model) from the log's start, and from a third and two thirds of a long log that
+    its source reads from any time (``seeks``; a KITTI folder skips scans by their stamps):
+    ``(seconds from the log's start, fit)``, the fit None where it cannot be made (no poses,
+    too little motion or too few returns; the scans counted from each start)."""
+    first, last = reader.start_ns, reader.end_ns
+    starts: list[int | None] = [None]
+    if (first is not None and last is not None
+            and getattr(getattr(reader, "source", None), "seeks", True)
+            and last - first >= 3 * INFO_POSE_PART_S * 1e9):
+        starts += [first + (last - first) // 3, first + 2 * (last - first) // 3]
+    return [(0.0 if start is None else (start - first) * 1e-9, _pose_fit(reader, start))
+            for start in starts]
+
+
+def _pose_fit(reader: Any, start_ns: int | None) -> Any:
+    """:func:`_pose_fits`' check from ``start_ns`` (None: the log's start)."""
     from contextlib import closing
 
     from evperc.config import default_config
@@ -282,7 +307,7 @@ def _pose_fit(reader: Any) -> Any:
     level = quiet.level                   # business, not this summary's
     quiet.setLevel(max(level, logging.WARNING))
     try:
-        with closing(reader.scans()) as scans:
+        with closing(reader.scans(start_ns=start_ns)) as scans:
             return check_poses(scans, params)
     except EvpercError:  # no pose source, no lidar topic: `info` says so above
         return None

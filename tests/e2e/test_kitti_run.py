@@ -102,6 +102,23 @@ def test_pose_check_error_stops_before_any_output(tmp_path: Path) -> None:
 
 
 @needs_kitti
+def test_info_checks_a_long_log_further_on_too(monkeypatch: pytest.MonkeyPatch) -> None:
+    # a "long" log: parts of 0.25 s, so SemanticKITTI 00's 0.93 s is checked from 0, 0.31 and
+    # 0.62 s (the last too near the end to find a scan 3 m on)
+    import evperc.cli as cli_module
+
+    monkeypatch.setattr(cli_module, "INFO_POSE_PART_S", 0.25)
+    result = CliRunner().invoke(cli, ["info", "--json", str(SEMANTIC_00)])
+    assert result.exit_code == 0, result.output
+    info = json.loads(result.output)
+    later = info["pose_fits_later"]
+    assert [round(p["from_s"], 2) for p in later] == [0.31, 0.62]
+    assert later[0]["pose_fit"]["misfit"] is False and later[1]["pose_fit"] is None
+    text = CliRunner().invoke(cli, ["info", str(SEMANTIC_00)]).output
+    assert "poses against the scans from 0.3 s: fit (" in text
+
+
+@needs_kitti
 def test_info_says_whether_the_poses_fit_the_scans() -> None:
     bad = CliRunner().invoke(cli, ["info", str(KITTI)])
     assert bad.exit_code == 0, bad.output

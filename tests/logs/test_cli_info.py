@@ -50,6 +50,7 @@ def test_info_json(tmp_path):
     assert info["indexed"] is True and info["duration_s"] == 0.25
     assert info["detected"]["lidar_topic"] == "/points"
     assert info["pose_fit"] is None
+    assert info["pose_fits_later"] == []  # 0.25 s: too short to check again further on
 
 
 def test_info_reports_ambiguous_topics_instead_of_failing(tmp_path):
