@@ -267,9 +267,7 @@ def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None
             click.echo(f"poses against the scans{where}: DO NOT FIT: "
                        f"{fit.message(str(log_path))}")
         else:
-            click.echo(f"poses against the scans{where}: fit (scan {fit.second} lies "
-                       f"{fit.offset_norm_m:.2f} m from where its pose puts it against scan "
-                       f"{fit.first}, {fit.moved_m:.1f} m away)")
+            click.echo(f"poses against the scans{where}: fit ({fit.fit_text()})")
 
 
 #: `evperc info` checks the poses from the log's start and, for a log longer than three
@@ -283,36 +281,35 @@ def _pose_fits(reader: Any) -> list[tuple[float, Any]]:
     its source reads from any time (``seeks``; a KITTI folder skips scans by their stamps):
     ``(seconds from the log's start, fit)``, the fit None where it cannot be made (no poses,
     too little motion or too few returns; the scans counted from each start)."""
-    first, last = reader.start_ns, reader.end_ns
-    starts: list[int | None] = [None]
-    if (first is not None and last is not None
-            and getattr(getattr(reader, "source", None), "seeks", True)
-            and last - first >= 3 * INFO_POSE_PART_S * 1e9):
-        starts += [first + (last - first) // 3, first + 2 * (last - first) // 3]
-    return [(0.0 if start is None else (start - first) * 1e-9, _pose_fit(reader, start))
-            for start in starts]
-
-
-def _pose_fit(reader: Any, start_ns: int | None) -> Any:
-    """:func:`_pose_fits`' check from ``start_ns`` (None: the log's start)."""
     from contextlib import closing
 
     from evperc.config import default_config
     from evperc.sensor import SensorParams
     from evperc.sensor.pose_fit import check_poses
 
+    first, last = reader.start_ns, reader.end_ns
+    starts: list[int | None] = [None]
+    if (first is not None and last is not None
+            and getattr(getattr(reader, "source", None), "seeks", True)
+            and last - first >= 3 * INFO_POSE_PART_S * 1e9):
+        starts += [first + (last - first) // 3, first + 2 * (last - first) // 3]
     config = default_config()
     params = SensorParams.from_config(config["sensor"], config["grid"]["cell_size_m"])
+    fits: list[tuple[float, Any]] = []
     quiet = logging.getLogger("evperc")  # the reader's notes on its first scans: a run's
     level = quiet.level                   # business, not this summary's
     quiet.setLevel(max(level, logging.WARNING))
     try:
-        with closing(reader.scans(start_ns=start_ns)) as scans:
-            return check_poses(scans, params)
-    except EvpercError:  # no pose source, no lidar topic: `info` says so above
-        return None
+        for start in starts:
+            try:
+                with closing(reader.scans(start_ns=start)) as scans:
+                    fit = check_poses(scans, params)
+            except EvpercError:  # no pose source, no lidar topic: `info` says so above
+                fit = None
+            fits.append((0.0 if start is None else (start - first) * 1e-9, fit))
     finally:
         quiet.setLevel(level)
+    return fits
 
 
 @cli.command("render")

@@ -779,14 +779,13 @@ def run(request: RunRequest, resume: bool = False,
     # output is created: a run that stops on an input error leaves nothing
     if not pipeline.warm_up_inputs() and not resume:
         raise nothing_fused(request, pipeline.reader.stats)
-    if not resume:
-        pipeline.check_poses()
     if resume:
         writer = RunWriter.resume(out_dir)
         done = writer.manifest["frame_count"]
         if done:
             state = FusionState.load(checkpoint_path(out_dir, done))
     else:
+        pipeline.check_poses()  # may stop the run before its output exists
         writer = RunWriter(out_dir, request.config, pipeline.meta(), overwrite=request.overwrite)
 
     def discard_if_empty() -> None:

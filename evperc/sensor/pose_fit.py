@@ -165,6 +165,11 @@ class PoseFit:
                 "decided moving; check the pose topic, its frame and stamps, and the lidar's "
                 "extrinsic")
 
+    def fit_text(self) -> str:
+        """How well the poses fit, in a few words (``evperc info``, for a fit)."""
+        return (f"scan {self.second} lies {self.offset_norm_m:.2f} m from where its pose puts "
+                f"it against scan {self.first}, {self.moved_m:.1f} m away")
+
     def _turn_text(self) -> str:
         if not self.turns or self.turned_offset_m is None or self.share_turned is None:
             return ""
