@@ -49,7 +49,7 @@ from evperc.output.objects import moving_object_cells, object_labels  # noqa: E4
 
 log = logging.getLogger("object_replay")
 OSM = REPO / "tests" / "data" / "osm"
-SECONDS = {"ibeo4": 20, "hdl64": 10}
+SECONDS = {"ibeo4": 20, "hdl64": 10, "vlp16": 10}
 INPUTS = "object_inputs.npz"
 _UNMAPPED = DECISION_CODES["unmapped"]
 _MOVING = DECISION_CODES["moving"]

@@ -117,12 +117,13 @@ SPEC = {
     ("decision", "max_ignorance"): 0.5,
     # evperc's additions, off in the paper's method
     ("sensor", "free_margin_m"): 0.0, ("sensor", "free_erosion_m"): 0.0,
+    ("sensor", "ground_chain"): False, ("sensor", "foot_lift_m"): 0.0,
     ("map", "building_margin_m"): 0.0,
 }
 
 
 @pytest.mark.parametrize("key", ["sensor.free_margin_m", "sensor.free_erosion_m",
-                                 "map.building_margin_m"])
+                                 "sensor.foot_lift_m", "map.building_margin_m"])
 def test_new_margins_are_validated(tmp_path: Path, key: str) -> None:
     table, name = key.split(".")
     with pytest.raises(ConfigError, match=rf"user.toml: {key} = -0.5 is outside \[0.0, "):

@@ -11,6 +11,16 @@ azimuth × bands of ``BAND_M`` horizontal range):
 3. The estimate is kept if the cell has at least ``MIN_POINTS`` points, the percentile is not
    in an edge bin, and it lies within ``BASE_TOLERANCE_M + MAX_SLOPE·r_out`` of the prior
    (``r_out`` the band's outer range) — the ground may slope by at most ``MAX_SLOPE``.
+   With the chain (``sensor.ground_chain``, the default; off in the paper's preset) it must
+   also lie within ``BASE_TOLERANCE_M + MAX_SLOPE·(r_out − r_last)`` of the estimate of the
+   last band kept nearer the sensor in its sector (``r_last`` that band's outer range; the
+   prior at 0 for the first), walking outwards: the slope bound holds from band to band, not
+   only from the sensor. A band with no ground return — beyond the last ring a sparse
+   scanner lays on the road (a 16-layer scanner 1.8 m up: 34 m, then 103 m) — holds only
+   what stands in it, and the low percentile of a fence or a car's side 1.1 m up passes the
+   prior's bound out there (0.5 + 0.1·40 m); it became the band's ground and the object's
+   returns ground, free space that turned occupied as the layer slid down the object from
+   scan to scan (false motion). With the chain that band keeps the nearer band's ground.
 4. Otherwise the cell takes the estimate of the nearest accepted band nearer the sensor in
    the same sector, or, if there is none, the *fallback*: the prior (height 0,
    ``sensor.ground_fallback = "prior"``, the paper's preset) or the median of the scan's
@@ -42,7 +52,10 @@ azimuth × bands of ``BAND_M`` horizontal range):
 A point is *ground* if its height above the estimate is below ``ground_threshold_m``
 (points below the estimate, e.g. in a ditch or multipath echoes, count as ground), an
 *obstacle* if it is between the threshold and ``max_obstacle_height_m``, and *ignored* above
-(overhanging trees, bridges, signs).
+(overhanging trees, bridges, signs). Each point's *lift* — its height above the ground of
+the nearer band, what the road before it predicts — is written out on request: a layer that
+meets an object only at its foot, under the threshold, gives a ground return well above the
+nearer ground (``sensor.foot_lift_m``, :func:`evperc.sensor.projection.unfree_feet`).
 
 Failure modes: a cell seen only on an object (a wall or truck side filling a whole cell with
 no ground visible below it) gets its ground at the object's lowest visible part, so the
@@ -108,7 +121,8 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
                     kind: np.ndarray, scan_fallback: bool = False,
                     height: np.ndarray = NO_HEIGHTS, local_raise: float = 0.0,
                     x: np.ndarray = NO_LOCAL, y: np.ndarray = NO_LOCAL,
-                    local_min: np.ndarray = NO_LOCAL) -> None:
+                    local_min: np.ndarray = NO_LOCAL, chain: bool = False,
+                    lift: np.ndarray = NO_HEIGHTS) -> None:
     """Write into ``kind`` the GROUND / OBSTACLE / IGNORED kind of each point.
 
     ``z``: levelled height above the sensor; ``range_m``: horizontal range; ``az_bin``:
@@ -122,8 +136,13 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
     has one element a point) receives each OBSTACLE point's ``d`` (+inf for a planar scan,
     which has no ground; NaN for the other points). ``local_raise`` > 0: step 5 with Δ =
     ``local_raise``, on the points' levelled offsets ``x``, ``y`` from the sensor and the
-    float32 work array ``local_min`` of ``local_grid_side(max_range_m)²`` elements."""
+    float32 work array ``local_min`` of ``local_grid_side(max_range_m)²`` elements.
+    ``chain``: step 3's chain along each sector. ``lift`` (float32, optional: when it has one
+    element a point) receives each kept point's height above the ground of the nearer band
+    (the estimate its band would take without its own: :func:`_fill_ground`'s
+    ``ground_near``; NaN for dropped points), for ``sensor.foot_lift_m``."""
     heights = height.shape[0] == z.shape[0]
+    lifts = lift.shape[0] == z.shape[0]
     if planar:
         for i in range(z.shape[0]):
             kind[i] = OBSTACLE if az_bin[i] >= 0 else IGNORED
@@ -153,7 +172,7 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
         cells[i] = cell
     if run:
         hist[last] += run
-    ground = _fill_ground(hist, n_sector, n_band, n_z, scan_fallback)
+    ground, ground_near = _fill_ground(hist, n_sector, n_band, n_z, scan_fallback, chain)
     refine = local_raise > 0
     if refine:
         side = local_grid_side(max_range_m)
@@ -165,8 +184,12 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
         cell = cells[i]
         if heights:
             height[i] = np.nan
+        if lifts:
+            lift[i] = np.nan
         if cell >= 0:
             d = (z[i] + sensor_height) - ground[cell]
+            if lifts:
+                lift[i] = (z[i] + sensor_height) - ground_near[cell]
             if refine and d < local_raise:  # near the coarse ground: may be a block's lowest
                 at = _local_cell(x[i], y[i], max_range_m, side)
                 local_min[at] = min(local_min[at], z[i] + sensor_height)
@@ -219,10 +242,14 @@ def _z_bin(height: np.float32, n_z: int) -> int:
 
 @numba.njit(cache=True, nogil=True)
 def _fill_ground(hist: np.ndarray, n_sector: int, n_band: int, n_z: int,
-                 scan_fallback: bool = False) -> np.ndarray:
-    """Ground estimate (float32) per coarse cell: its own if accepted, else that of the
-    nearest accepted band nearer the sensor in its sector, else the fallback — 0 (the
-    prior) or, with ``scan_fallback``, the median of the accepted estimates (steps 2–4)."""
+                 scan_fallback: bool = False, chain: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """``(ground, ground_near)`` (float32) per coarse cell. ``ground``: its own estimate if
+    accepted (with ``chain``, also within the slope bound of the last accepted band nearer
+    the sensor), else that of the nearest accepted band nearer the sensor in its sector,
+    else the fallback — 0 (the prior) or, with ``scan_fallback``, the median of the accepted
+    estimates (steps 2–4). ``ground_near``: the same without the cell's own estimate (the
+    nearest accepted band strictly nearer, else the fallback)."""
     accepted = np.empty(n_sector * n_band, dtype=np.float64)
     ok = np.zeros(n_sector * n_band, dtype=np.bool_)
     for cell in range(n_sector * n_band):
@@ -242,15 +269,29 @@ def _fill_ground(hist: np.ndarray, n_sector: int, n_band: int, n_z: int,
             if 0 < pct_bin < n_z - 1 and abs(estimate) <= tolerance:
                 accepted[cell] = estimate
                 ok[cell] = True
+    if chain:
+        for sector in range(n_sector):
+            last, last_r = 0.0, 0.0
+            for band in range(n_band):
+                cell = sector * n_band + band
+                if ok[cell]:
+                    r_out = (band + 1.0) * BAND_M
+                    bound = BASE_TOLERANCE_M + MAX_SLOPE * (r_out - last_r)
+                    if abs(accepted[cell] - last) <= bound:
+                        last, last_r = accepted[cell], r_out
+                    else:
+                        ok[cell] = False
     fallback = 0.0
     if scan_fallback and ok.any():
         fallback = np.median(accepted[ok])
     ground = np.zeros(n_sector * n_band, dtype=np.float32)
+    ground_near = np.zeros(n_sector * n_band, dtype=np.float32)
     for sector in range(n_sector):
         last = fallback
         for band in range(n_band):
             cell = sector * n_band + band
+            ground_near[cell] = np.float32(last)
             if ok[cell]:
                 last = accepted[cell]
             ground[cell] = np.float32(last)
-    return ground
+    return ground, ground_near

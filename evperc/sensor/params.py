@@ -30,6 +30,8 @@ class SensorParams:
     free_erosion_m: float = 0.0
     ground_fallback: str = "prior"
     ground_local_raise_m: float = 0.0
+    ground_chain: bool = False
+    foot_lift_m: float = 0.0
 
     @staticmethod
     def from_config(sensor: Mapping[str, Any], cell_size_m: float) -> SensorParams:
@@ -48,4 +50,6 @@ class SensorParams:
             free_erosion_m=float(sensor["free_erosion_m"]),
             ground_fallback=str(sensor["ground_fallback"]),
             ground_local_raise_m=float(sensor["ground_local_raise_m"]),
+            ground_chain=bool(sensor["ground_chain"]),
+            foot_lift_m=float(sensor["foot_lift_m"]),
         )

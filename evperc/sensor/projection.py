@@ -38,7 +38,7 @@ import numpy as np
 from evperc.geo.window import Window
 from evperc.sensor.beams import PolarLayout
 from evperc.sensor.evidence import FREE, OCCUPIED, UNKNOWN
-from evperc.sensor.ground import OBSTACLE
+from evperc.sensor.ground import GROUND, OBSTACLE
 
 # The kernels below call only jitted helpers of this module: numba's cache checks the source
 # file of a kernel, not of the functions it inlines from elsewhere. The imported constants are
@@ -130,6 +130,30 @@ def _scatter_hits(state, res, row0, col0, sx, sy, x, y, az_bin, range_bin, kind,
         if kind[i] == OBSTACLE and range_bin[i] == obstacle_bin[az_bin[i]]:
             _mark(state, res, row0, col0, sx + np.float64(x[i]), sy + np.float64(y[i]),
                   OCCUPIED)
+
+
+def unfree_feet(state: np.ndarray, free: np.ndarray, window: Window,
+                sensor_xy: tuple[float, float], x: np.ndarray, y: np.ndarray, kind: np.ndarray,
+                lift: np.ndarray, foot_lift_m: float) -> None:
+    """After pass 3: every FREE cell holding a GROUND point whose ``lift`` (its height above
+    the ground of the nearer band, :func:`evperc.sensor.ground.classify_points`) is at least
+    ``foot_lift_m`` becomes UNKNOWN and loses its free mass (``sensor.foot_lift_m``,
+    method.md §3 "An object's foot")."""
+    _unfree(state, free, float(window.resolution_m), window.row0, window.col0, sensor_xy[0],
+            sensor_xy[1], x, y, kind, lift, np.float32(foot_lift_m))
+
+
+@numba.njit(cache=True, nogil=True)
+def _unfree(state, free, res, row0, col0, sx, sy, x, y, kind, lift, lowest) -> None:
+    """See :func:`unfree_feet` (cells as :func:`_mark`)."""
+    rows, cols = state.shape
+    for i in range(x.shape[0]):
+        if kind[i] == GROUND and lift[i] >= lowest:
+            r = math.floor((sy + np.float64(y[i])) / res) - row0
+            c = math.floor((sx + np.float64(x[i])) / res) - col0
+            if 0 <= r < rows and 0 <= c < cols and state[r, c] == FREE:
+                state[r, c] = UNKNOWN
+                free[r, c] = 0.0
 
 
 @numba.njit(cache=True, nogil=True)

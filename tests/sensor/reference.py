@@ -41,9 +41,9 @@ def reference_state(points, planar, t_crs_sensor, window, params) -> list[list[i
         kept.append((x, y, z, r, a, math.floor(r / c)))
 
     if planar:
-        kinds = ["obstacle"] * len(kept)
+        kinds, lifts = ["obstacle"] * len(kept), [0.0] * len(kept)
     else:
-        kinds = classify(kept, n_az, params)
+        kinds, lifts = classify(kept, n_az, params)
 
     nearest = {}
     furthest = {}
@@ -84,11 +84,20 @@ def reference_state(points, planar, t_crs_sensor, window, params) -> list[list[i
     for (x, y, _, _, a, k), kind in zip(kept, kinds, strict=True):
         if kind == "obstacle" and k == nearest[a]:
             mark(sx + x, sy + y, OCCUPIED)
+    if params.foot_lift_m > 0:   # a ground return high above the nearer ground frees nothing
+        for (x, y, _, _, _, _), kind, lift in zip(kept, kinds, lifts, strict=True):
+            col = math.floor((sx + x) / r0) - window.col0
+            row = math.floor((sy + y) / r0) - window.row0
+            if (kind == "ground" and lift >= params.foot_lift_m and 0 <= row < window.rows
+                    and 0 <= col < window.cols and state[row][col] == FREE):
+                state[row][col] = UNKNOWN
     return state
 
 
-def classify(kept, n_az, params) -> list[str]:
-    """'ground' / 'obstacle' / 'ignored' per point, by height above the local ground."""
+def classify(kept, n_az, params) -> tuple[list[str], list[float]]:
+    """'ground' / 'obstacle' / 'ignored' per point, by height above the local ground, and
+    each point's height above the ground of the nearest accepted band nearer the sensor in
+    its sector (0, the prior, if none)."""
     n_sector = round(360.0 / SECTOR_DEG)
     n_band = int(params.max_range_m // BAND_M) + 1
     n_z = round(2 * Z_SPAN_M / Z_BIN_M)
@@ -107,19 +116,31 @@ def classify(kept, n_az, params) -> list[str]:
         tol = min(BASE_TOL_M + MAX_SLOPE * (key[1] + 1) * BAND_M, Z_SPAN_M)
         if len(heights) >= MIN_POINTS and 0 < zb < n_z - 1 and abs(estimate) <= tol:
             accepted[key] = estimate
+    if params.ground_chain:   # outward along each sector: within the slope bound of the last kept
+        for sector in range(n_sector):
+            last, last_r = 0.0, 0.0
+            for band in range(n_band):
+                if (sector, band) in accepted:
+                    r_out = (band + 1) * BAND_M
+                    bound = BASE_TOL_M + MAX_SLOPE * (r_out - last_r)
+                    if abs(accepted[(sector, band)] - last) <= bound:
+                        last, last_r = accepted[(sector, band)], r_out
+                    else:
+                        del accepted[(sector, band)]
 
-    def ground_at(key: tuple[int, int]) -> float:
-        for band in range(key[1], -1, -1):
-            if (key[0], band) in accepted:
-                return accepted[(key[0], band)]
+    def ground_at(sector: int, band: int) -> float:
+        for b in range(band, -1, -1):
+            if (sector, b) in accepted:
+                return accepted[(sector, b)]
         return 0.0
 
-    kinds = []
+    kinds, lifts = [], []
     for (_, _, z, _, _, _), key in zip(kept, keys, strict=True):
-        d = z + params.sensor_height_m - ground_at(key)
+        d = z + params.sensor_height_m - ground_at(*key)
         kinds.append("ground" if d < params.ground_threshold_m
                      else "obstacle" if d <= params.max_obstacle_height_m else "ignored")
-    return kinds
+        lifts.append(z + params.sensor_height_m - ground_at(key[0], key[1] - 1))
+    return kinds, lifts
 
 
 def reference_grid(points, planar, t_crs_sensor, window, params):

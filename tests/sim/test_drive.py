@@ -164,12 +164,15 @@ def test_stationary_ego_without_movers_has_no_moving_truth(tmp_path: Path) -> No
     assert (frames[-1].classes != 1).any()   # the scene is not empty: buildings at least
 
 
-@pytest.mark.parametrize(("profile", "topic", "low", "high"), [
-    ("hdl64", "/lidar/points", 100_000, 128_000),
-    ("scan2d", "/scan", 1, 541),
+@pytest.mark.parametrize(("profile", "topic", "low", "high", "mount_m"), [
+    ("hdl64", "/lidar/points", 100_000, 128_000, 1.9),
+    # vlp16: 16 layers × 1,800 azimuths; the 7 lowest meet the road within 100 m (the −1°
+    # layer at 103 m), so at least 7 × 1,800 less 1 % dropouts return
+    ("vlp16", "/lidar/points", 12_400, 28_800, 1.8),
+    ("scan2d", "/scan", 1, 541, None),
 ])
 def test_point_counts_per_profile(tmp_path: Path, profile: str, topic: str, low: int,
-                                  high: int) -> None:
+                                  high: int, mount_m: float | None) -> None:
     out = run_sim(tmp_path / profile, profile=profile, seconds=0.2)
     msgs = decoded(out / "drive.mcap", topic)
     assert len(msgs) == 2
@@ -182,5 +185,5 @@ def test_point_counts_per_profile(tmp_path: Path, profile: str, topic: str, low:
         else:
             n = m.width
             z = np.frombuffer(bytes(m.data), "<f4").reshape(-1, 4)[:, 2]
-            assert (np.abs(z + 1.9) < 0.1).mean() > 0.3     # ground returns, 1.9 m below
+            assert (np.abs(z + mount_m) < 0.1).mean() > 0.3   # ground returns, mount_m below
         assert low <= n <= high

@@ -1,0 +1,84 @@
+"""A ground return high above the nearer ground frees nothing (``sensor.foot_lift_m``,
+docs/method.md §3 "An object's foot").
+
+The scanner and scenes of tests/sensor/test_ground_chain.py: 16 layers 2° apart, 1.8 m up,
+returns cast analytically. A 1.2 m fence 30.2 m ahead is met by the −3° layer 0.20–0.22 m up
+(under the 0.3 m threshold: ground) and passed over by the −1° layer (1.27 m up there): the
+scan holds only the fence's foot, and without the rule its cells are free.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from evperc.geo.window import Window
+from evperc.sensor import sensor_grid
+from evperc.sensor.ground import GROUND
+from tests.sensor.reference import reference_grid
+from tests.sensor.scenes import pose
+from tests.sensor.test_ground_chain import MOUNT, SENSOR, kinds_of, sparse_scan
+
+FOOT_X = 30.2
+
+
+def grid(level: np.ndarray, params, foot: float, chain: bool = True):
+    t = pose(*SENSOR, MOUNT)
+    window = Window.centred_on(*SENSOR, 160.0, 0.5)
+    p = replace(params, sensor_height_m=MOUNT, ground_chain=chain, foot_lift_m=foot)
+    free, occ = sensor_grid((level @ t[:3, :3]).astype(np.float32), False, t, window, p)
+    return window, free, occ
+
+
+def cells_of(window: Window, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    rows, cols = window.index_of(SENSOR[0] + xy[:, 0], SENSOR[1] + xy[:, 1])
+    return np.asarray(rows), np.asarray(cols)
+
+
+def test_only_the_foot_is_seen(params) -> None:
+    level, on_fence = sparse_scan(fence_x=FOOT_X)
+    heights = level[on_fence][:, 2] + MOUNT
+    assert on_fence.sum() > 50 and heights.min() > 0.19 and heights.max() < 0.23
+    assert (kinds_of(level, params, chain=True)[on_fence] == GROUND).all()
+
+
+def test_the_foot_frees_nothing(params) -> None:
+    level, on_fence = sparse_scan(fence_x=FOOT_X)
+    foot = cells_of(Window.centred_on(*SENSOR, 160.0, 0.5), level[on_fence][:, :2])
+    window, free_off, occ_off = grid(level, params, foot=0.0)
+    _, free_on, occ_on = grid(level, params, foot=0.15)
+    assert (free_off[foot] > 0).all()              # the paper's model: the fence is free
+    assert not (free_on[foot] > 0).any()           # with the rule: unknown, not occupied
+    assert not occ_on.any() and not occ_off.any()
+    # nothing else changes: every other cell keeps its free mass
+    others = np.ones(window.shape, bool)
+    others[foot] = False
+    np.testing.assert_array_equal(free_on[others], free_off[others])
+
+
+@pytest.mark.parametrize("kerb_m", [0.0, 0.12])
+def test_flat_ground_and_a_kerb_keep_their_free_space(params, kerb_m: float) -> None:
+    """Ground returns on the flat road and on a 0.12 m pavement (under 0.15 m above the road
+    of the nearer band) free their cells as before."""
+    level, _ = sparse_scan(fence=False, kerb_m=kerb_m)
+    _, free_off, _ = grid(level, params, foot=0.0)
+    _, free_on, _ = grid(level, params, foot=0.15)
+    assert (free_off > 0).sum() > 10_000
+    np.testing.assert_array_equal(free_on, free_off)
+
+
+@pytest.mark.parametrize("foot", [0.0, 0.15])
+def test_matches_oracle(params, foot: float) -> None:
+    level, _ = sparse_scan(fence_x=FOOT_X, kerb_m=0.12)
+    t = pose(-2.0, 5.0, MOUNT, yaw_deg=-35.0)
+    p = replace(params, sensor_height_m=MOUNT, ground_chain=True, foot_lift_m=foot,
+                max_range_m=60.0)
+    window = Window.centred_on(-2.0, 5.0, 130.0, 0.5)
+    sensor = (level @ t[:3, :3]).astype(np.float32)
+    free, occ = sensor_grid(sensor, False, t, window, p)
+    want_free, want_occ = reference_grid(sensor, False, t, window, p)
+    assert (want_free > 0).sum() > 10_000
+    np.testing.assert_array_equal(free, want_free)
+    np.testing.assert_array_equal(occ, want_occ)

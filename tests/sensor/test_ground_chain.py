@@ -1,0 +1,139 @@
+"""The ground estimate's chain along a sector (``sensor.ground_chain``, docs/method.md §3).
+
+A 16-layer scanner 1.8 m up (VLP-16-like: −15°…+15° every 2°) meets flat ground on rings,
+the last one at 34.3 m (−3°); the next layer (−1°) would meet it at 103 m. Between them no
+ground return falls, so a 2 m band out there holds only what stands in it. The scenes are
+built by casting each beam analytically (the nearest of ground and a fence wins), so the
+truth of every return — ground, or the fence at a known height — is known without evperc.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from evperc.geo.window import Window
+from evperc.sensor import sensor_grid
+from evperc.sensor.ground import GROUND, OBSTACLE
+from tests.sensor.reference import reference_grid
+from tests.sensor.scenes import pose
+
+MOUNT = 1.8
+LAYERS_DEG = np.arange(-15.0, 16.0, 2.0)
+FENCE_X, FENCE_HALF, FENCE_TOP = 38.2, 5.0, 1.2   # a fence ahead (x off the range-bin edges)
+SENSOR = (0.25, 0.25)
+
+
+def sparse_scan(slope: float = 0.0, fence: bool = True, fence_x: float = FENCE_X,
+                kerb_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Level offsets of every return and whether it is on the fence (at ``x = fence_x``).
+    The ground rises by ``slope`` per metre towards +x (z = slope·max(x, 0)); with
+    ``kerb_m``, the returns at y > 4 m stand that much higher (a pavement behind a kerb;
+    their ranges are not recomputed); azimuths every 0.2°."""
+    az = np.radians(np.arange(-180.0, 180.0, 0.2))
+    pts, on_fence = [], []
+    for e in np.radians(LAYERS_DEG):
+        if e >= 0:   # never meets the ground; may meet the fence only above its top
+            continue
+        c, s = np.cos(az), np.sin(az)
+        # ground: MOUNT + t·tan e = slope·max(t·c, 0) along the horizontal distance t
+        rise = slope * np.maximum(c, 0.0)
+        t_ground = MOUNT / (np.tan(-e) + rise)
+        t = t_ground.copy()
+        hit_fence = np.zeros(az.size, bool)
+        if fence:
+            with np.errstate(divide="ignore"):
+                t_fence = np.where(c > 0, fence_x / c, np.inf)
+            y_fence = t_fence * s
+            z_fence = MOUNT + t_fence * np.tan(e)
+            hit_fence = (np.abs(y_fence) <= FENCE_HALF) & (z_fence >= 0) & (
+                z_fence <= FENCE_TOP) & (t_fence < t_ground)
+            t = np.where(hit_fence, t_fence, t_ground)
+        keep = t < 79.0
+        z = MOUNT + t * np.tan(e) + kerb_m * (t * s > 4.0) * ~hit_fence
+        pts.append(np.stack([t * c, t * s, z - MOUNT], 1)[keep])
+        on_fence.append(hit_fence[keep])
+    return np.vstack(pts), np.concatenate(on_fence)
+
+
+def kinds_of(level: np.ndarray, params, chain: bool) -> np.ndarray:
+    t = pose(*SENSOR, MOUNT)
+    kinds = np.empty(len(level), np.uint8)
+    sensor_grid((level @ t[:3, :3]).astype(np.float32), False, t,
+                Window.centred_on(*SENSOR, 160.0, 0.5),
+                replace(params, sensor_height_m=MOUNT, ground_chain=chain), kinds_out=kinds)
+    return kinds
+
+
+def test_the_scene_is_what_the_docstring_says() -> None:
+    level, on_fence = sparse_scan()
+    ground = level[~on_fence]
+    r = np.hypot(ground[:, 0], ground[:, 1])
+    assert r.max() < 34.5 and np.abs(ground[:, 2] + MOUNT).max() < 1e-9
+    top = level[on_fence][:, 2] + MOUNT   # the −1° layer meets the fence 1.14 m up
+    assert on_fence.sum() > 50 and np.allclose(top, MOUNT - FENCE_X * math.tan(
+        math.radians(1.0)), atol=0.01)
+
+
+def test_a_band_without_ground_takes_the_nearer_ground_with_the_chain(params) -> None:
+    """Without the chain, the fence's band has only fence returns; their low percentile
+    (1.14 m) lies within the prior's bound at 40 m (0.5 + 0.1·40 m), so the fence becomes the
+    band's ground and every return on it is ground. With the chain the band must also lie
+    within 0.5 + 0.1·(40 − 36) m of the band of the last ring (ground 0): it is rejected, the
+    band keeps the ring's ground and the fence is an obstacle."""
+    level, on_fence = sparse_scan()
+    before = kinds_of(level, params, chain=False)
+    after = kinds_of(level, params, chain=True)
+    assert (before[on_fence] == GROUND).all()
+    assert (after[on_fence] == OBSTACLE).all()
+    np.testing.assert_array_equal(after[~on_fence], GROUND)
+    np.testing.assert_array_equal(before[~on_fence], GROUND)
+
+
+@pytest.mark.parametrize("slope", [0.05, 0.09])
+def test_the_chain_keeps_rising_ground_ground(params, slope: float) -> None:
+    """Ground rising within the slope bound (10 %) ahead stays ground along the sector: the
+    chain changes no return's kind. (Without it too, a few returns are obstacles: where a
+    ring crosses a band's edge near a sector's edge, the band holds fewer than 5 returns and
+    takes a nearer band's ground, lower on this slope; and at the sides, ±70–85°, where this
+    scene's ground folds at x = 0 within a sector.)"""
+    level, _ = sparse_scan(slope=slope, fence=False)
+    ahead = np.abs(np.degrees(np.arctan2(level[:, 1], level[:, 0]))) < 60.0
+    assert level[ahead, 2].max() + MOUNT > 1.0   # the far rings stand more than a metre higher
+    kinds = kinds_of(level, params, chain=True)
+    np.testing.assert_array_equal(kinds, kinds_of(level, params, chain=False))
+    assert (kinds[ahead] == GROUND).mean() > 0.995
+
+
+def test_fence_cells_are_occupied_not_free(params) -> None:
+    """What the split changes in the grid: the fence's cells are occupied with the chain and
+    free without it (a ground return is free space)."""
+    level, on_fence = sparse_scan()
+    t = pose(*SENSOR, MOUNT)
+    window = Window.centred_on(*SENSOR, 160.0, 0.5)
+    sensor = (level @ t[:3, :3]).astype(np.float32)
+    cells = {window.index_of(np.array(SENSOR[0] + x), np.array(SENSOR[1] + y))
+             for x, y in level[on_fence][:, :2]}
+    cells = tuple(np.array(v) for v in zip(*((int(r), int(c)) for r, c in cells), strict=True))
+    for chain, want in ((False, "free"), (True, "occupied")):
+        free, occ = sensor_grid(sensor, False, t, window,
+                                replace(params, sensor_height_m=MOUNT, ground_chain=chain))
+        grid = free if want == "free" else occ
+        assert (grid[cells] > 0).all(), chain
+
+
+@pytest.mark.parametrize("chain", [False, True])
+def test_matches_oracle_on_the_sparse_scan(params, chain: bool) -> None:
+    level, _ = sparse_scan()
+    t = pose(3.0, -7.0, MOUNT, yaw_deg=20.0)
+    p = replace(params, sensor_height_m=MOUNT, ground_chain=chain, max_range_m=60.0)
+    window = Window.centred_on(3.0, -7.0, 130.0, 0.5)
+    sensor = (level @ t[:3, :3]).astype(np.float32)
+    free, occ = sensor_grid(sensor, False, t, window, p)
+    want_free, want_occ = reference_grid(sensor, False, t, window, p)
+    assert (want_occ > 0).sum() > 20 if chain else not want_occ.any()
+    np.testing.assert_array_equal(free, want_free)
+    np.testing.assert_array_equal(occ, want_occ)
