@@ -80,6 +80,7 @@ SCORE_KEYS = (("per_class", "moving", "precision"), ("per_class", "moving", "rec
               ("moving_within_one_cell", "precision"), ("moving_within_one_cell", "recall"),
               ("stopped_within_one_cell", "f1"))
 #: their column headers
+CELLS = ("visible", "observed")
 SCORE_HEADS = ("moving P", "moving R", "moving F1", "free P", "stopped F1", "unmapped F1",
                "moving P ±1 cell", "moving R ±1 cell", "stopped F1 ±1 cell")
 
@@ -102,6 +103,9 @@ def main() -> int:
     parser.add_argument("--work", type=Path, required=True)
     parser.add_argument("--seeds", default=study.TEST_SEEDS)
     parser.add_argument("--profiles", default="ibeo4,hdl64")
+    parser.add_argument("--extra", action="append", default=[],
+                        help="a further --config of the study (a TOML file): one more row of "
+                             "the ablation table, labelled with its file name (repeatable)")
     parser.add_argument("--kitti", type=Path,
                         help="instead: the SemanticKITTI table from the DIR/{default,kurdej2013}-"
                              "SEQ.json files of `evperc evaluate --semantickitti --json`")
@@ -111,13 +115,19 @@ def main() -> int:
     profiles = args.profiles.split(",")
     drives = [study.Drive(p, int(s), study.DEFAULT_SECONDS[p]) for p in profiles
               for s in args.seeds.split(",")]
+    ablations = [*ABLATIONS, *((f"`{Path(e).name}`", e) for e in args.extra)]
     tags = {name: study.config_tag(study.resolve_config(name, args.work))
-            for _, name in ABLATIONS}
+            for _, name in ablations}
     ms_ = study._mean_sd
 
     def runs(profile: str, name: str, cells: str) -> tuple[list, list]:
         ds = [d for d in drives if d.profile == profile]
         return study.load_metrics(args.work, tags[name], ds, cells)
+
+    def evaluated(profile: str, name: str) -> bool:
+        """Whether the study evaluated this config on every drive of the profile."""
+        return all(study.eval_path(args.work, tags[name], d, cells).is_file()
+                   for d in drives if d.profile == profile for cells in CELLS)
 
     def scores(ms: list, with_map: str) -> str:
         """SCORE_KEYS and infrastructure precision (with the map only; mean ± sd over the
@@ -142,15 +152,22 @@ def main() -> int:
                           f"{_missed(obs) if cells == 'observed' else '–'} |")
 
     print("\n### Ablation (visible cells; missed episodes on observed cells)\n")
-    print(f"| profile | config | map | {heads} | infrastructure P | missed moving episodes |")
-    print("|" + "---|" * (len(SCORE_HEADS) + 5))
+    print(f"| profile | config | map | {heads} | infrastructure P | missed moving episodes | "
+          "object P / R (mean of drives) |")
+    print("|" + "---|" * (len(SCORE_HEADS) + 6))
     for profile in profiles:
         for k, with_map in ((0, "with"), (1, "without")):
-            for label, name in ABLATIONS:
+            for label, name in ablations:
+                if not evaluated(profile, name):
+                    continue   # a config the study was not asked for
                 ms = runs(profile, name, "visible")[k]
                 obs = runs(profile, name, "observed")[k]
+                objects = [m["objects"] for m in ms]
+                pr = ("–" if any(o is None for o in objects) else
+                      f"{ms_(o['precision'] for o in objects)} / "
+                      f"{ms_(o['recall'] for o in objects)}")
                 print(f"| {profile} | {label} | {with_map} | {scores(ms, with_map)} | "
-                      f"{_missed(obs)} |")
+                      f"{_missed(obs)} | {pr} |")
 
     print("\n### Missed episodes by frames visible (observed cells, with the map, pooled)\n")
     buckets = list(VISIBLE_FRAME_BUCKETS)
