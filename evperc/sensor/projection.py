@@ -137,8 +137,9 @@ def unfree_feet(state: np.ndarray, free: np.ndarray, window: Window,
                 lift: np.ndarray, foot_lift_m: float) -> None:
     """After pass 3: every FREE cell holding a GROUND point whose ``lift`` (its height above
     the ground of the nearer band, :func:`evperc.sensor.ground.classify_points`) is at least
-    ``foot_lift_m`` becomes UNKNOWN and loses its free mass (``sensor.foot_lift_m``,
-    method.md §3 "An object's foot")."""
+    ``foot_lift_m``, and with no OCCUPIED cell among its 8 neighbours, becomes UNKNOWN and
+    loses its free mass (``sensor.foot_lift_m``, method.md §3 "An object's foot"). Cells
+    turned UNKNOWN here are not OCCUPIED, so the order of the points does not matter."""
     _unfree(state, free, float(window.resolution_m), window.row0, window.col0, sensor_xy[0],
             sensor_xy[1], x, y, kind, lift, np.float32(foot_lift_m))
 
@@ -152,8 +153,13 @@ def _unfree(state, free, res, row0, col0, sx, sy, x, y, kind, lift, lowest) -> N
             r = math.floor((sy + np.float64(y[i])) / res) - row0
             c = math.floor((sx + np.float64(x[i])) / res) - col0
             if 0 <= r < rows and 0 <= c < cols and state[r, c] == FREE:
-                state[r, c] = UNKNOWN
-                free[r, c] = 0.0
+                seen = False   # an occupied cell next to it: the object above the foot is seen
+                for dr in range(max(r - 1, 0), min(r + 2, rows)):
+                    for dc in range(max(c - 1, 0), min(c + 2, cols)):
+                        seen = seen or state[dr, dc] == OCCUPIED
+                if not seen:
+                    state[r, c] = UNKNOWN
+                    free[r, c] = 0.0
 
 
 @numba.njit(cache=True, nogil=True)

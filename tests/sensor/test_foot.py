@@ -4,7 +4,8 @@ docs/method.md §3 "An object's foot").
 The scanner and scenes of tests/sensor/test_ground_chain.py: 16 layers 2° apart, 1.8 m up,
 returns cast analytically. A 1.2 m fence 30.2 m ahead is met by the −3° layer 0.20–0.22 m up
 (under the 0.3 m threshold: ground) and passed over by the −1° layer (1.27 m up there): the
-scan holds only the fence's foot, and without the rule its cells are free.
+scan holds only the fence's foot, and without the rule its cells are free. The rule unfrees
+a foot's cell only where no cell beside it is occupied (nothing of the object above is seen).
 """
 
 from __future__ import annotations
@@ -56,6 +57,27 @@ def test_the_foot_frees_nothing(params) -> None:
     others = np.ones(window.shape, bool)
     others[foot] = False
     np.testing.assert_array_equal(free_on[others], free_off[others])
+
+
+def test_a_foot_beside_a_seen_object_still_frees(params) -> None:
+    """A walker's shoe is a foot too, with the leg seen above it: where a cell next to the
+    foot's is occupied, the rule leaves the foot's cell free (the free space just ahead of a
+    mover is its arrival evidence). A post 0.5 m behind the fence line at y = 0, seen 1 m up,
+    stands for the leg."""
+    level, on_fence = sparse_scan(fence_x=FOOT_X)
+    post = np.array([[FOOT_X + 0.5, y, 1.0 - MOUNT] for y in (-0.05, 0.0, 0.05)])
+    scene = np.vstack([level, post])
+    window, free_off, occ_off = grid(scene, params, foot=0.0)
+    _, free_on, occ_on = grid(scene, params, foot=0.15)
+    np.testing.assert_array_equal(occ_on, occ_off)
+    post_cell = cells_of(window, post[:1, :2])
+    assert occ_on[post_cell] > 0
+    rows, cols = cells_of(window, level[on_fence][:, :2])
+    beside = (np.abs(rows - post_cell[0][0]) <= 1) & (np.abs(cols - post_cell[1][0]) <= 1)
+    assert beside.any() and (~beside).sum() > 10
+    assert (free_on[rows[beside], cols[beside]] == free_off[rows[beside], cols[beside]]).all()
+    assert (free_off[rows[beside], cols[beside]] > 0).any()
+    assert not (free_on[rows[~beside], cols[~beside]] > 0).any()
 
 
 @pytest.mark.parametrize("kerb_m", [0.0, 0.12])
