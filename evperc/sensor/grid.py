@@ -20,6 +20,7 @@ from evperc.sensor.beams import (
 from evperc.sensor.conservative import conservative_free
 from evperc.sensor.evidence import beam_extents
 from evperc.sensor.ground import (
+    NO_FEET,
     NO_HEIGHTS,
     NO_LOCAL,
     OBSTACLE,
@@ -112,16 +113,16 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
     height = (_scratch.take("height", n, np.float32) if heights_out is not None
               else NO_HEIGHTS)
     local = params.ground_local_raise_m > 0 and not planar
-    feet = params.foot_lift_m > 0 and not planar
-    lift = _scratch.take("lift", n, np.float32) if feet else NO_HEIGHTS
+    foot = params.foot_lift_m > 0 and not planar
+    feet = _scratch.take("feet", n, np.int32) if foot else NO_FEET
     local_min = (_scratch.take("local_min", local_grid_side(layout.max_range_m) ** 2, np.float32)
                  if local else NO_LOCAL)
-    classify_points(z, range_m, az_bin, layout.n_az, layout.max_range_m, bool(planar),
-                    np.float32(params.sensor_height_m), np.float32(params.ground_threshold_m),
-                    np.float32(params.max_obstacle_height_m), hist, kind,
-                    params.ground_fallback == "scan", height,
-                    np.float32(params.ground_local_raise_m if local else 0.0), x, y, local_min,
-                    params.ground_chain, lift)
+    n_feet = classify_points(
+        z, range_m, az_bin, layout.n_az, layout.max_range_m, bool(planar),
+        np.float32(params.sensor_height_m), np.float32(params.ground_threshold_m),
+        np.float32(params.max_obstacle_height_m), hist, kind, params.ground_fallback == "scan",
+        height, np.float32(params.ground_local_raise_m if local else 0.0), x, y, local_min,
+        params.ground_chain, params.foot_lift_m if foot else 0.0, feet)
     if kinds_out is not None:
         kinds_out[:] = kind
 
@@ -153,8 +154,8 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
                                _scratch.take("cell_azimuth", window.rows * window.cols,
                                              np.float32))
     # rasterise leaves in ``state`` the final state of every cell
-    if feet:
-        unfree_feet(state, free, window, sensor_xy, x, y, kind, lift, params.foot_lift_m)
+    if n_feet:
+        unfree_feet(state, free, window, sensor_xy, x, y, feet[:n_feet])
     conservative_free(state, free, window.resolution_m, params.free_margin_m,
                       params.free_erosion_m)
     return free, occupied

@@ -52,8 +52,8 @@ azimuth × bands of ``BAND_M`` horizontal range):
 A point is *ground* if its height above the estimate is below ``ground_threshold_m``
 (points below the estimate, e.g. in a ditch or multipath echoes, count as ground), an
 *obstacle* if it is between the threshold and ``max_obstacle_height_m``, and *ignored* above
-(overhanging trees, bridges, signs). Each point's *lift* — its height above the ground of
-the nearer band, what the road before it predicts — is written out on request: a layer that
+(overhanging trees, bridges, signs). A ground point's *lift* — its height above the ground of
+the nearer band, what the road before it predicts — picks the *feet* on request: a layer that
 meets an object only at its foot, under the threshold, gives a ground return well above the
 nearer ground (``sensor.foot_lift_m``, :func:`evperc.sensor.projection.unfree_feet`).
 
@@ -103,6 +103,8 @@ def histogram_shape(max_range_m: float) -> tuple[int, int, int]:
 
 #: the ``height`` argument of :func:`classify_points` when no heights are asked for
 NO_HEIGHTS = np.zeros(0, np.float32)
+#: the ``feet`` argument of :func:`classify_points` without ``foot_lift``
+NO_FEET = np.zeros(0, np.int32)
 #: the ``x`` / ``y`` / ``local_min`` arguments of :func:`classify_points` without step 5
 NO_LOCAL = np.zeros(0, np.float32)
 
@@ -122,7 +124,7 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
                     height: np.ndarray = NO_HEIGHTS, local_raise: float = 0.0,
                     x: np.ndarray = NO_LOCAL, y: np.ndarray = NO_LOCAL,
                     local_min: np.ndarray = NO_LOCAL, chain: bool = False,
-                    lift: np.ndarray = NO_HEIGHTS) -> None:
+                    foot_lift: float = 0.0, feet: np.ndarray = NO_FEET) -> int:
     """Write into ``kind`` the GROUND / OBSTACLE / IGNORED kind of each point.
 
     ``z``: levelled height above the sensor; ``range_m``: horizontal range; ``az_bin``:
@@ -137,18 +139,20 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
     which has no ground; NaN for the other points). ``local_raise`` > 0: step 5 with Δ =
     ``local_raise``, on the points' levelled offsets ``x``, ``y`` from the sensor and the
     float32 work array ``local_min`` of ``local_grid_side(max_range_m)²`` elements.
-    ``chain``: step 3's chain along each sector. ``lift`` (float32, optional: when it has one
-    element a point) receives each kept point's height above the ground of the nearer band
-    (the estimate its band would take without its own: :func:`_fill_ground`'s
-    ``ground_near``; NaN for dropped points), for ``sensor.foot_lift_m``."""
+    ``chain``: step 3's chain along each sector. ``foot_lift`` > 0 (``sensor.foot_lift_m``):
+    the indices of the GROUND points whose *lift* — height above the ground of the nearer
+    band, the estimate their band would take without its own (:func:`_fill_ground`'s
+    ``ground_near``) — is at least ``foot_lift`` are written to ``feet`` (int32, a point
+    each), and their count returned (0 otherwise)."""
     heights = height.shape[0] == z.shape[0]
-    lifts = lift.shape[0] == z.shape[0]
+    foot = np.float32(foot_lift) if foot_lift > 0 else np.float32(np.inf)
+    n_feet = 0
     if planar:
         for i in range(z.shape[0]):
             kind[i] = OBSTACLE if az_bin[i] >= 0 else IGNORED
             if heights:
                 height[i] = np.inf if az_bin[i] >= 0 else np.nan
-        return
+        return 0
     n_sector, n_band, n_z = histogram_shape(max_range_m)
     # sector·n_band of each azimuth bin: no division per point
     sector_start = (np.arange(n_az) * n_sector) // n_az * n_band
@@ -184,17 +188,16 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
         cell = cells[i]
         if heights:
             height[i] = np.nan
-        if lifts:
-            lift[i] = np.nan
         if cell >= 0:
             d = (z[i] + sensor_height) - ground[cell]
-            if lifts:
-                lift[i] = (z[i] + sensor_height) - ground_near[cell]
             if refine and d < local_raise:  # near the coarse ground: may be a block's lowest
                 at = _local_cell(x[i], y[i], max_range_m, side)
                 local_min[at] = min(local_min[at], z[i] + sensor_height)
             if d < threshold:
                 kind[i] = GROUND
+                if (z[i] + sensor_height) - ground_near[cell] >= foot:
+                    feet[n_feet] = i
+                    n_feet += 1
             elif d <= max_height:
                 kind[i] = OBSTACLE
                 if heights:
@@ -218,8 +221,12 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
             kind[i] = GROUND
             if heights:
                 height[i] = np.nan
+            if h - ground_near[cells[i]] >= foot:
+                feet[n_feet] = i
+                n_feet += 1
         elif heights:
             height[i] = d
+    return n_feet
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

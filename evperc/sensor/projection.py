@@ -38,7 +38,7 @@ import numpy as np
 from evperc.geo.window import Window
 from evperc.sensor.beams import PolarLayout
 from evperc.sensor.evidence import FREE, OCCUPIED, UNKNOWN
-from evperc.sensor.ground import GROUND, OBSTACLE
+from evperc.sensor.ground import OBSTACLE
 
 # The kernels below call only jitted helpers of this module: numba's cache checks the source
 # file of a kernel, not of the functions it inlines from elsewhere. The imported constants are
@@ -133,33 +133,32 @@ def _scatter_hits(state, res, row0, col0, sx, sy, x, y, az_bin, range_bin, kind,
 
 
 def unfree_feet(state: np.ndarray, free: np.ndarray, window: Window,
-                sensor_xy: tuple[float, float], x: np.ndarray, y: np.ndarray, kind: np.ndarray,
-                lift: np.ndarray, foot_lift_m: float) -> None:
-    """After pass 3: every FREE cell holding a GROUND point whose ``lift`` (its height above
-    the ground of the nearer band, :func:`evperc.sensor.ground.classify_points`) is at least
-    ``foot_lift_m``, and with no OCCUPIED cell among its 8 neighbours, becomes UNKNOWN and
-    loses its free mass (``sensor.foot_lift_m``, method.md §3 "An object's foot"). Cells
-    turned UNKNOWN here are not OCCUPIED, so the order of the points does not matter."""
+                sensor_xy: tuple[float, float], x: np.ndarray, y: np.ndarray,
+                feet: np.ndarray) -> None:
+    """After pass 3: every FREE cell holding one of the ``feet`` (indices of the GROUND
+    points standing ``sensor.foot_lift_m`` or more above the nearer band's ground,
+    :func:`evperc.sensor.ground.classify_points`), with no OCCUPIED cell among its 8
+    neighbours, becomes UNKNOWN and loses its free mass (method.md §3 "An object's foot").
+    Cells turned UNKNOWN here are not OCCUPIED, so the order of the feet does not matter."""
     _unfree(state, free, float(window.resolution_m), window.row0, window.col0, sensor_xy[0],
-            sensor_xy[1], x, y, kind, lift, np.float32(foot_lift_m))
+            sensor_xy[1], x, y, feet)
 
 
 @numba.njit(cache=True, nogil=True)
-def _unfree(state, free, res, row0, col0, sx, sy, x, y, kind, lift, lowest) -> None:
+def _unfree(state, free, res, row0, col0, sx, sy, x, y, feet) -> None:
     """See :func:`unfree_feet` (cells as :func:`_mark`)."""
     rows, cols = state.shape
-    for i in range(x.shape[0]):
-        if kind[i] == GROUND and lift[i] >= lowest:
-            r = math.floor((sy + np.float64(y[i])) / res) - row0
-            c = math.floor((sx + np.float64(x[i])) / res) - col0
-            if 0 <= r < rows and 0 <= c < cols and state[r, c] == FREE:
-                seen = False   # an occupied cell next to it: the object above the foot is seen
-                for dr in range(max(r - 1, 0), min(r + 2, rows)):
-                    for dc in range(max(c - 1, 0), min(c + 2, cols)):
-                        seen = seen or state[dr, dc] == OCCUPIED
-                if not seen:
-                    state[r, c] = UNKNOWN
-                    free[r, c] = 0.0
+    for i in feet:
+        r = math.floor((sy + np.float64(y[i])) / res) - row0
+        c = math.floor((sx + np.float64(x[i])) / res) - col0
+        if 0 <= r < rows and 0 <= c < cols and state[r, c] == FREE:
+            seen = False   # an occupied cell next to it: the object above the foot is seen
+            for dr in range(max(r - 1, 0), min(r + 2, rows)):
+                for dc in range(max(c - 1, 0), min(c + 2, cols)):
+                    seen = seen or state[dr, dc] == OCCUPIED
+            if not seen:
+                state[r, c] = UNKNOWN
+                free[r, c] = 0.0
 
 
 @numba.njit(cache=True, nogil=True)
