@@ -23,7 +23,8 @@ OSM = REPO / "tests" / "data" / "osm"
 SEED, SECONDS = 3, 5  # a drive where moving cars are seen from the first second
 
 
-def _invoke(*args: str) -> None:
+def invoke_ok(*args: str) -> None:
+    """Run the CLI quietly in this process; fail the test on a non-zero exit."""
     result = CliRunner().invoke(cli, ["-q", *args])
     assert result.exit_code == 0, result.output
 
@@ -33,16 +34,16 @@ def scores(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """Metrics of the map and no-map runs, both cell sets, as `evperc evaluate --json` wrote."""
     root = tmp_path_factory.mktemp("simeval")
     drive = root / "drive"
-    _invoke("simulate", "--map", str(OSM / "helsinki_buildings.geojson"), "--roads",
+    invoke_ok("simulate", "--map", str(OSM / "helsinki_buildings.geojson"), "--roads",
             str(OSM / "helsinki_roads.geojson"), "--profile", "ibeo4", "--seconds", str(SECONDS),
             "--seed", str(SEED), "--out", str(drive))
-    _invoke("run", str(drive / "drive.mcap"), "--map", str(drive / "map.geojson"),
+    invoke_ok("run", str(drive / "drive.mcap"), "--map", str(drive / "map.geojson"),
             "--out", str(root / "map"))
-    _invoke("run", str(drive / "drive.mcap"), "--no-map", "--out", str(root / "nomap"))
+    invoke_ok("run", str(drive / "drive.mcap"), "--no-map", "--out", str(root / "nomap"))
     out: dict[str, Any] = {}
     for cells in ("observed", "visible"):
         path = root / f"{cells}.json"
-        _invoke("evaluate", str(root / "map"), "--truth", str(drive / "truth"), "--compare",
+        invoke_ok("evaluate", str(root / "map"), "--truth", str(drive / "truth"), "--compare",
                 str(root / "nomap"), "--cells", cells, "--json", str(path))
         doc = json.loads(path.read_text())
         out[cells] = {"map": doc, "nomap": doc["compare"]}

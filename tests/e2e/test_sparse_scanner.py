@@ -12,38 +12,28 @@ by more than 0.02 (five times what it lost here).
 from __future__ import annotations
 
 import json
-from pathlib import Path
 from typing import Any
 
 import pytest
-from click.testing import CliRunner
 
-from evperc.cli import cli
-
-REPO = Path(__file__).resolve().parents[2]
-OSM = REPO / "tests" / "data" / "osm"
-
-
-def _invoke(*args: str) -> None:
-    result = CliRunner().invoke(cli, ["-q", *args])
-    assert result.exit_code == 0, result.output
+from tests.e2e.test_sim_eval import OSM, invoke_ok
 
 
 @pytest.fixture(scope="module")
 def within_one_cell(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     root = tmp_path_factory.mktemp("vlp16")
     drive = root / "drive"
-    _invoke("simulate", "--map", str(OSM / "helsinki_buildings.geojson"), "--roads",
+    invoke_ok("simulate", "--map", str(OSM / "helsinki_buildings.geojson"), "--roads",
             str(OSM / "helsinki_roads.geojson"), "--profile", "vlp16", "--seconds", "10",
             "--seed", "4", "--out", str(drive))
     before = root / "before.toml"
     before.write_text("[sensor]\nground_chain = false\nfoot_lift_m = 0.0\n")
     out = {}
     for name, extra in (("now", ()), ("before", ("--config", str(before)))):
-        _invoke("run", str(drive / "drive.mcap"), "--map", str(drive / "map.geojson"),
+        invoke_ok("run", str(drive / "drive.mcap"), "--map", str(drive / "map.geojson"),
                 "--out", str(root / name), *extra)
         path = root / f"{name}.json"
-        _invoke("evaluate", str(root / name), "--truth", str(drive / "truth"), "--cells",
+        invoke_ok("evaluate", str(root / name), "--truth", str(drive / "truth"), "--cells",
                 "visible", "--json", str(path))
         out[name] = json.loads(path.read_text())["moving_within_one_cell"]
     return out
