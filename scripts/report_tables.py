@@ -80,9 +80,12 @@ SCORE_KEYS = (("per_class", "moving", "precision"), ("per_class", "moving", "rec
               ("moving_within_one_cell", "precision"), ("moving_within_one_cell", "recall"),
               ("stopped_within_one_cell", "f1"))
 #: their column headers
-CELLS = ("visible", "observed")
 SCORE_HEADS = ("moving P", "moving R", "moving F1", "free P", "stopped F1", "unmapped F1",
                "moving P ±1 cell", "moving R ±1 cell", "stopped F1 ±1 cell")
+
+
+#: the cell sets the study evaluates every run on
+CELLS = ("visible", "observed")
 
 
 def _get(m: dict[str, Any], *path: str) -> float | None:
@@ -105,7 +108,8 @@ def main() -> int:
     parser.add_argument("--profiles", default="ibeo4,hdl64")
     parser.add_argument("--extra", action="append", default=[],
                         help="a further --config of the study (a TOML file): one more row of "
-                             "the ablation table, labelled with its file name (repeatable)")
+                             "the ablation table, labelled with its file name (repeatable); "
+                             "configs the study has not evaluated on every drive are left out")
     parser.add_argument("--kitti", type=Path,
                         help="instead: the SemanticKITTI table from the DIR/{default,kurdej2013}-"
                              "SEQ.json files of `evperc evaluate --semantickitti --json`")
@@ -143,6 +147,8 @@ def main() -> int:
     print("|" + "---|" * (len(SCORE_HEADS) + 6))
     for profile in profiles:
         for label, name in ABLATIONS[:2]:
+            if not evaluated(profile, name):
+                continue
             for k, with_map in ((0, "with"), (1, "without")):
                 for cells in ("visible", "observed"):
                     ms = runs(profile, name, cells)[k]
@@ -176,6 +182,8 @@ def main() -> int:
     print("|" + "---|" * (len(buckets) + 2))
     for profile in profiles:
         for label, name in ABLATIONS[:2]:
+            if not evaluated(profile, name):
+                continue
             obs = runs(profile, name, "observed")[0]
             cells = []
             for b in buckets:
@@ -189,6 +197,8 @@ def main() -> int:
           "(agent-frames) | found | recall | track switches | P / R within one cell |")
     print("|" + "---|" * 10)
     for profile in profiles:
+        if not evaluated(profile, "default"):
+            continue
         for k, with_map in ((0, "with"), (1, "without")):
             obj = [m["objects"] for m in runs(profile, "default", "visible")[k]]
             if any(o is None for o in obj):
