@@ -14,7 +14,8 @@ from tests.sensor.scenes import hdl64_scene, ibeo_scene, pose
 
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("planar", [False, True])
-def test_matches_oracle_on_a_street(seed, planar):
+@pytest.mark.parametrize("chain_foot", [(False, 0.0), (True, 0.15), (True, 0.05)])
+def test_matches_oracle_on_a_street(seed, planar, chain_foot):
     rng = np.random.default_rng(seed)
     level = hdl64_scene(seed)[seed::37].astype(np.float64)
     t = pose(5e5 + rng.uniform(0, 10), 5.4e6 + rng.uniform(0, 10), 120.0,
@@ -23,7 +24,8 @@ def test_matches_oracle_on_a_street(seed, planar):
     points = (level @ t[:3, :3]).astype(np.float32)   # level offsets → sensor frame
     points[rng.integers(0, len(points), 5)] = np.nan
     res = (0.5, 1.0)[seed % 2]
-    params = SensorParams(range_bin_m=res, max_range_m=35.0, azimuth_resolution_deg=0.7)
+    params = SensorParams(range_bin_m=res, max_range_m=35.0, azimuth_resolution_deg=0.7,
+                          ground_chain=chain_foot[0], foot_lift_m=chain_foot[1])
     window = Window.centred_on(t[0, 3] + 3.0, t[1, 3] - 2.0, 70.0, res)
     free, occ = sensor_grid(points, planar, t, window, params)
     want_free, want_occ = reference_grid(points, planar, t, window, params)
