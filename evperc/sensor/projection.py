@@ -132,14 +132,20 @@ def _scatter_hits(state, res, row0, col0, sx, sy, x, y, az_bin, range_bin, kind,
                   OCCUPIED)
 
 
+#: the most occupied cells in the 5 × 5 block around a foot for the object beside it to be
+#: small — a person, whose shoe is a foot with the leg seen above it (method.md §3)
+SMALL_OBJECT_CELLS = 4
+
+
 def unfree_feet(state: np.ndarray, free: np.ndarray, window: Window,
                 sensor_xy: tuple[float, float], x: np.ndarray, y: np.ndarray,
                 feet: np.ndarray) -> None:
     """After pass 3: every FREE cell holding one of the ``feet`` (indices of the GROUND
     points standing ``sensor.foot_lift_m`` or more above the nearer band's ground,
-    :func:`evperc.sensor.ground.classify_points`), with no OCCUPIED cell among its 8
-    neighbours, becomes UNKNOWN and loses its free mass (method.md §3 "An object's foot").
-    Cells turned UNKNOWN here are not OCCUPIED, so the order of the feet does not matter."""
+    :func:`evperc.sensor.ground.classify_points`) becomes UNKNOWN and loses its free mass —
+    unless a small object stands beside it: an OCCUPIED cell among its 8 neighbours and at
+    most ``SMALL_OBJECT_CELLS`` in its 5 × 5 block (method.md §3 "An object's foot"). Cells
+    turned UNKNOWN here are not OCCUPIED, so the order of the feet does not matter."""
     _unfree(state, free, float(window.resolution_m), window.row0, window.col0, sensor_xy[0],
             sensor_xy[1], x, y, feet)
 
@@ -152,11 +158,15 @@ def _unfree(state, free, res, row0, col0, sx, sy, x, y, feet) -> None:
         r = math.floor((sy + np.float64(y[i])) / res) - row0
         c = math.floor((sx + np.float64(x[i])) / res) - col0
         if 0 <= r < rows and 0 <= c < cols and state[r, c] == FREE:
-            seen = False   # an occupied cell next to it: the object above the foot is seen
-            for dr in range(max(r - 1, 0), min(r + 2, rows)):
-                for dc in range(max(c - 1, 0), min(c + 2, cols)):
-                    seen = seen or state[dr, dc] == OCCUPIED
-            if not seen:
+            beside = 0   # occupied cells among the 8 neighbours
+            around = 0   # ... and in the 5 × 5 block
+            for dr in range(max(r - 2, 0), min(r + 3, rows)):
+                for dc in range(max(c - 2, 0), min(c + 3, cols)):
+                    if state[dr, dc] == OCCUPIED:
+                        around += 1
+                        if abs(dr - r) <= 1 and abs(dc - c) <= 1:
+                            beside += 1
+            if beside == 0 or around > SMALL_OBJECT_CELLS:
                 state[r, c] = UNKNOWN
                 free[r, c] = 0.0
 

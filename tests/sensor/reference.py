@@ -84,15 +84,18 @@ def reference_state(points, planar, t_crs_sensor, window, params) -> list[list[i
     for (x, y, _, _, a, k), kind in zip(kept, kinds, strict=True):
         if kind == "obstacle" and k == nearest[a]:
             mark(sx + x, sy + y, OCCUPIED)
-    if params.foot_lift_m > 0:   # a foot with nothing occupied beside it frees nothing
+    if params.foot_lift_m > 0:   # a foot frees nothing unless a small object stands beside it
+        def occupied(row: int, col: int, reach: int) -> int:
+            return sum(state[i][j] == OCCUPIED
+                       for i in range(max(row - reach, 0), min(row + reach + 1, window.rows))
+                       for j in range(max(col - reach, 0), min(col + reach + 1, window.cols)))
+
         for (x, y, _, _, _, _), kind, lift in zip(kept, kinds, lifts, strict=True):
             col = math.floor((sx + x) / r0) - window.col0
             row = math.floor((sy + y) / r0) - window.row0
             if (kind == "ground" and lift >= params.foot_lift_m and 0 <= row < window.rows
                     and 0 <= col < window.cols and state[row][col] == FREE
-                    and not any(state[i][j] == OCCUPIED
-                                for i in range(max(row - 1, 0), min(row + 2, window.rows))
-                                for j in range(max(col - 1, 0), min(col + 2, window.cols)))):
+                    and not (occupied(row, col, 1) > 0 and occupied(row, col, 2) <= 4)):
                 state[row][col] = UNKNOWN
     return state
 

@@ -4,8 +4,8 @@ docs/method.md §3 "An object's foot").
 The scanner and scenes of tests/sensor/test_ground_chain.py: 16 layers 2° apart, 1.8 m up,
 returns cast analytically. A 1.2 m fence 30.2 m ahead is met by the −3° layer 0.20–0.22 m up
 (under the 0.3 m threshold: ground) and passed over by the −1° layer (1.27 m up there): the
-scan holds only the fence's foot, and without the rule its cells are free. The rule unfrees
-a foot's cell only where no cell beside it is occupied (nothing of the object above is seen).
+scan holds only the fence's foot, and without the rule its cells are free. The rule keeps a
+foot's cell free only where a small object stands beside it (a person over its shoe).
 """
 
 from __future__ import annotations
@@ -60,10 +60,10 @@ def test_the_foot_frees_nothing(params) -> None:
 
 
 def test_a_foot_beside_a_seen_object_still_frees(params) -> None:
-    """A walker's shoe is a foot too, with the leg seen above it: where a cell next to the
-    foot's is occupied, the rule leaves the foot's cell free (the free space just ahead of a
-    mover is its arrival evidence). A post 0.5 m behind the fence line at y = 0, seen 1 m up,
-    stands for the leg."""
+    """A walker's shoe is a foot too, with the leg seen above it: where a small object (one
+    occupied cell here) stands next to the foot's cell, the rule leaves that cell free (the
+    free space just ahead of a mover is its arrival evidence). A post 0.5 m behind the fence
+    line at y = 0, seen 1 m up, stands for the leg."""
     level, on_fence = sparse_scan(fence_x=FOOT_X)
     post = np.array([[FOOT_X + 0.5, y, 1.0 - MOUNT] for y in (-0.05, 0.0, 0.05)])
     scene = np.vstack([level, post])
@@ -77,6 +77,29 @@ def test_a_foot_beside_a_seen_object_still_frees(params) -> None:
     assert beside.any() and (~beside).sum() > 10
     assert (free_on[rows[beside], cols[beside]] == free_off[rows[beside], cols[beside]]).all()
     assert (free_off[rows[beside], cols[beside]] > 0).any()
+    assert not (free_on[rows[~beside], cols[~beside]] > 0).any()
+
+
+def test_a_foot_beside_a_large_object_frees_nothing(params) -> None:
+    """A fence or a parked car's foot has a large object beside it: more than
+    SMALL_OBJECT_CELLS occupied cells in the 5 × 5 block around the foot's cell. A wall of
+    seen returns 0.5 m behind the fence line along y = −1.5…1.5 m, 1 m up, stands for it: the
+    foot's cells beside its middle are unfreed as if nothing were seen."""
+    level, on_fence = sparse_scan(fence_x=FOOT_X)
+    wall = np.array([[FOOT_X + 0.5, y, 1.0 - MOUNT] for y in np.arange(-1.5, 1.51, 0.05)])
+    window, free_off, occ_off = grid(np.vstack([level, wall]), params, foot=0.0)
+    _, free_on, occ_on = grid(np.vstack([level, wall]), params, foot=0.15)
+    np.testing.assert_array_equal(occ_on, occ_off)
+    assert (occ_on > 0).sum() >= 6                  # the wall: a large object
+    rows, cols = cells_of(window, level[on_fence][:, :2])
+    wall_rows, wall_cols = cells_of(window, wall[:, :2])
+    beside = np.array([((np.abs(wall_rows - r) <= 1) & (np.abs(wall_cols - c) <= 1)).any()
+                       for r, c in zip(rows, cols, strict=True)])
+    # the wall's middle (its 5 × 5 blocks hold 5 wall cells or more); at its ends a block
+    # holds fewer, and a foot there counts the end as a small object
+    middle = beside & (np.abs(level[on_fence][:, 1]) <= 0.5)
+    assert middle.sum() >= 2 and (free_off[rows[middle], cols[middle]] > 0).all()
+    assert not (free_on[rows[middle], cols[middle]] > 0).any()
     assert not (free_on[rows[~beside], cols[~beside]] > 0).any()
 
 
