@@ -15,6 +15,9 @@ import numpy as np
 # the ground-estimate constants documented in evperc/sensor/ground.py
 SECTOR_DEG, BAND_M, PERCENTILE, MIN_POINTS = 10.0, 2.0, 0.1, 5
 Z_BIN_M, Z_SPAN_M, BASE_TOL_M, MAX_SLOPE = 0.05, 3.0, 0.5, 0.1
+# the foot rule's small object (docs/method.md §3 "An object's foot"): at most this many
+# occupied cells in the 5 × 5 block around the foot's cell
+SMALL_OBJECT_CELLS = 4
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 
@@ -95,7 +98,8 @@ def reference_state(points, planar, t_crs_sensor, window, params) -> list[list[i
             row = math.floor((sy + y) / r0) - window.row0
             if (kind == "ground" and lift >= params.foot_lift_m and 0 <= row < window.rows
                     and 0 <= col < window.cols and state[row][col] == FREE
-                    and not (occupied(row, col, 1) > 0 and occupied(row, col, 2) <= 4)):
+                    and not (occupied(row, col, 1) > 0
+                             and occupied(row, col, 2) <= SMALL_OBJECT_CELLS)):
                 state[row][col] = UNKNOWN
     return state
 
