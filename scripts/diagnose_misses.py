@@ -42,6 +42,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import evaluation_study as study
 import numpy as np
 from scipy import ndimage
 
@@ -51,7 +52,8 @@ from evperc.geo.window import Window, overlap
 from evperc.output.objects import OBJECT_STATES
 from evperc.sim.truth import load_truth
 
-SECONDS = {"ibeo4": 20, "hdl64": 10}
+#: each profile's drive length (s), as scripts/evaluation_study.py simulates it
+SECONDS = {p: int(s) for p, s in study.DEFAULT_SECONDS.items()}
 BLOCK = np.ones((3, 3), bool)
 
 

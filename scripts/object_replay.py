@@ -35,6 +35,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+import evaluation_study as study  # noqa: E402
+
 from evperc import runner as runner_mod  # noqa: E402
 from evperc.eval.metrics import evaluate  # noqa: E402
 from evperc.fusion.twin import DECISION_CODES  # noqa: E402
@@ -49,7 +51,8 @@ from evperc.output.objects import moving_object_cells, object_labels  # noqa: E4
 
 log = logging.getLogger("object_replay")
 OSM = REPO / "tests" / "data" / "osm"
-SECONDS = {"ibeo4": 20, "hdl64": 10, "vlp16": 10}
+#: each profile's drive length (s), as scripts/evaluation_study.py simulates it
+SECONDS = {p: int(s) for p, s in study.DEFAULT_SECONDS.items()}
 INPUTS = "object_inputs.npz"
 _UNMAPPED = DECISION_CODES["unmapped"]
 _MOVING = DECISION_CODES["moving"]

@@ -18,12 +18,15 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+import evaluation_study as study  # noqa: E402
+
 from evperc import load  # noqa: E402
 from evperc.eval.metrics import evaluate  # noqa: E402
 from evperc.sim.truth import load_truth  # noqa: E402
 
 OSM = REPO / "tests" / "data" / "osm"
-SECONDS = {"ibeo4": 20, "hdl64": 10}
+#: each profile's drive length (s), as scripts/evaluation_study.py simulates it
+SECONDS = {p: int(s) for p, s in study.DEFAULT_SECONDS.items()}
 EVPERC = [sys.executable, "-m", "evperc", "-q"]
 
 
