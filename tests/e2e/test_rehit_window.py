@@ -15,31 +15,20 @@ strict-recall cost of the change on any tuning set, 0.006, rounded up).
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import pytest
 
-from tests.e2e.test_sim_eval import OSM, REPO, invoke_ok
+from tests.e2e.paired_runs import paired_scores
+from tests.e2e.test_sim_eval import REPO
 
 
 @pytest.fixture(scope="module")
 def within_one_cell(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    root = tmp_path_factory.mktemp("vlp16")
-    drive = root / "drive"
-    invoke_ok("simulate", "--map", str(OSM / "helsinki_buildings.geojson"), "--roads",
-              str(OSM / "helsinki_roads.geojson"), "--profile", "vlp16", "--seconds", "10",
-              "--seed", "6", "--out", str(drive))
     before = REPO / "configs" / "ablation" / "rehit_1_5.toml"
-    out = {}
-    for name, extra in (("now", ()), ("before", ("--config", str(before)))):
-        invoke_ok("run", str(drive / "drive.mcap"), "--map", str(drive / "map.geojson"),
-                  "--out", str(root / name), *extra)
-        path = root / f"{name}.json"
-        invoke_ok("evaluate", str(root / name), "--truth", str(drive / "truth"), "--cells",
-                  "visible", "--json", str(path))
-        out[name] = json.loads(path.read_text())["moving_within_one_cell"]
-    return out
+    scores = paired_scores(tmp_path_factory.mktemp("vlp16"), "vlp16", 6,
+                           {"now": None, "before": before})
+    return {name: s["moving_within_one_cell"] for name, s in scores.items()}
 
 
 def test_fences_no_longer_move(within_one_cell: dict[str, Any]) -> None:

@@ -11,32 +11,20 @@ by more than 0.02 (five times what it lost here).
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import pytest
 
-from tests.e2e.test_sim_eval import OSM, invoke_ok
+from tests.e2e.paired_runs import paired_scores
 
 
 @pytest.fixture(scope="module")
 def within_one_cell(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     root = tmp_path_factory.mktemp("vlp16")
-    drive = root / "drive"
-    invoke_ok("simulate", "--map", str(OSM / "helsinki_buildings.geojson"), "--roads",
-            str(OSM / "helsinki_roads.geojson"), "--profile", "vlp16", "--seconds", "10",
-            "--seed", "4", "--out", str(drive))
     before = root / "before.toml"
     before.write_text("[sensor]\nground_chain = false\nfoot_lift_m = 0.0\n")
-    out = {}
-    for name, extra in (("now", ()), ("before", ("--config", str(before)))):
-        invoke_ok("run", str(drive / "drive.mcap"), "--map", str(drive / "map.geojson"),
-                "--out", str(root / name), *extra)
-        path = root / f"{name}.json"
-        invoke_ok("evaluate", str(root / name), "--truth", str(drive / "truth"), "--cells",
-                "visible", "--json", str(path))
-        out[name] = json.loads(path.read_text())["moving_within_one_cell"]
-    return out
+    scores = paired_scores(root, "vlp16", 4, {"now": None, "before": before})
+    return {name: s["moving_within_one_cell"] for name, s in scores.items()}
 
 
 def test_the_chain_and_the_foot_find_more_movers(within_one_cell: dict[str, Any]) -> None:
