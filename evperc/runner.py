@@ -445,7 +445,7 @@ class Pipeline:
         if self.objects is not None:
             ObjectStage(self.request.config, tiny.shape).step(
                 TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0,
-                occupied_now=occupied > 0)
+                occupied_now=occupied > 0, near_building=np.ones(tiny.shape, np.bool_))
             scan_cells(free, occupied, np.zeros(tiny.shape, np.float32))
             scan_cells(free, occupied, None)
             warm_up_footprints(self.footprint)
@@ -652,7 +652,8 @@ class Pipeline:
                 occupied_now[inputs.hits & (occupied_now == 0)] = JOINS_ANY
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
-                inputs.stamp_ns, occupied_now=occupied_now, heights=inputs.heights)
+                inputs.stamp_ns, occupied_now=occupied_now, heights=inputs.heights,
+                near_building=inputs.near_building)
             if self.backfill_frames > 0:  # the backfill's gaps (objects.bridge_gaps), boxes
                 frame["occupied_now"] = occupied_now
                 frame["speaks"], frame["returns"] = speaks, returns

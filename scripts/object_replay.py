@@ -40,6 +40,7 @@ import evaluation_study as study  # noqa: E402
 from evperc import runner as runner_mod  # noqa: E402
 from evperc.eval.metrics import evaluate  # noqa: E402
 from evperc.fusion.twin import DECISION_CODES  # noqa: E402
+from evperc.geo.prior import CONTEXT_BUILDING  # noqa: E402
 from evperc.geo.window import Window  # noqa: E402
 from evperc.objects import stage as stage_mod  # noqa: E402
 from evperc.objects.backfill import Backfill, HeldFrame, candidates  # noqa: E402
@@ -98,8 +99,8 @@ def record(drive: Path, out: Path, config: Path | None = None) -> Path:
 
     def hooked(self: Any, state: Any, decision: np.ndarray, betp_moving: np.ndarray,
                conflict_fo: np.ndarray, window: Window, stamp_ns: int,
-               occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None
-               ) -> Any:
+               occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None,
+               near_building: np.ndarray | None = None) -> Any:
         if decision.shape[0] >= 20:  # not the runner's warm-up on a tiny window
             frames.append((int(stamp_ns), window.row0, window.col0, decision.copy(),
                            betp_moving.copy(), conflict_fo.copy(),
@@ -108,7 +109,7 @@ def record(drive: Path, out: Path, config: Path | None = None) -> Path:
                            np.zeros(decision.shape, np.float16) if heights is None
                            else heights.astype(np.float16)))
         return original(self, state, decision, betp_moving, conflict_fo, window, stamp_ns,
-                        occupied_now, heights)
+                        occupied_now, heights, near_building)
 
     stage_mod.ObjectStage.step = hooked  # type: ignore[method-assign]
     runner_mod.Pipeline.sensor_grid = pipeline_hooked  # type: ignore[method-assign]
@@ -159,7 +160,8 @@ class ReplayRun:
 
 
 StepFn = Callable[[ObjectStage, TrackerState, np.ndarray, np.ndarray, np.ndarray, Window, int,
-                   np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray]]
+                   np.ndarray, np.ndarray | None, np.ndarray | None],
+                  tuple[np.ndarray, np.ndarray]]
 
 
 def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> ReplayRun:
@@ -177,6 +179,7 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
     shape = decisions.shape[1:]
     res = run.resolution_m
     stage = ObjectStage(config, shape)
+    near_building = near_building_layer(run, config)
     state = TrackerState()
     fp_params, fp_state = FootprintParams.from_config(config), FootprintState()
     box_params = BoxParams.from_config(config)
@@ -193,7 +196,7 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
         # recorded run did not compute them (all zero: no return is that low)
         top = data["heights"][k].astype(np.float32)
         args = (state, decision, betps[k], conflicts[k], window, int(stamps[k]), occ,
-                top if top.any() else None)
+                top if top.any() else None, near_building(window))
         objects, cells = step(stage, *args) if step is not None else stage.step(*args)
         speaks = np.unpackbits(data["speaks"][k])[:occ.size].reshape(shape).astype(bool)
         if fp_params.frames > 0:
@@ -230,6 +233,25 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
                 frame.decision, moving_object_cells(frame.objects, frame.object_cells),
                 small_groups.get(frame.index))
     return ReplayRun(run, frames)
+
+
+def near_building_layer(run: Any, config: dict[str, Any]
+                        ) -> Callable[[Window], np.ndarray | None]:
+    """The runner's ``near_building`` layer of a window (the buildings widened by
+    ``map.building_margin_m``), made from the recorded run's log and map as
+    :class:`evperc.runner.Pipeline` makes it; None for every window when the run had no map
+    or the margin is 0."""
+    request = run.manifest["request"]
+    if request.get("map_path") is None:
+        return lambda window: None
+    pipeline = runner_mod.Pipeline(runner_mod.RunRequest(
+        log_path=Path(request["log_path"]), out_dir=Path(run.out_dir), config=config,
+        map_path=Path(request["map_path"]),
+        roads_path=None if request.get("roads_path") is None else Path(request["roads_path"])))
+    rasteriser = pipeline.near_rasteriser
+    if rasteriser is None:
+        return lambda window: None
+    return lambda window: rasteriser.labels(window) == CONTEXT_BUILDING
 
 
 def _released(held: list[HeldFrame]) -> list[ReplayFrame]:

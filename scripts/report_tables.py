@@ -19,7 +19,9 @@
         --config configs/ablation/no_ego_clearance.toml \\
         --config configs/ablation/no_vehicle_boxes.toml \\
         --config configs/ablation/no_stopped_off_facades.toml \\
-        --config configs/ablation/no_evidence_expiry.toml
+        --config configs/ablation/no_evidence_expiry.toml \\
+        --config configs/ablation/rehit_1_5.toml \\
+        --config configs/ablation/clusters_on_buildings.toml
     .venv/bin/python scripts/report_tables.py --work W
 
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
@@ -70,7 +72,10 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("no ego clearance", "configs/ablation/no_ego_clearance.toml"),
              ("no vehicle boxes", "configs/ablation/no_vehicle_boxes.toml"),
              ("no façade rule for stopped", "configs/ablation/no_stopped_off_facades.toml"),
-             ("motion evidence never expires", "configs/ablation/no_evidence_expiry.toml"))
+             ("motion evidence never expires", "configs/ablation/no_evidence_expiry.toml"),
+             ("re-hit window 1.5 s", "configs/ablation/rehit_1_5.toml"),
+             ("clusters through the façades' static cells",
+              "configs/ablation/clusters_on_buildings.toml"))
 
 
 #: the scores of the headline and ablation rows, in column order

@@ -88,13 +88,13 @@ RECORDS: list[FrameRecord] = []
 
 def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.ndarray,
                 conflict_fo: np.ndarray, window: Any, stamp_ns: int,
-                occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
+                occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None,
+                near_building: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`ObjectStage.step` (the same calls, the same results) that appends a
     :class:`FrameRecord` to :data:`RECORDS`."""
     seeds = footprint_seeds(state, window)
     clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds,
-                                       occupied_now)
+                                       occupied_now, heights, near_building)
     self.list_small_moving(decision, heights)
     relaxed = getattr(self, "_trace_relaxed", None)
     if relaxed is None:

@@ -24,6 +24,17 @@ bounding box is at most ``max_extent_m`` on each side (a false seed at a wall gr
 the wall, far beyond any vehicle); with ``keep_tracked_small``, a cluster grown from a cell
 that a track which has moved held in the previous frame is kept whatever its size (the
 track has shown it is an object: a car seen through a gap, a pedestrian of one cell).
+With ``off_buildings`` (and a map), a cluster keeps none of the cells within
+``map.building_margin_m`` of a mapped building (the runner's ``near_building`` layer) that
+are decided ``static``, ``stopped`` or ``unmapped``: a façade's returns fall a cell or two
+outside its outline, and a person standing against the wall, whose group takes them in,
+would otherwise grow along the wall and be tracked on the façade's evidence. A group whose
+bounding box is at most ``off_buildings_small_m`` on each side keeps them (a person walking
+along a wall: the motion gate is closed there, so its cells are decided static, and the
+tracker alone tells that it moves). The flood fill is unchanged — the group still grows
+through those cells, so the small-group rules read the same groups — and the cells are
+dropped from the cluster before the size and extent filters (a group that keeps none is no
+cluster).
 With ``isolated_min_cells`` > 0, a cluster of at least that many cells but fewer than
 ``min_cells`` is kept too when it is *isolated*: no cell within ``isolated_clearance_m``
 (Chebyshev, centre to centre) of one of its cells, outside it, is decided ``static``,
@@ -81,6 +92,12 @@ class ClusterParams:
     #: least this high above the local ground (a ground point the ground split called an
     #: obstacle is no person); 0 = no height condition
     isolated_min_height_m: float = 0.0
+    #: objects.clusters_off_buildings: clusters keep none of the cells near a mapped
+    #: building decided static, stopped or unmapped (module docstring)
+    off_buildings: bool = False
+    #: objects.off_buildings_small_m: ... except in a group whose bounding box is at most
+    #: this on each side (m), kept whole (module docstring)
+    off_buildings_small_m: float = 0.0
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> ClusterParams:
@@ -92,7 +109,9 @@ class ClusterParams:
                              keep_tracked_small=bool(o.get("keep_tracked_small", False)),
                              isolated_min_cells=int(o.get("isolated_min_cells", 0)),
                              isolated_clearance_m=float(o.get("isolated_clearance_m", 1.0)),
-                             isolated_min_height_m=float(o.get("isolated_min_height_m", 0.0)))
+                             isolated_min_height_m=float(o.get("isolated_min_height_m", 0.0)),
+                             off_buildings=bool(o.get("clusters_off_buildings", False)),
+                             off_buildings_small_m=float(o.get("off_buildings_small_m", 0.0)))
 
 
 @dataclass(frozen=True)
@@ -125,6 +144,10 @@ _GROWS = _grow_lut()
 STILL = ("static", "stopped", "unmapped", "infrastructure")
 _STILL = np.zeros(256, np.bool_)
 _STILL[[DECISION_CODES[n] for n in STILL]] = True
+#: decisions a cluster leaves out near a mapped building (``off_buildings``)
+OFF_BUILDINGS = ("static", "stopped", "unmapped")
+_OFF_BUILDINGS = np.zeros(256, np.bool_)
+_OFF_BUILDINGS[[DECISION_CODES[n] for n in OFF_BUILDINGS]] = True
 _NO_HEIGHTS = np.zeros((0, 0), np.float32)
 _MOVING = DECISION_CODES["moving"]
 _UNKNOWN = DECISION_CODES["unknown"]
@@ -300,6 +323,67 @@ def block_max_at(layer: np.ndarray, cells: np.ndarray) -> np.ndarray:  # pragma:
     return out
 
 
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def _off_buildings(all_cells, stats, n, near, decision, leaves, conflict_fo, fo_q, moving,
+                   cols, small):  # pragma: no cover - compiled
+    """:func:`_flood`'s ``n`` groups (``all_cells``, ``stats``) without their cells marked in
+    ``near`` (flat window bytes) whose decision ``leaves`` marks, except the groups whose
+    bounding box is at most ``small`` cells on each side (kept whole): new (cells, stats),
+    the stats of a group that lost a cell counted again (count, seeds, sums, bounds; a
+    group with no cell left has count 0), the others copied."""
+    used = 0
+    for k in range(n):
+        used += stats[k, 0]
+    out_cells = np.empty(used, np.int64)
+    out_stats = np.zeros((n, 8), np.int64)
+    at = 0
+    w = 0
+    for k in range(n):
+        count = stats[k, 0]
+        whole = max(stats[k, 5] - stats[k, 4], stats[k, 7] - stats[k, 6]) < small
+        first = w
+        for q in range(at, at + count):
+            i = all_cells[q]
+            if whole or not (near[i] and leaves[decision[i]]):
+                out_cells[w] = i
+                w += 1
+        at += count
+        kept = w - first
+        if kept == count:
+            out_stats[k, :] = stats[k, :]
+            continue
+        out_stats[k, 0] = kept
+        if kept == 0:
+            continue
+        seeds = 0
+        sr = 0
+        sc = 0
+        r0 = 1 << 62
+        r1 = -1
+        c0 = 1 << 62
+        c1 = -1
+        for q in range(first, w):
+            i = out_cells[q]
+            r = i // cols
+            c = i - r * cols
+            if decision[i] == moving or (fo_q > 0 and conflict_fo[i] >= fo_q):
+                seeds += 1
+            sr += r
+            sc += c
+            r0 = min(r0, r)
+            r1 = max(r1, r)
+            c0 = min(c0, c)
+            c1 = max(c1, c)
+        out_stats[k, 1] = seeds
+        out_stats[k, 2] = sr
+        out_stats[k, 3] = sc
+        out_stats[k, 4] = r0
+        out_stats[k, 5] = r1
+        out_stats[k, 6] = c0
+        out_stats[k, 7] = c1
+    return out_cells, out_stats
+
+
 @numba.njit(cache=True, inline="always")
 def _isolated(cells, decision, cols, reach, still, heights, min_height
               ):  # pragma: no cover - compiled
@@ -338,8 +422,9 @@ def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_e
         count = stats[k, 0]
         span_r = (stats[k, 5] - stats[k, 4] + 1) * res
         span_c = (stats[k, 7] - stats[k, 6] + 1) * res
-        big_enough = count >= min_cells or (tracked.shape[0] > 0 and tracked[k])
-        if not big_enough and 0 < iso_min <= count:
+        big_enough = count > 0 and (count >= min_cells
+                                    or (tracked.shape[0] > 0 and tracked[k]))
+        if not big_enough and count > 0 and 0 < iso_min <= count:
             big_enough = _isolated(all_cells[first:first + count], decision, cols, reach,
                                    still, heights, min_height)
         first += count
@@ -379,6 +464,12 @@ def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_e
     return cells, offsets, centroid, bbox, seeds, mean_m
 
 
+def off_buildings_small(small_m: float, resolution_m: float) -> int:
+    """``objects.off_buildings_small_m`` in cells: the bounding-box sides s (cells) with
+    s · resolution ≤ small_m (2.0 m at 0.5 m cells: 4)."""
+    return int(math.floor(small_m / resolution_m + 1e-9))
+
+
 def isolated_reach(clearance_m: float, resolution_m: float) -> int:
     """``objects.isolated_clearance_m`` in cells: the Chebyshev distances d (cells, centre
     to centre) with d · resolution ≤ clearance (1.0 m at 0.5 m cells: 2)."""
@@ -411,8 +502,8 @@ class Clusterer:
 
     def clusters(self, decision: np.ndarray, betp_moving: np.ndarray, conflict_fo: np.ndarray,
                  window: Window, extra_seeds: np.ndarray | None = None,
-                 occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None
-                 ) -> Clusters:
+                 occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None,
+                 near_building: np.ndarray | None = None) -> Clusters:
         """The kept clusters of one frame. ``decision`` (rows, cols) uint8 codes;
         ``betp_moving`` and ``conflict_fo``: betP(M) and ∅_FO as stored (uint8, ×255);
         ``extra_seeds``: flat window indices that seed too if occupied now (a track's
@@ -420,7 +511,9 @@ class Clusterer:
         a return of this scan (required with ``seeds = "occupied"``, unused otherwise);
         ``heights``: (rows, cols) float32, each cell's highest return above the local ground
         (``sensor_grid(heights_out=)``), for ``isolated_min_height_m`` (None: no height
-        condition)."""
+        condition); ``near_building``: (rows, cols) bool, the cells within
+        ``map.building_margin_m`` of a mapped building, for ``off_buildings`` (None: no
+        map, no cell left out)."""
         if decision.shape != self.shape:
             raise ValueError(f"window {decision.shape}, the clusterer's is {self.shape}")
         extra = (np.zeros(0, np.int64) if extra_seeds is None
@@ -454,7 +547,18 @@ class Clusterer:
             offsets = np.zeros(n + 1, np.int64)
             np.cumsum(self._stats[:n, 0], out=offsets[1:])
             tracked = tracked_clusters(self._cells[offsets[:-1]], extra)
-        return Clusters(*_summarise(self._cells, self._stats, n, betp_moving.reshape(-1),
+        all_cells, stats = self._cells, self._stats
+        if self.params.off_buildings and near_building is not None:
+            if near_building.shape != self.shape:
+                raise ValueError(f"near_building {near_building.shape}, the clusterer's "
+                                 f"is {self.shape}")
+            all_cells, stats = _off_buildings(
+                self._cells, self._stats, n,
+                np.ascontiguousarray(near_building, np.bool_).reshape(-1).view(np.uint8),
+                flat, _OFF_BUILDINGS, conflict_fo.reshape(-1), self._fo_q, _MOVING,
+                self.shape[1], off_buildings_small(self.params.off_buildings_small_m,
+                                                   window.resolution_m))
+        return Clusters(*_summarise(all_cells, stats, n, betp_moving.reshape(-1),
                                     window.row0, window.col0, float(window.resolution_m),
                                     self.params.min_cells, self.params.max_extent_m + 1e-9,
                                     tracked, self.params.isolated_min_cells, flat,

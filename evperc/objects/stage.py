@@ -77,17 +77,19 @@ class ObjectStage:
 
     def step(self, state: TrackerState, decision: np.ndarray, betp_moving: np.ndarray,
              conflict_fo: np.ndarray, window: Window, stamp_ns: int,
-             occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None
-             ) -> tuple[np.ndarray, np.ndarray]:
+             occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None,
+             near_building: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The frame's reported objects and their cells (:func:`track_step`); ``state``
         is updated in place. ``occupied_now``: (rows, cols) bool, the cells holding a
         return of this scan; ``heights``: (rows, cols) float32, each cell's highest return
         above the local ground (``sensor_grid(heights_out=)``), for
         ``objects.moving_min_height_m`` and ``isolated_min_height_m`` (None: no height
-        condition)."""
+        condition); ``near_building``: (rows, cols) bool, the cells within
+        ``map.building_margin_m`` of a mapped building, for
+        ``objects.clusters_off_buildings`` (None: no map)."""
         seeds = footprint_seeds(state, window)
         clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds,
-                                           occupied_now, heights)
+                                           occupied_now, heights, near_building)
         self.list_small_moving(decision, heights)
         return track_step(state, clusters, window, stamp_ns, self.tracking_params, decision)
 

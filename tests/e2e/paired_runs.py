@@ -29,3 +29,11 @@ def paired_scores(root: Path, profile: str, seed: int,
                   "visible", "--json", str(path))
         out[name] = json.loads(path.read_text())
     return out
+
+
+def moving_within_one_cell(root: Path, profile: str, seed: int, before: Path
+                           ) -> dict[str, dict[str, Any]]:
+    """:func:`paired_scores` of the defaults ("now") and the config file ``before``: each
+    run's ``moving_within_one_cell`` scores."""
+    scores = paired_scores(root, profile, seed, {"now": None, "before": before})
+    return {name: s["moving_within_one_cell"] for name, s in scores.items()}

@@ -19,16 +19,14 @@ from typing import Any
 
 import pytest
 
-from tests.e2e.paired_runs import paired_scores
+from tests.e2e.paired_runs import moving_within_one_cell
 from tests.e2e.test_sim_eval import REPO
 
 
 @pytest.fixture(scope="module")
 def within_one_cell(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    before = REPO / "configs" / "ablation" / "rehit_1_5.toml"
-    scores = paired_scores(tmp_path_factory.mktemp("vlp16"), "vlp16", 6,
-                           {"now": None, "before": before})
-    return {name: s["moving_within_one_cell"] for name, s in scores.items()}
+    return moving_within_one_cell(tmp_path_factory.mktemp("vlp16"), "vlp16", 6,
+                                  REPO / "configs" / "ablation" / "rehit_1_5.toml")
 
 
 def test_fences_no_longer_move(within_one_cell: dict[str, Any]) -> None:

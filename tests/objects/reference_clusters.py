@@ -189,7 +189,8 @@ class Clusterer:
 
     def clusters(self, decision: np.ndarray, betp_moving: np.ndarray, conflict_fo: np.ndarray,
                  window: Window, extra_seeds: np.ndarray | None = None,
-                 occupied_now: np.ndarray | None = None) -> Clusters:
+                 occupied_now: np.ndarray | None = None, heights: None = None,
+                 near_building: np.ndarray | None = None) -> Clusters:
         """The kept clusters of one frame. ``decision`` (rows, cols) uint8 codes;
         ``betp_moving`` and ``conflict_fo``: betP(M) and ∅_FO as stored (uint8, ×255);
         ``extra_seeds``: flat window indices that seed too if occupied now (a track's
@@ -213,12 +214,38 @@ class Clusterer:
         count = stats[:, 0]
         offsets = np.zeros(n + 1, np.int64)
         np.cumsum(count, out=offsets[1:])
+        all_cells = self._cells[:used]
+        tracked = (tracked_clusters(all_cells[offsets[:-1]], extra)
+                   if self.params.keep_tracked_small and len(extra) else np.zeros(n, bool))
+        if self.params.off_buildings and near_building is not None:
+            # added with objects.clusters_off_buildings (not in d379f5e): each group's cells
+            # near a building decided static / stopped / unmapped left out, its stats
+            # counted again from the cells it keeps
+            leaves = np.isin(decision.reshape(-1),
+                             [DECISION_CODES[n] for n in ("static", "stopped", "unmapped")])
+            out = near_building.reshape(-1) & leaves
+            fo_q = self._fo_q
+            seed = ((decision.reshape(-1) == _MOVING)
+                    | ((fo_q > 0) & (conflict_fo.reshape(-1).astype(np.int64) >= fo_q)))
+            groups = [all_cells[offsets[k]:offsets[k + 1]] for k in range(n)]
+            # a group whose box is at most off_buildings_small_m on each side: kept whole
+            side_m = np.maximum(stats[:, 5] - stats[:, 4] + 1,
+                                stats[:, 7] - stats[:, 6] + 1) * window.resolution_m
+            whole = side_m <= self.params.off_buildings_small_m + 1e-9
+            groups = [g if whole[k] else g[~out[g]] for k, g in enumerate(groups)]
+            stats = np.zeros((n, 8), np.int64)
+            for k, g in enumerate(groups):
+                r, c = np.divmod(g, self.shape[1])
+                stats[k, :4] = len(g), seed[g].sum(), r.sum(), c.sum()
+                if len(g):
+                    stats[k, 4:] = r.min(), r.max(), c.min(), c.max()
+            count = stats[:, 0]
+            np.cumsum(count, out=offsets[1:])
+            all_cells = np.concatenate(groups) if groups else np.zeros(0, np.int64)
         res = window.resolution_m
         span_r = (stats[:, 5] - stats[:, 4] + 1) * res
         span_c = (stats[:, 7] - stats[:, 6] + 1) * res
-        big_enough = count >= self.params.min_cells
-        if self.params.keep_tracked_small and len(extra):
-            big_enough |= tracked_clusters(self._cells[offsets[:-1]], extra)
+        big_enough = (count >= self.params.min_cells) | tracked
         iso = self.params.isolated_min_cells
         if iso > 0:  # added with objects.isolated_min_cells (not in d379f5e): per cluster
             reach = int(np.floor(self.params.isolated_clearance_m / window.resolution_m + 1e-9))
@@ -226,16 +253,15 @@ class Clusterer:
                                        ("static", "stopped", "unmapped", "infrastructure")])
             for k in np.flatnonzero(~big_enough & (count >= iso)):
                 own = np.zeros(self.shape, bool).reshape(-1)
-                own[self._cells[offsets[k]:offsets[k + 1]]] = True
+                own[all_cells[offsets[k]:offsets[k + 1]]] = True
                 own = own.reshape(self.shape)
                 near = np.zeros(self.shape, bool)
                 for r, c in zip(*np.nonzero(own), strict=True):
                     near[max(r - reach, 0):r + reach + 1, max(c - reach, 0):c + reach + 1] = True
                 big_enough[k] = not (near & still & ~own).any()
-        keep = (big_enough & (span_r <= self.params.max_extent_m + 1e-9)
+        keep = (big_enough & (count > 0) & (span_r <= self.params.max_extent_m + 1e-9)
                 & (span_c <= self.params.max_extent_m + 1e-9))
         kept = np.flatnonzero(keep)
-        all_cells = self._cells[:used]
         pieces = [all_cells[offsets[k]:offsets[k + 1]] for k in kept]
         cells = np.concatenate(pieces) if pieces else np.zeros(0, np.int64)
         new_offsets = np.zeros(len(kept) + 1, np.int64)

@@ -4,6 +4,8 @@ reference on random grids."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -208,3 +210,89 @@ def test_isolated_clusters_against_scipy_labelling_and_dilation():
         found = {frozenset(c) for c in (got.cells_of(k) for k in range(len(got)))}
         assert found == expected, trial
     assert kept_small > 10  # the rule was exercised, not only the size test
+
+
+def _facade_and_person():
+    """A 12 × 20 window: a building's outline (infrastructure) in rows 0-1, its façade's
+    returns one cell outside it (row 2, cols 0-19, decided stopped, hit now) — all of row 2
+    within the widened building (``near``, rows 0-2) — and a person against the wall (rows
+    3-4, cols 8-9: two cells decided moving, two static, all hit now)."""
+    shape = (12, 20)
+    dec, betp_m, fo = _grids(shape)
+    dec[0:2, :] = D["infrastructure"]
+    dec[2, :] = D["stopped"]
+    dec[3, 8:10] = D["moving"]
+    dec[4, 8:10] = D["static"]
+    now = np.zeros(shape, bool)
+    now[2:5, :] = True
+    now[3:5, 10:] = False
+    now[3:5, :8] = False
+    near = np.zeros(shape, bool)
+    near[0:3, :] = True
+    return dec, betp_m, fo, now, near
+
+
+def test_a_cluster_keeps_no_facade_cells_off_buildings():
+    """The person's group takes in the whole façade strip (24 cells, 10 m long); with
+    ``off_buildings`` its cluster is the 4 cells of the person, worked out by hand: cols 8-9
+    of rows 3-4, centroid x = (20 + 8.5 + 0.5) · 0.5 = 14.5, y = (10 + 3.5 + 0.5) · 0.5 = 7.0,
+    box x 14.0-15.0, y 6.5-7.5, two seeds."""
+    dec, betp_m, fo, now, near = _facade_and_person()
+    window = Window(RES, 12, 20, 10, 20)
+    params = ClusterParams(seeds="occupied")
+    plain = Clusterer(params, dec.shape).clusters(dec, betp_m, fo, window, None, now,
+                                                  near_building=near)
+    assert len(plain) == 1 and len(plain.cells_of(0)) == 24  # 20 façade + 4 person cells
+    assert plain.bbox_m[0][2] - plain.bbox_m[0][0] == pytest.approx(10.0)
+    off = Clusterer(replace(params, off_buildings=True), dec.shape)
+    c = off.clusters(dec, betp_m, fo, window, None, now, near_building=near)
+    assert len(c) == 1
+    assert sorted(c.cells_of(0)) == [3 * 20 + 8, 3 * 20 + 9, 4 * 20 + 8, 4 * 20 + 9]
+    np.testing.assert_allclose(c.centroid_m[0], [14.5, 7.0])
+    np.testing.assert_allclose(c.bbox_m[0], [14.0, 6.5, 15.0, 7.5])
+    assert c.seeds[0] == 2
+    # the group the small-group rules read is the flood fill's, façade included
+    cells, sizes = off.groups()
+    assert sizes.tolist() == [24]
+    # without the layer (no map) nothing is left out
+    assert len(off.clusters(dec, betp_m, fo, window, None, now).cells_of(0)) == 24
+
+
+def test_off_buildings_keeps_moving_cells_and_drops_a_facade_only_group():
+    """A cell decided moving inside the widened building stays in its cluster (only
+    static, stopped and unmapped cells are left out); a group of façade cells alone keeps no
+    cell and is no cluster."""
+    dec, betp_m, fo, now, near = _facade_and_person()
+    window = Window(RES, 12, 20, 10, 20)
+    off = Clusterer(ClusterParams(seeds="occupied", off_buildings=True), dec.shape)
+    dec[3:5, 8:10] = D["free"]  # the person gone: the strip alone
+    assert len(off.clusters(dec, betp_m, fo, window, None, now, near_building=near)) == 0
+    dec[2, 5:8] = D["moving"]   # three strip cells decided moving: they stay, the rest not
+    c = off.clusters(dec, betp_m, fo, window, None, now, near_building=near)
+    assert len(c) == 1 and sorted(c.cells_of(0)) == [45, 46, 47]
+    dec[2, 5:8] = D["unmapped"]  # unmapped, like stopped and static, is left out
+    assert len(off.clusters(dec, betp_m, fo, window, None, now, near_building=near)) == 0
+
+
+def test_a_person_walking_along_the_wall_keeps_its_cells():
+    """A person within the widened building (3 cells decided static — the motion gate is
+    closed there — all in ``near``, hit now; 1.5 m along the wall): a group at most
+    ``off_buildings_small_m`` on each side is kept whole (one cluster of the 3 cells), and
+    without that bound it loses every cell and is no cluster."""
+    dec, betp_m, fo, now, near = _facade_and_person()
+    window = Window(RES, 12, 20, 10, 20)
+    dec[2, :] = D["free"]             # no façade returns now
+    dec[3:5, 8:10] = D["free"]
+    now[:] = False
+    dec[2, 10:13] = D["static"]       # the walker, one cell outside the outline
+    now[2, 10:13] = True
+    small = ClusterParams(seeds="occupied", off_buildings=True, off_buildings_small_m=2.0)
+    c = Clusterer(small, dec.shape).clusters(dec, betp_m, fo, window, None, now,
+                                             near_building=near)
+    assert len(c) == 1 and sorted(c.cells_of(0)) == [50, 51, 52]
+    no_bound = replace(small, off_buildings_small_m=0.0)
+    assert len(Clusterer(no_bound, dec.shape).clusters(dec, betp_m, fo, window, None, now,
+                                                       near_building=near)) == 0
+    # 1.0 m: the 1.5 m group is no longer small enough to keep its cells
+    assert len(Clusterer(replace(small, off_buildings_small_m=1.0), dec.shape).clusters(
+        dec, betp_m, fo, window, None, now, near_building=near)) == 0

@@ -1,7 +1,7 @@
 """The clustering and the unmapped cue against the versions they replaced
 (tests/objects/reference_clusters.py, reference_unmapped.py: per-cell loops, numpy
-summaries) on random windows: every output array equal to the bit (same operations per
-cell, so no tolerance)."""
+summaries; the cells left out near buildings by numpy masks) on random windows: every
+output array equal to the bit (same operations per cell, so no tolerance)."""
 
 from __future__ import annotations
 
@@ -41,7 +41,9 @@ def test_clusters_equal_the_reference(seed: int) -> None:
                                seeds=seeds_mode,
                                keep_tracked_small=bool(rng.random() < 0.5),
                                isolated_min_cells=int(rng.choice([0, 1, 2, 3])),
-                               isolated_clearance_m=float(rng.choice([0.3, 0.5, 1.0, 2.0])))
+                               isolated_clearance_m=float(rng.choice([0.3, 0.5, 1.0, 2.0])),
+                               off_buildings=bool(rng.random() < 0.7),
+                               off_buildings_small_m=float(rng.choice([0.0, 0.5, 1.0, 2.0])))
         new = Clusterer(params, shape)
         old = ref_clusters.Clusterer(ref_clusters.ClusterParams(**params.__dict__), shape)
         for _ in range(5):
@@ -52,8 +54,12 @@ def test_clusters_equal_the_reference(seed: int) -> None:
             extra = rng.integers(-5, shape[0] * shape[1] + 5, int(rng.integers(0, 40)))
             window = Window(float(rng.choice([0.2, 0.5, 1.0])), *shape,
                             int(rng.integers(-1000, 1000)), int(rng.integers(-1000, 1000)))
-            a = new.clusters(dec, betp, fo, window, extra, now)
-            b = old.clusters(dec, betp, fo, window, extra, now)
+            # the widened buildings: none, scattered cells or blocks (a façade's strip)
+            near = (None if rng.random() < 0.2 else rng.random(shape) < rng.random() * 0.6)
+            if near is not None and rng.random() < 0.5:
+                near[:, :int(rng.integers(0, shape[1] + 1))] = True
+            a = new.clusters(dec, betp, fo, window, extra, now, near_building=near)
+            b = old.clusters(dec, betp, fo, window, extra, now, near_building=near)
             for name in ("cells", "offsets", "centroid_m", "bbox_m", "seeds",
                          "mean_betp_moving"):
                 x, y = getattr(a, name), getattr(b, name)
