@@ -57,8 +57,11 @@ import numpy as np
 log = logging.getLogger("evaluation_study")
 
 REPO = Path(__file__).resolve().parents[1]
-MAP = REPO / "tests" / "data" / "osm" / "helsinki_buildings.geojson"
-ROADS = REPO / "tests" / "data" / "osm" / "helsinki_roads.geojson"
+DEFAULT_MAP = REPO / "tests" / "data" / "osm" / "helsinki_buildings.geojson"
+DEFAULT_ROADS = REPO / "tests" / "data" / "osm" / "helsinki_roads.geojson"
+#: the city of the study's drives (:func:`use_map`)
+MAP: Path = DEFAULT_MAP
+ROADS: Path | None = DEFAULT_ROADS
 EVPERC = [sys.executable, "-m", "evperc", "-q"]
 
 DEFAULT_SECONDS = {"ibeo4": 20.0, "hdl64": 10.0, "vlp16": 10.0, "scan2d": 20.0}
@@ -122,7 +125,8 @@ def drive_dir(work: Path, drive: Drive) -> Path:
 
 
 def simulate_command(work: Path, drive: Drive) -> list[str]:
-    return [*EVPERC, "simulate", "--map", str(MAP), "--roads", str(ROADS),
+    roads = ["--roads", str(ROADS)] if ROADS is not None else []
+    return [*EVPERC, "simulate", "--map", str(MAP), *roads,
             "--profile", drive.profile, "--seconds", f"{drive.seconds:g}",
             "--seed", str(drive.seed), "--out", str(drive_dir(work, drive)), "--overwrite"]
 
@@ -576,6 +580,30 @@ def tune(work: Path, drives: Sequence[Drive], workers: int) -> str:
 
 # ---------------------------------------------------------------------------------------------
 
+def use_map(work: Path, map_path: Path | None, roads: Path | None) -> None:
+    """Simulate the drives on ``map_path`` (and ``roads``) instead of the Helsinki extract.
+
+    The drives are cached by profile, seed and length only, so the work directory records its
+    map (``WORK/map.txt``) and refuses another one: a study never mixes two cities' drives."""
+    global MAP, ROADS
+    if map_path is not None:
+        MAP, ROADS = map_path.resolve(), roads.resolve() if roads is not None else None
+    elif roads is not None:
+        raise SystemExit("--roads needs --map (the default map has its own roads)")
+    else:
+        MAP, ROADS = DEFAULT_MAP, DEFAULT_ROADS
+    for path in (MAP, ROADS):
+        if path is not None and not path.is_file():
+            raise SystemExit(f"{path}: no such map file")
+    stamp = work / "map.txt"
+    said = f"{MAP}\n{ROADS or ''}\n"
+    if stamp.is_file() and stamp.read_text() != said:
+        raise SystemExit(f"{work}: its drives were simulated on {stamp.read_text().split()[0]}; "
+                         "use another --work for another map")
+    work.mkdir(parents=True, exist_ok=True)
+    stamp.write_text(said)
+
+
 def parse_seconds(text: str | None, profiles: Sequence[str]) -> dict[str, float]:
     """``20`` (every profile) or ``ibeo4=20,hdl64=10``."""
     seconds = {p: DEFAULT_SECONDS[p] for p in profiles}
@@ -610,6 +638,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="everything of docs/evaluation.md: --tune, then the report on the "
                              "test seeds with the defaults, the SPEC values and the tuned config "
                              "side by side")
+    parser.add_argument("--map", type=Path,
+                        help="the city the drives are simulated in: `evperc simulate --map` "
+                             "[tests/data/osm/helsinki_buildings.geojson]; a work directory "
+                             "holds the drives of one map")
+    parser.add_argument("--roads", type=Path,
+                        help="its highway lines, if not in --map [with the default map: "
+                             "tests/data/osm/helsinki_roads.geojson]")
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     parser.add_argument("--out", type=Path, help="also write the markdown to this file")
     args = parser.parse_args(argv)
@@ -621,6 +656,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return [Drive(p, int(s), seconds[p]) for p in profiles for s in seeds.split(",")]
 
     work = args.work.resolve()
+    use_map(work, args.map, args.roads)
     t0 = time.perf_counter()
     commands: list[str] = []
     text = ""
