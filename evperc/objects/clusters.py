@@ -31,7 +31,9 @@ outside its outline, and a person standing against the wall, whose group takes t
 would otherwise grow along the wall and be tracked on the façade's evidence. A group whose
 bounding box is at most ``off_buildings_small_m`` on each side keeps them (a person walking
 along a wall: the motion gate is closed there, so its cells are decided static, and the
-tracker alone tells that it moves). The flood fill is unchanged — the group still grows
+tracker alone tells that it moves) — with ``off_buildings_max_height_m`` > 0, only if none of
+its cells holds a return that high above the local ground (a person is lower; a fragment of
+the façade, hit up its height, is not). The flood fill is unchanged — the group still grows
 through those cells, so the small-group rules read the same groups — and the cells are
 dropped from the cluster before the size and extent filters (a group that keeps none is no
 cluster).
@@ -98,6 +100,9 @@ class ClusterParams:
     #: objects.off_buildings_small_m: ... except in a group whose bounding box is at most
     #: this on each side (m), kept whole (module docstring)
     off_buildings_small_m: float = 0.0
+    #: objects.off_buildings_max_height_m: ... and none of whose cells holds a return at
+    #: least this high above the local ground (m); 0 = no height condition
+    off_buildings_max_height_m: float = 0.0
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> ClusterParams:
@@ -111,7 +116,9 @@ class ClusterParams:
                              isolated_clearance_m=float(o.get("isolated_clearance_m", 1.0)),
                              isolated_min_height_m=float(o.get("isolated_min_height_m", 0.0)),
                              off_buildings=bool(o.get("clusters_off_buildings", False)),
-                             off_buildings_small_m=float(o.get("off_buildings_small_m", 0.0)))
+                             off_buildings_small_m=float(o.get("off_buildings_small_m", 0.0)),
+                             off_buildings_max_height_m=float(
+                                 o.get("off_buildings_max_height_m", 0.0)))
 
 
 @dataclass(frozen=True)
@@ -149,6 +156,7 @@ OFF_BUILDINGS = ("static", "stopped", "unmapped")
 _OFF_BUILDINGS = np.zeros(256, np.bool_)
 _OFF_BUILDINGS[[DECISION_CODES[n] for n in OFF_BUILDINGS]] = True
 _NO_HEIGHTS = np.zeros((0, 0), np.float32)
+_NO_FLAT_HEIGHTS = np.zeros(0, np.float32)
 _MOVING = DECISION_CODES["moving"]
 _UNKNOWN = DECISION_CODES["unknown"]
 #: ``now`` value of a cell holding only returns behind the first one of their azimuth bin
@@ -325,10 +333,12 @@ def block_max_at(layer: np.ndarray, cells: np.ndarray) -> np.ndarray:  # pragma:
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _off_buildings(all_cells, stats, n, near, decision, leaves, conflict_fo, fo_q, moving,
-                   cols, small):  # pragma: no cover - compiled
+                   cols, small, heights, max_height):  # pragma: no cover - compiled
     """:func:`_flood`'s ``n`` groups (``all_cells``, ``stats``) without their cells marked in
     ``near`` (flat window bytes) whose decision ``leaves`` marks, except the groups whose
-    bounding box is at most ``small`` cells on each side (kept whole): new (cells, stats),
+    bounding box is at most ``small`` cells on each side and (``heights`` not empty: flat,
+    each cell's highest return above the ground) none of whose cells is ``max_height`` or
+    higher (kept whole): new (cells, stats),
     the stats of a group that lost a cell counted again (count, seeds, sums, bounds; a
     group with no cell left has count 0), the others copied."""
     used = 0
@@ -341,6 +351,19 @@ def _off_buildings(all_cells, stats, n, near, decision, leaves, conflict_fo, fo_
     for k in range(n):
         count = stats[k, 0]
         whole = max(stats[k, 5] - stats[k, 4], stats[k, 7] - stats[k, 6]) < small
+        if whole and heights.size > 0:
+            # the heights are read only for a group that has cells to lose (a few a frame)
+            loses = False
+            for q in range(at, at + count):
+                i = all_cells[q]
+                if near[i] and leaves[decision[i]]:
+                    loses = True
+                    break
+            if loses:
+                for q in range(at, at + count):
+                    if heights[all_cells[q]] >= max_height:
+                        whole = False
+                        break
         first = w
         for q in range(at, at + count):
             i = all_cells[q]
@@ -510,10 +533,10 @@ class Clusterer:
         cells of the previous frame); ``occupied_now``: (rows, cols) bool, the cells holding
         a return of this scan (required with ``seeds = "occupied"``, unused otherwise);
         ``heights``: (rows, cols) float32, each cell's highest return above the local ground
-        (``sensor_grid(heights_out=)``), for ``isolated_min_height_m`` (None: no height
-        condition); ``near_building``: (rows, cols) bool, the cells within
-        ``map.building_margin_m`` of a mapped building, for ``off_buildings`` (None: no
-        map, no cell left out)."""
+        (``sensor_grid(heights_out=)``), for ``isolated_min_height_m`` and
+        ``off_buildings_max_height_m`` (None: no height condition); ``near_building``:
+        (rows, cols) bool, the cells within ``map.building_margin_m`` of a mapped building,
+        for ``off_buildings`` (None: no map, no cell left out)."""
         if decision.shape != self.shape:
             raise ValueError(f"window {decision.shape}, the clusterer's is {self.shape}")
         extra = (np.zeros(0, np.int64) if extra_seeds is None
@@ -557,7 +580,10 @@ class Clusterer:
                 np.ascontiguousarray(near_building, np.bool_).reshape(-1).view(np.uint8),
                 flat, _OFF_BUILDINGS, conflict_fo.reshape(-1), self._fo_q, _MOVING,
                 self.shape[1], off_buildings_small(self.params.off_buildings_small_m,
-                                                   window.resolution_m))
+                                                   window.resolution_m),
+                _NO_FLAT_HEIGHTS if heights is None or self.params.off_buildings_max_height_m <= 0
+                else np.ascontiguousarray(heights, np.float32).reshape(-1),
+                np.float32(self.params.off_buildings_max_height_m))
         return Clusters(*_summarise(all_cells, stats, n, betp_moving.reshape(-1),
                                     window.row0, window.col0, float(window.resolution_m),
                                     self.params.min_cells, self.params.max_extent_m + 1e-9,

@@ -73,7 +73,9 @@ class ObjectStage:
     @property
     def needs_heights(self) -> bool:
         """Whether :meth:`step` uses the cells' highest returns (``heights``)."""
-        return self.moving_min_height > 0 or self.isolated_min_height > 0
+        p = self.cluster_params
+        return (self.moving_min_height > 0 or self.isolated_min_height > 0
+                or (p.off_buildings and p.off_buildings_max_height_m > 0))
 
     def step(self, state: TrackerState, decision: np.ndarray, betp_moving: np.ndarray,
              conflict_fo: np.ndarray, window: Window, stamp_ns: int,

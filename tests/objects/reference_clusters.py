@@ -189,7 +189,7 @@ class Clusterer:
 
     def clusters(self, decision: np.ndarray, betp_moving: np.ndarray, conflict_fo: np.ndarray,
                  window: Window, extra_seeds: np.ndarray | None = None,
-                 occupied_now: np.ndarray | None = None, heights: None = None,
+                 occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None,
                  near_building: np.ndarray | None = None) -> Clusters:
         """The kept clusters of one frame. ``decision`` (rows, cols) uint8 codes;
         ``betp_moving`` and ``conflict_fo``: betP(M) and ∅_FO as stored (uint8, ×255);
@@ -232,6 +232,13 @@ class Clusterer:
             side_m = np.maximum(stats[:, 5] - stats[:, 4] + 1,
                                 stats[:, 7] - stats[:, 6] + 1) * window.resolution_m
             whole = side_m <= self.params.off_buildings_small_m + 1e-9
+            top = self.params.off_buildings_max_height_m
+            if heights is not None and top > 0:  # added with off_buildings_max_height_m:
+                # ... and none of its cells holds a return that high
+                flat_h = heights.reshape(-1).astype(np.float32)
+                whole &= np.array([not (flat_h[g] >= np.float32(top)).any() for g in
+                                   (all_cells[offsets[k]:offsets[k + 1]] for k in range(n))],
+                                  bool).reshape(whole.shape)
             groups = [g if whole[k] else g[~out[g]] for k, g in enumerate(groups)]
             stats = np.zeros((n, 8), np.int64)
             for k, g in enumerate(groups):

@@ -296,3 +296,35 @@ def test_a_person_walking_along_the_wall_keeps_its_cells():
     # 1.0 m: the 1.5 m group is no longer small enough to keep its cells
     assert len(Clusterer(replace(small, off_buildings_small_m=1.0), dec.shape).clusters(
         dec, betp_m, fo, window, None, now, near_building=near)) == 0
+
+
+def test_a_small_group_reaching_up_a_facade_is_no_walker():
+    """``off_buildings_max_height_m``: the walker's group of the test above (1.5 m along the
+    wall, every cell static and near the building) is kept whole when its returns are a
+    person's height (1.8 m), and loses its cells — no cluster — when one of them holds a
+    return 3 m above the ground (a fragment of the façade hit up its height). With the
+    bound at 0, or without the heights layer, there is no height condition."""
+    dec, betp_m, fo, now, near = _facade_and_person()
+    window = Window(RES, 12, 20, 10, 20)
+    dec[2, :] = D["free"]
+    dec[3:5, 8:10] = D["free"]
+    now[:] = False
+    dec[2, 10:13] = D["static"]
+    now[2, 10:13] = True
+    heights = np.zeros(dec.shape, np.float32)
+    heights[2, 10:13] = 1.8
+    params = ClusterParams(seeds="occupied", off_buildings=True, off_buildings_small_m=2.0,
+                           off_buildings_max_height_m=2.2)
+
+    def cells(p: ClusterParams, h: np.ndarray | None) -> list[list[int]]:
+        c = Clusterer(p, dec.shape).clusters(dec, betp_m, fo, window, None, now, h,
+                                             near_building=near)
+        return [sorted(c.cells_of(k).tolist()) for k in range(len(c))]
+
+    assert cells(params, heights) == [[50, 51, 52]]
+    heights[2, 11] = 3.0
+    assert cells(params, heights) == []
+    heights[2, 11] = 2.2  # the bound itself is a façade's height
+    assert cells(params, heights) == []
+    assert cells(replace(params, off_buildings_max_height_m=0.0), heights) == [[50, 51, 52]]
+    assert cells(params, None) == [[50, 51, 52]]

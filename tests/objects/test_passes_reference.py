@@ -43,7 +43,8 @@ def test_clusters_equal_the_reference(seed: int) -> None:
                                isolated_min_cells=int(rng.choice([0, 1, 2, 3])),
                                isolated_clearance_m=float(rng.choice([0.3, 0.5, 1.0, 2.0])),
                                off_buildings=bool(rng.random() < 0.7),
-                               off_buildings_small_m=float(rng.choice([0.0, 0.5, 1.0, 2.0])))
+                               off_buildings_small_m=float(rng.choice([0.0, 0.5, 1.0, 2.0])),
+                               off_buildings_max_height_m=float(rng.choice([0.0, 1.0, 2.2])))
         new = Clusterer(params, shape)
         old = ref_clusters.Clusterer(ref_clusters.ClusterParams(**params.__dict__), shape)
         for _ in range(5):
@@ -58,8 +59,11 @@ def test_clusters_equal_the_reference(seed: int) -> None:
             near = (None if rng.random() < 0.2 else rng.random(shape) < rng.random() * 0.6)
             if near is not None and rng.random() < 0.5:
                 near[:, :int(rng.integers(0, shape[1] + 1))] = True
-            a = new.clusters(dec, betp, fo, window, extra, now, near_building=near)
-            b = old.clusters(dec, betp, fo, window, extra, now, near_building=near)
+            # each cell's highest return above the ground (0: none), or no layer
+            heights = (None if rng.random() < 0.2 else
+                       (rng.random(shape) * 3.0 * (rng.random(shape) < 0.7)).astype(np.float32))
+            a = new.clusters(dec, betp, fo, window, extra, now, heights, near_building=near)
+            b = old.clusters(dec, betp, fo, window, extra, now, heights, near_building=near)
             for name in ("cells", "offsets", "centroid_m", "bbox_m", "seeds",
                          "mean_betp_moving"):
                 x, y = getattr(a, name), getattr(b, name)
