@@ -136,14 +136,19 @@ def test_block_max_at_is_the_largest_of_each_cells_3x3_block() -> None:
     assert block_max_at(layer, np.zeros(0, np.int64)).size == 0
 
 
-def test_the_stage_asks_for_heights_for_either_height_bound():
+def test_the_stage_asks_for_heights_for_any_height_bound():
     """The run computes each cell's highest return (``sensor_grid(heights_out=)``) when
-    the small-group rule or the isolated-cluster rule has a height bound, not otherwise."""
+    the small-group rule, the isolated-cluster rule or the façade rule's small groups
+    (``off_buildings_max_height_m``) has a height bound, not otherwise."""
     def needs(**overrides):
         keys = {f"objects.{k}": v for k, v in overrides.items()}
         return ObjectStage(load_config(overrides=keys), (4, 4)).needs_heights
-    assert needs()                                                      # the defaults: both
-    assert needs(moving_min_cluster_cells=0)                            # isolated only
-    assert needs(isolated_min_cells=0)                                  # small groups only
-    assert not needs(moving_min_cluster_cells=0, isolated_min_height_m=0.0)
-    assert not needs(moving_min_cluster_cells=0, isolated_min_cells=0)
+    no_facade = {"off_buildings_max_height_m": 0.0}
+    assert needs()                                                      # the defaults: all
+    assert needs(moving_min_cluster_cells=0, **no_facade)               # isolated only
+    assert needs(isolated_min_cells=0, **no_facade)                     # small groups only
+    assert needs(moving_min_cluster_cells=0, isolated_min_cells=0)      # the façade rule only
+    assert not needs(moving_min_cluster_cells=0, isolated_min_cells=0,
+                     clusters_off_buildings=False)
+    assert not needs(moving_min_cluster_cells=0, isolated_min_height_m=0.0, **no_facade)
+    assert not needs(moving_min_cluster_cells=0, isolated_min_cells=0, **no_facade)
