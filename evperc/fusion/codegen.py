@@ -232,13 +232,23 @@ def _body(lean: bool = False, road: bool = False) -> list[str]:
     add("dn1 = u * m1")
     add("d0 = dn0 + f * s_nf")
     add("d1 = dn1 + f * s_f")
+    # where the gate is closed and faded_o, a return in a cell whose free mass has faded
+    # (A ∋ F, A ≠ {F}) says O only: o·m(A) goes to O instead of A ∖ {F} (method.md §5a)
+    add("kf = _1 if (gate_off | (gt != _0) | (not faded_o)) else _0")
+    faded = []
     for a in range(2, 32):
         if a in zero:
             add(f"d{a} = _0")
         elif a & _F:
             add(f"d{a} = u * m{a}")
+        elif a == _O:
+            continue  # O: below, with the faded products
         else:
-            add(f"d{a} = u * m{a} + o * (m{a} + m{a + 1})")
+            add(f"d{a} = u * m{a} + o * (m{a} + kf * m{a + 1})")
+            if a + 1 not in zero:
+                faded.append(f"m{a + 1}")
+    add(f"d{_O} = u * m{_O} + o * (m{_O} + m{_OMEGA} + "
+        f"(_1 - kf) * {_sum(faded)})")
     # c = ((1 − β) d + Σ_P β_P (d ∩ P) − e δ∅) / kept
     add("keep_d = _1 - beta")
     for a in range(32):
@@ -580,7 +590,7 @@ def _idle_tile() -> list[str]:
 PARAMS = ("derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, "
           "keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, "
           "c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, "
-          "may_skip, gate_off, bld_i, closed_o")
+          "may_skip, gate_off, bld_i, closed_o, faded_o")
 
 
 def _kernel(kind: str, lean: bool = False) -> list[str]:

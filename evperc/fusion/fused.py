@@ -193,7 +193,7 @@ def fused_step(pg: np.ndarray, zeta: np.ndarray, free: np.ndarray, occupied: np.
         # an untouched vacuous cell stays vacuous unless a prior or ζ can move it
         derive_obs and not everywhere and params.gamma_occupied > 0,
         not params.gated, params.building_conflict == "infrastructure",
-        params.gate_closed_target == "occupied")
+        params.gate_closed_target == "occupied", params.gate_faded_free)
     kernel = _kernel(isinstance(out, FusedOutputs), params.discount == "contextual"
                      and alphas[1] == 0.0 and params.residual_conflict != "normalise")
     args = (pg, zeta, flags, focal, off_r, off_c, int(shift[0]), int(shift[1]), free32, occ32,

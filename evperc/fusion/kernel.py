@@ -48,7 +48,7 @@ ROAD_ZERO_MASK = np.uint32(0xccc0ccc)
 
 @numba.njit(cache=True, nogil=True, fastmath={'ninf', 'nnan'}, error_model="numpy")
 def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
-               observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, betp, conflict, decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
+               observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, faded_o, betp, conflict, decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
     n_cells = rows * cols
     st = state.reshape(32, n_cells)
@@ -601,36 +601,37 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                     dn1 = u * m1
                     d0 = dn0 + f * s_nf
                     d1 = dn1 + f * s_f
-                    d2 = u * m2 + o * (m2 + m3)
+                    kf = _1 if (gate_off | (gt != _0) | (not faded_o)) else _0
+                    d2 = u * m2 + o * (m2 + kf * m3)
                     d3 = u * m3
-                    d4 = u * m4 + o * (m4 + m5)
+                    d4 = u * m4 + o * (m4 + kf * m5)
                     d5 = u * m5
-                    d6 = u * m6 + o * (m6 + m7)
+                    d6 = u * m6 + o * (m6 + kf * m7)
                     d7 = u * m7
-                    d8 = u * m8 + o * (m8 + m9)
+                    d8 = u * m8 + o * (m8 + kf * m9)
                     d9 = u * m9
-                    d10 = u * m10 + o * (m10 + m11)
+                    d10 = u * m10 + o * (m10 + kf * m11)
                     d11 = u * m11
-                    d12 = u * m12 + o * (m12 + m13)
+                    d12 = u * m12 + o * (m12 + kf * m13)
                     d13 = u * m13
-                    d14 = u * m14 + o * (m14 + m15)
+                    d14 = u * m14 + o * (m14 + kf * m15)
                     d15 = u * m15
-                    d16 = u * m16 + o * (m16 + m17)
+                    d16 = u * m16 + o * (m16 + kf * m17)
                     d17 = u * m17
-                    d18 = u * m18 + o * (m18 + m19)
+                    d18 = u * m18 + o * (m18 + kf * m19)
                     d19 = u * m19
-                    d20 = u * m20 + o * (m20 + m21)
+                    d20 = u * m20 + o * (m20 + kf * m21)
                     d21 = u * m21
-                    d22 = u * m22 + o * (m22 + m23)
+                    d22 = u * m22 + o * (m22 + kf * m23)
                     d23 = u * m23
-                    d24 = u * m24 + o * (m24 + m25)
+                    d24 = u * m24 + o * (m24 + kf * m25)
                     d25 = u * m25
-                    d26 = u * m26 + o * (m26 + m27)
+                    d26 = u * m26 + o * (m26 + kf * m27)
                     d27 = u * m27
-                    d28 = u * m28 + o * (m28 + m29)
+                    d28 = u * m28 + o * (m28 + kf * m29)
                     d29 = u * m29
-                    d30 = u * m30 + o * (m30 + m31)
                     d31 = u * m31
+                    d30 = u * m30 + o * (m30 + m31 + (_1 - kf) * ((((m3 + m5) + (m7 + m9)) + ((m11 + m13) + (m15 + m17))) + (((m19 + m21) + (m23 + m25)) + (m27 + m29))))
                     keep_d = _1 - beta
                     c0 = (keep_d * d0 + bb * ((((dn0 + dn1) + (d4 + d5)) + ((d8 + d9) + (d12 + d13))) + (((d16 + d17) + (d20 + d21)) + ((d24 + d25) + (d28 + d29)))) + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
                     c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
@@ -927,7 +928,7 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
 
 @numba.njit(cache=True, nogil=True, fastmath={'ninf', 'nnan'}, error_model="numpy")
 def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
-               observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
+               observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, faded_o, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
     n_cells = rows * cols
     st = state.reshape(32, n_cells)
@@ -1495,36 +1496,37 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                     dn1 = u * m1
                     d0 = dn0 + f * s_nf
                     d1 = dn1 + f * s_f
-                    d2 = u * m2 + o * (m2 + m3)
+                    kf = _1 if (gate_off | (gt != _0) | (not faded_o)) else _0
+                    d2 = u * m2 + o * (m2 + kf * m3)
                     d3 = u * m3
-                    d4 = u * m4 + o * (m4 + m5)
+                    d4 = u * m4 + o * (m4 + kf * m5)
                     d5 = u * m5
-                    d6 = u * m6 + o * (m6 + m7)
+                    d6 = u * m6 + o * (m6 + kf * m7)
                     d7 = u * m7
-                    d8 = u * m8 + o * (m8 + m9)
+                    d8 = u * m8 + o * (m8 + kf * m9)
                     d9 = u * m9
-                    d10 = u * m10 + o * (m10 + m11)
+                    d10 = u * m10 + o * (m10 + kf * m11)
                     d11 = u * m11
-                    d12 = u * m12 + o * (m12 + m13)
+                    d12 = u * m12 + o * (m12 + kf * m13)
                     d13 = u * m13
-                    d14 = u * m14 + o * (m14 + m15)
+                    d14 = u * m14 + o * (m14 + kf * m15)
                     d15 = u * m15
-                    d16 = u * m16 + o * (m16 + m17)
+                    d16 = u * m16 + o * (m16 + kf * m17)
                     d17 = u * m17
-                    d18 = u * m18 + o * (m18 + m19)
+                    d18 = u * m18 + o * (m18 + kf * m19)
                     d19 = u * m19
-                    d20 = u * m20 + o * (m20 + m21)
+                    d20 = u * m20 + o * (m20 + kf * m21)
                     d21 = u * m21
-                    d22 = u * m22 + o * (m22 + m23)
+                    d22 = u * m22 + o * (m22 + kf * m23)
                     d23 = u * m23
-                    d24 = u * m24 + o * (m24 + m25)
+                    d24 = u * m24 + o * (m24 + kf * m25)
                     d25 = u * m25
-                    d26 = u * m26 + o * (m26 + m27)
+                    d26 = u * m26 + o * (m26 + kf * m27)
                     d27 = u * m27
-                    d28 = u * m28 + o * (m28 + m29)
+                    d28 = u * m28 + o * (m28 + kf * m29)
                     d29 = u * m29
-                    d30 = u * m30 + o * (m30 + m31)
                     d31 = u * m31
+                    d30 = u * m30 + o * (m30 + m31 + (_1 - kf) * ((((m3 + m5) + (m7 + m9)) + ((m11 + m13) + (m15 + m17))) + (((m19 + m21) + (m23 + m25)) + (m27 + m29))))
                     keep_d = _1 - beta
                     c0 = (keep_d * d0 + bb * ((((dn0 + dn1) + (d4 + d5)) + ((d8 + d9) + (d12 + d13))) + (((d16 + d17) + (d20 + d21)) + ((d24 + d25) + (d28 + d29)))) + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
                     c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
@@ -1858,7 +1860,7 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
 
 @numba.njit(cache=True, nogil=True, fastmath={'ninf', 'nnan'}, error_model="numpy")
 def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
-               observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, betp, conflict, decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
+               observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, faded_o, betp, conflict, decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
     n_cells = rows * cols
     st = state.reshape(32, n_cells)
@@ -2256,36 +2258,37 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
                         dn1 = u * m1
                         d0 = dn0 + f * s_nf
                         d1 = dn1 + f * s_f
+                        kf = _1 if (gate_off | (gt != _0) | (not faded_o)) else _0
                         d2 = _0
                         d3 = _0
-                        d4 = u * m4 + o * (m4 + m5)
+                        d4 = u * m4 + o * (m4 + kf * m5)
                         d5 = u * m5
                         d6 = _0
                         d7 = _0
-                        d8 = u * m8 + o * (m8 + m9)
+                        d8 = u * m8 + o * (m8 + kf * m9)
                         d9 = u * m9
                         d10 = _0
                         d11 = _0
-                        d12 = u * m12 + o * (m12 + m13)
+                        d12 = u * m12 + o * (m12 + kf * m13)
                         d13 = u * m13
-                        d14 = u * m14 + o * (m14 + m15)
+                        d14 = u * m14 + o * (m14 + kf * m15)
                         d15 = u * m15
-                        d16 = u * m16 + o * (m16 + m17)
+                        d16 = u * m16 + o * (m16 + kf * m17)
                         d17 = u * m17
                         d18 = _0
                         d19 = _0
-                        d20 = u * m20 + o * (m20 + m21)
+                        d20 = u * m20 + o * (m20 + kf * m21)
                         d21 = u * m21
                         d22 = _0
                         d23 = _0
-                        d24 = u * m24 + o * (m24 + m25)
+                        d24 = u * m24 + o * (m24 + kf * m25)
                         d25 = u * m25
                         d26 = _0
                         d27 = _0
-                        d28 = u * m28 + o * (m28 + m29)
+                        d28 = u * m28 + o * (m28 + kf * m29)
                         d29 = u * m29
-                        d30 = u * m30 + o * (m30 + m31)
                         d31 = u * m31
+                        d30 = u * m30 + o * (m30 + m31 + (_1 - kf) * (((m5 + m9) + (m13 + m15)) + ((m17 + m21) + (m25 + m29))))
                         keep_d = _1 - beta
                         c0 = (keep_d * d0 + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
                         c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
@@ -2719,36 +2722,37 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
                     dn1 = u * m1
                     d0 = dn0 + f * s_nf
                     d1 = dn1 + f * s_f
-                    d2 = u * m2 + o * (m2 + m3)
+                    kf = _1 if (gate_off | (gt != _0) | (not faded_o)) else _0
+                    d2 = u * m2 + o * (m2 + kf * m3)
                     d3 = u * m3
-                    d4 = u * m4 + o * (m4 + m5)
+                    d4 = u * m4 + o * (m4 + kf * m5)
                     d5 = u * m5
-                    d6 = u * m6 + o * (m6 + m7)
+                    d6 = u * m6 + o * (m6 + kf * m7)
                     d7 = u * m7
-                    d8 = u * m8 + o * (m8 + m9)
+                    d8 = u * m8 + o * (m8 + kf * m9)
                     d9 = u * m9
-                    d10 = u * m10 + o * (m10 + m11)
+                    d10 = u * m10 + o * (m10 + kf * m11)
                     d11 = u * m11
-                    d12 = u * m12 + o * (m12 + m13)
+                    d12 = u * m12 + o * (m12 + kf * m13)
                     d13 = u * m13
-                    d14 = u * m14 + o * (m14 + m15)
+                    d14 = u * m14 + o * (m14 + kf * m15)
                     d15 = u * m15
-                    d16 = u * m16 + o * (m16 + m17)
+                    d16 = u * m16 + o * (m16 + kf * m17)
                     d17 = u * m17
-                    d18 = u * m18 + o * (m18 + m19)
+                    d18 = u * m18 + o * (m18 + kf * m19)
                     d19 = u * m19
-                    d20 = u * m20 + o * (m20 + m21)
+                    d20 = u * m20 + o * (m20 + kf * m21)
                     d21 = u * m21
-                    d22 = u * m22 + o * (m22 + m23)
+                    d22 = u * m22 + o * (m22 + kf * m23)
                     d23 = u * m23
-                    d24 = u * m24 + o * (m24 + m25)
+                    d24 = u * m24 + o * (m24 + kf * m25)
                     d25 = u * m25
-                    d26 = u * m26 + o * (m26 + m27)
+                    d26 = u * m26 + o * (m26 + kf * m27)
                     d27 = u * m27
-                    d28 = u * m28 + o * (m28 + m29)
+                    d28 = u * m28 + o * (m28 + kf * m29)
                     d29 = u * m29
-                    d30 = u * m30 + o * (m30 + m31)
                     d31 = u * m31
+                    d30 = u * m30 + o * (m30 + m31 + (_1 - kf) * ((((m3 + m5) + (m7 + m9)) + ((m11 + m13) + (m15 + m17))) + (((m19 + m21) + (m23 + m25)) + (m27 + m29))))
                     keep_d = _1 - beta
                     c0 = (keep_d * d0 + bb * ((((dn0 + dn1) + (d4 + d5)) + ((d8 + d9) + (d12 + d13))) + (((d16 + d17) + (d20 + d21)) + ((d24 + d25) + (d28 + d29)))) + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
                     c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
@@ -3010,7 +3014,7 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
 
 @numba.njit(cache=True, nogil=True, fastmath={'ninf', 'nnan'}, error_model="numpy")
 def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labels,
-               observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
+               observed, gate, derive_obs, everywhere, beta_b, beta_r, beta_o, tol, a_f, a_i, a_u, a_s, a_m, keep_c, a_c, residual, to_s, inc, dec, gamma_o, gamma_c, min_betp, max_ign, c_free, c_moving, c_static, c_infra, c_unmapped, c_stopped, c_unknown, vac_code, may_skip, gate_off, bld_i, closed_o, faded_o, q_runs, q_tiles, q_length, q_betp, q_conflict, q_zeta, q_decision, band, bands, band_rows, chunk_ends):  # pragma: no cover - compiled
     rows, cols = state.shape[1], state.shape[2]
     n_cells = rows * cols
     st = state.reshape(32, n_cells)
@@ -3423,36 +3427,37 @@ def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ
                         dn1 = u * m1
                         d0 = dn0 + f * s_nf
                         d1 = dn1 + f * s_f
+                        kf = _1 if (gate_off | (gt != _0) | (not faded_o)) else _0
                         d2 = _0
                         d3 = _0
-                        d4 = u * m4 + o * (m4 + m5)
+                        d4 = u * m4 + o * (m4 + kf * m5)
                         d5 = u * m5
                         d6 = _0
                         d7 = _0
-                        d8 = u * m8 + o * (m8 + m9)
+                        d8 = u * m8 + o * (m8 + kf * m9)
                         d9 = u * m9
                         d10 = _0
                         d11 = _0
-                        d12 = u * m12 + o * (m12 + m13)
+                        d12 = u * m12 + o * (m12 + kf * m13)
                         d13 = u * m13
-                        d14 = u * m14 + o * (m14 + m15)
+                        d14 = u * m14 + o * (m14 + kf * m15)
                         d15 = u * m15
-                        d16 = u * m16 + o * (m16 + m17)
+                        d16 = u * m16 + o * (m16 + kf * m17)
                         d17 = u * m17
                         d18 = _0
                         d19 = _0
-                        d20 = u * m20 + o * (m20 + m21)
+                        d20 = u * m20 + o * (m20 + kf * m21)
                         d21 = u * m21
                         d22 = _0
                         d23 = _0
-                        d24 = u * m24 + o * (m24 + m25)
+                        d24 = u * m24 + o * (m24 + kf * m25)
                         d25 = u * m25
                         d26 = _0
                         d27 = _0
-                        d28 = u * m28 + o * (m28 + m29)
+                        d28 = u * m28 + o * (m28 + kf * m29)
                         d29 = u * m29
-                        d30 = u * m30 + o * (m30 + m31)
                         d31 = u * m31
+                        d30 = u * m30 + o * (m30 + m31 + (_1 - kf) * (((m5 + m9) + (m13 + m15)) + ((m17 + m21) + (m25 + m29))))
                         keep_d = _1 - beta
                         c0 = (keep_d * d0 + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
                         c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
@@ -3886,36 +3891,37 @@ def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ
                     dn1 = u * m1
                     d0 = dn0 + f * s_nf
                     d1 = dn1 + f * s_f
-                    d2 = u * m2 + o * (m2 + m3)
+                    kf = _1 if (gate_off | (gt != _0) | (not faded_o)) else _0
+                    d2 = u * m2 + o * (m2 + kf * m3)
                     d3 = u * m3
-                    d4 = u * m4 + o * (m4 + m5)
+                    d4 = u * m4 + o * (m4 + kf * m5)
                     d5 = u * m5
-                    d6 = u * m6 + o * (m6 + m7)
+                    d6 = u * m6 + o * (m6 + kf * m7)
                     d7 = u * m7
-                    d8 = u * m8 + o * (m8 + m9)
+                    d8 = u * m8 + o * (m8 + kf * m9)
                     d9 = u * m9
-                    d10 = u * m10 + o * (m10 + m11)
+                    d10 = u * m10 + o * (m10 + kf * m11)
                     d11 = u * m11
-                    d12 = u * m12 + o * (m12 + m13)
+                    d12 = u * m12 + o * (m12 + kf * m13)
                     d13 = u * m13
-                    d14 = u * m14 + o * (m14 + m15)
+                    d14 = u * m14 + o * (m14 + kf * m15)
                     d15 = u * m15
-                    d16 = u * m16 + o * (m16 + m17)
+                    d16 = u * m16 + o * (m16 + kf * m17)
                     d17 = u * m17
-                    d18 = u * m18 + o * (m18 + m19)
+                    d18 = u * m18 + o * (m18 + kf * m19)
                     d19 = u * m19
-                    d20 = u * m20 + o * (m20 + m21)
+                    d20 = u * m20 + o * (m20 + kf * m21)
                     d21 = u * m21
-                    d22 = u * m22 + o * (m22 + m23)
+                    d22 = u * m22 + o * (m22 + kf * m23)
                     d23 = u * m23
-                    d24 = u * m24 + o * (m24 + m25)
+                    d24 = u * m24 + o * (m24 + kf * m25)
                     d25 = u * m25
-                    d26 = u * m26 + o * (m26 + m27)
+                    d26 = u * m26 + o * (m26 + kf * m27)
                     d27 = u * m27
-                    d28 = u * m28 + o * (m28 + m29)
+                    d28 = u * m28 + o * (m28 + kf * m29)
                     d29 = u * m29
-                    d30 = u * m30 + o * (m30 + m31)
                     d31 = u * m31
+                    d30 = u * m30 + o * (m30 + m31 + (_1 - kf) * ((((m3 + m5) + (m7 + m9)) + ((m11 + m13) + (m15 + m17))) + (((m19 + m21) + (m23 + m25)) + (m27 + m29))))
                     keep_d = _1 - beta
                     c0 = (keep_d * d0 + bb * ((((dn0 + dn1) + (d4 + d5)) + ((d8 + d9) + (d12 + d13))) + (((d16 + d17) + (d20 + d21)) + ((d24 + d25) + (d28 + d29)))) + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
                     c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept

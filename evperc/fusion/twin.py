@@ -61,6 +61,7 @@ class FusionParams:
     gate_gap_s: float = 0.2
     gate_rehit_s: float = 0.0
     gate_rehit_gap: str = "any"
+    gate_faded_free: bool = False
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> FusionParams:
@@ -80,7 +81,7 @@ class FusionParams:
             building_conflict=fu["building_conflict"], gate_free_s=fu["gate_free_s"],
             gate_min_free=fu["gate_min_free"], gate_revoke_s=fu["gate_revoke_s"],
             gate_gap_s=fu["gate_gap_s"], gate_rehit_s=fu["gate_rehit_s"],
-            gate_rehit_gap=fu["gate_rehit_gap"])
+            gate_rehit_gap=fu["gate_rehit_gap"], gate_faded_free=fu["gate_faded_free"])
 
     @property
     def gated(self) -> bool:
@@ -138,6 +139,26 @@ def conflict_targets(conflict_fo: np.ndarray, gate: np.ndarray | None,
     return to_m, to_i, to_closed
 
 
+def faded_free_to_sensor(fused: np.ndarray, pg: np.ndarray, sensor_o: np.ndarray,
+                         gate: np.ndarray | None) -> np.ndarray:
+    """``fusion.gate_faded_free`` (docs/method.md §5a): where the motion gate is closed, the
+    products of a faded free set A of ``pg`` (F ∈ A, A ≠ {F}) with the sensor's O go to O
+    (with the map's prior: O ∩ P) instead of A ∩ O ∩ P — a return where the grid believed
+    free says "occupied", not which of I, U, S, M the fading left beside F.
+
+    ``fused`` = ``dst.conjunctive(pg, sg')``; ``sensor_o``: the part of sg' = SG ⊕ GG that
+    comes from SG's m(O) (sets O ∩ P only). By bilinearity the change on the closed cells is
+    − conj(pg_A, sensor_o) + (Σ pg_A) · sensor_o, pg_A the faded free sets of ``pg``."""
+    if gate is None:
+        raise ValueError("motion_gate is on: pass the gate layer (evperc.fusion.gate)")
+    sets = np.arange(32)
+    pg_faded = np.where((sets & F != 0) & (sets != F), pg, 0.0)
+    rerouted = (fused - dst.conjunctive(pg_faded, sensor_o)
+                + pg_faded.sum(axis=-1, keepdims=True) * sensor_o)
+    closed = np.broadcast_to(np.asarray(gate) == 0, fused.shape[:-1])
+    return np.where(closed[..., None], rerouted, fused).astype(fused.dtype)
+
+
 def fusion_step(pg: np.ndarray, zeta: np.ndarray, sg: np.ndarray, prior: np.ndarray,
                 observed: np.ndarray, dt_s: float, params: FusionParams,
                 gate: np.ndarray | None = None, building: np.ndarray | None = None
@@ -166,6 +187,13 @@ def fusion_step(pg: np.ndarray, zeta: np.ndarray, sg: np.ndarray, prior: np.ndar
         pg_disc = dst.discount(pg, float(alpha))
     # 4. conjunctive combination and its conflict parts
     fused = dst.conjunctive(pg_disc, sg_prior)
+    if params.gated and params.gate_faded_free:
+        sensor_o = np.zeros_like(sg)
+        sensor_o[..., OCCUPIED] = sg[..., OCCUPIED]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            o_prior = dst.conjunctive(sensor_o, prior) / (1.0 - conflict_k)[..., None]
+        sensor_o = np.where(use_prior[..., None], o_prior, sensor_o)
+        fused = faded_free_to_sensor(fused, pg_disc, sensor_o, gate)
     conflict_fo, conflict_of, conflict_other = dst.conflict_parts(
         pg_disc, sg_prior, dst.FRAME, empty_mass=fused[..., 0])
     # 5. modified rule ⊛: ∅_FO → {M} where the gate allows ({I} in buildings, else O or

@@ -220,10 +220,11 @@ def test_consecutive_steps_match_numpy(seed: int) -> None:
 
 
 def gated_params(rng: np.random.Generator, params: FusionParams) -> FusionParams:
-    """``params`` with the motion gate on and its two options drawn."""
+    """``params`` with the motion gate on and its three options drawn."""
     return FusionParams(**{**params.__dict__, "motion_gate": "ever_free",
                            "gate_closed_target": str(rng.choice(["occupied", "static"])),
-                           "building_conflict": str(rng.choice(["infrastructure", "moving"]))})
+                           "building_conflict": str(rng.choice(["infrastructure", "moving"])),
+                           "gate_faded_free": bool(rng.random() < 0.5)})
 
 
 @pytest.mark.parametrize("seed", range(8))
@@ -493,6 +494,39 @@ def test_closure_of_focal_sets() -> None:
             assert set(np.flatnonzero(seen)) == expect
 
 
+def test_faded_free_hand_worked() -> None:
+    """fusion.gate_faded_free (method.md §5a). A cell with no map label, free before and
+    partly faded (m({F}) 0.5, m({F,M}) 0.2, m(Ω) 0.3), a return now (m({O}) 0.8), dt = 0, the
+    untuned ζ values (γ_O 0.6, δ_inc 0.1). By hand: {F}×O = ∅_FO 0.4, {F}×Ω = {F} 0.1,
+    {F,M}×O = {M} 0.16, {F,M}×Ω = {F,M} 0.04, Ω×O = O 0.24, Ω×Ω = Ω 0.06.
+    Closed gate, the paper's product: ∅_FO to O (0.64), {M} 0.16; nothing dynamic, Bel(O)
+    0.8 ≥ 0.6, so ζ = 0.1 hands a tenth of each set with M on: {M} 0.144 + {S} 0.016,
+    O 0.576 + {I,U,S} 0.064, {F,M} 0.036 + {F} 0.104, Ω 0.054 + {F,I,U,S} 0.006.
+    Closed gate, faded free to O: the 0.16 goes to O too (0.8 → 0.72 + {I,U,S} 0.08), no
+    {M}, no {S}. Open gate: ∅_FO to {M} (0.56), dynamic 0.4 > γ_∅ 0.2, ζ stays 0: the
+    option changes nothing there."""
+    occ = np.full((1, 1), 0.8, np.float32)
+    zero = np.zeros((1, 1), np.float32)
+    results = {}
+    for name, faded, gate in (("paper", False, 0), ("faded", True, 0), ("open", True, 1)):
+        params = FusionParams(motion_gate="ever_free", gate_faded_free=faded)
+        pg = np.zeros((1, 1, 32), np.float32)
+        pg[..., 1], pg[..., 17], pg[..., 31] = 0.5, 0.2, 0.3
+        zeta = np.zeros((1, 1), np.float32)
+        fused_step(pg, zeta, zero, occ, None, (0.9, 0.9, 0.8), 0.0, params,
+                   gate=np.full((1, 1), gate, np.uint8))
+        results[name] = pg[0, 0].copy()
+    want = {"paper": {16: 0.144, 8: 0.016, 30: 0.576, 14: 0.064, 17: 0.036, 1: 0.104,
+                      31: 0.054, 15: 0.006},
+            "faded": {30: 0.72, 14: 0.08, 17: 0.036, 1: 0.104, 31: 0.054, 15: 0.006},
+            "open": {16: 0.56, 30: 0.24, 1: 0.1, 17: 0.04, 31: 0.06}}
+    for name, masses in want.items():
+        expected = np.zeros(32)
+        for a, v in masses.items():
+            expected[a] = v
+        np.testing.assert_allclose(results[name], expected, atol=1e-6, err_msg=name)
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_road_closure_holds_for_the_numpy_step(seed: int) -> None:
     """codegen.road_closure, which decides where the lean kernel may run its road
@@ -516,6 +550,12 @@ def test_road_closure_holds_for_the_numpy_step(seed: int) -> None:
         pg, zeta = numpy_step(pg, zeta, free, occ, prior, (free > 0) | (occ > 0), 0.1,
                               params)[:2]
         assert not pg[..., ROAD_ZERO].any()
+        # the gate's rules (a faded free set's product to O where closed) stay on it too
+        gated = gated_params(rng, params)
+        pg_g = numpy_step(pg, zeta, free, occ, prior, (free > 0) | (occ > 0), 0.1, gated,
+                          gate=(rng.random(shape) < 0.5).astype(np.uint8),
+                          building=labels == 2)[0]
+        assert not pg_g[..., ROAD_ZERO].any()
     building = numpy_prior(np.full(shape, 2, np.uint8), (0.9, 0.9, 0.8), shape)
     with_i = FusionParams(**{**params.__dict__, "discount_rates": (0.1, 0.1, 0.1, 0.1, 0.1)})
     for prior_, params_ in ((building, params), (prior, with_i)):

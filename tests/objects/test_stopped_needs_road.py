@@ -89,11 +89,14 @@ def test_defaults_turn_the_rule_on_and_the_paper_preset_off() -> None:
     assert not params.unmapped and params.stopped_needs_road
 
 
-def _fuse(context: int, history: str) -> list[int]:
+def _fuse(context: int, history: str, faded_free: bool = False) -> list[int]:
     """Decisions of one cell of ``context`` (the default fusion keys, the motion gate
     closed, a building cell next to it) over ``history``: F a free scan, - no evidence,
-    O an occupied return."""
-    params = FusionParams.from_config(load_config())
+    O an occupied return. ``faded_free``: ``fusion.gate_faded_free`` (the default; off: the
+    paper's product, what the pass below was made for)."""
+    config = load_config()
+    config["fusion"]["gate_faded_free"] = faded_free
+    params = FusionParams.from_config(config)
     shape = (1, 2)
     labels = np.array([[context, CONTEXT_BUILDING]], np.uint8)
     prior = prior_masses(labels, 0.9, 0.9, 0.8)
@@ -115,7 +118,8 @@ def test_a_facade_return_after_free_scans_is_stopped_by_the_fusion_and_static_af
     a return there (prior {F,U,S,M} → {U,S,M}) intersects {F, M} to {M} with no conflict,
     so the closed motion gate does not hold it; the cell is `moving` for a few scans, then
     ζ moves {M} to {S} and betP(S) > betP(U): `stopped`. On the road the same history ends
-    `stopped` too, rightly (the prior allows only S or M there)."""
+    `stopped` too, rightly (the prior allows only S or M there). With the paper's product
+    (``fusion.gate_faded_free`` off); the default's walk is the test below."""
     history = "F" * 5 + "-" * 10 + "O" * 15
     other = _fuse(CONTEXT_OTHER, history)
     road = _fuse(CONTEXT_ROAD, history)
@@ -130,3 +134,19 @@ def test_a_facade_return_after_free_scans_is_stopped_by_the_fusion_and_static_af
         dec[5, 5] = (other if context == CONTEXT_OTHER else road)[-1]
         (final,), _ = _run([dec], labels, moving_cells=[np.zeros(0, np.int64)])
         assert final[5, 5] == want
+
+
+def test_with_faded_free_space_the_closed_gate_holds_the_facade_return() -> None:
+    """The default ``fusion.gate_faded_free`` (method.md §5a "Faded free space"): the same
+    history, the gate closed — the return's product with the faded {F, M} goes to O (∩ the
+    prior) instead of {M}. Worked on the masses: no {M} anywhere, so the pavement cell is
+    `static` from its first return on (betP(I) + betP(U) + betP(S) wins, none of the three
+    reaches 0.5) and never `moving` or `stopped`; the road cell ({S, M} from the prior, ζ
+    growing at once: no dynamic conflict) is `unknown` at the first return (the static
+    score 0.49, under min_betp; betP(M) 0.38) and `stopped` after, never `moving`."""
+    history = "F" * 5 + "-" * 10 + "O" * 15
+    other = _fuse(CONTEXT_OTHER, history, faded_free=True)
+    road = _fuse(CONTEXT_ROAD, history, faded_free=True)
+    assert other[15:] == [D["static"]] * 15
+    assert road[15] == D["unknown"] and road[16:] == [D["stopped"]] * 14
+    assert load_config()["fusion"]["gate_faded_free"] is True
