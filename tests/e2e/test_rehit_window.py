@@ -7,9 +7,12 @@ The drive passes fences 1.2 m tall that the scanner's -1° layer grazes at 34 m:
 is hit while far, seen free for seconds while the layer passes over its top and the -3° layer
 meets its foot, then hit again — an "object appeared" conflict unless the return that comes
 back revokes the gate. Measured (docs/evaluation.md § "Since 2026-12-05"): moving precision
-within one cell 0.548 → 0.707 on this drive, recall within one cell 0.590 → 0.590. The
-floors: the gain must be at least +0.08 (half of it: a window of 3 s gives about two thirds of
-it on the tuning seeds, 1.5 s none), and recall may not fall by more than 0.01 (the largest
+within one cell 0.548 → 0.707 on this drive, recall within one cell 0.590 → 0.590. Since the
+fourth session of 2026-12-05 the defaults also send a return in faded free space under a
+closed gate to O (`fusion.gate_faded_free`), which takes part of the same cells: measured
+with it, 0.525 → 0.554 (recall 0.595 → 0.595). The floors: the gain must be at least half of
+that, +0.015 (the rule the first floor followed: a window of 3 s gave about two thirds of the
+gain on the tuning seeds, 1.5 s none), and recall may not fall by more than 0.01 (the largest
 strict-recall cost of the change on any tuning set, 0.006, rounded up).
 """
 
@@ -32,7 +35,7 @@ def within_one_cell(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 def test_fences_no_longer_move(within_one_cell: dict[str, Any]) -> None:
     now, before = within_one_cell["now"], within_one_cell["before"]
     assert before["support"] > 300   # moving truth cells in view: the drive has movers
-    assert now["precision"] >= before["precision"] + 0.08, (now, before)
+    assert now["precision"] >= before["precision"] + 0.015, (now, before)
 
 
 def test_without_losing_recall(within_one_cell: dict[str, Any]) -> None:
