@@ -10,7 +10,9 @@ folder.
 
 ``--replay`` times the step over (a)'s own frames 10–99 instead, back to back with every
 scan's inputs prepared first (as ``bench_run.replay``; the window moving with the vehicle,
-a new scan each frame).
+a new scan each frame). With the motion gate on (the defaults), the state is saved with the
+next scan's gate layer, and ``--replay`` runs the gate pass before each timed step, untimed,
+as ``Pipeline.step`` does; an older tree gets only the parameters its ``FusionParams`` has.
 
 ``python benchmarks/ab_fused.py [--base REV] [--rounds 6] [--frames 40] [--stored]
 [--replay]`` (default base: f17e282, the kernel before the compact focal-set layout).
@@ -19,6 +21,7 @@ a new scan each frame).
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import json
 import os
@@ -56,8 +59,13 @@ if "focal" in inspect.signature(fused_step).parameters:
     kwargs["focal"] = focal_sets(pg)
 shape = flags.shape
 out = (StoredOutputs if sys.argv[3] == "stored" else FusedOutputs).empty(shape)
+# the keys this tree's FusionParams knows (an older tree lacks the newer options: it runs
+# its own step, which is what the A/B times)
+known = set(inspect.signature(FusionParams).parameters)
 params = FusionParams(**{k: tuple(v) if isinstance(v, list) else v
-                          for k, v in json.loads(str(z["params"])).items()})
+                          for k, v in json.loads(str(z["params"])).items() if k in known})
+if "gate" in inspect.signature(fused_step).parameters and "gate" in z:
+    kwargs["gate"] = z["gate"]  # the motion gate's layer of the scan (the runner's)
 offset = [int(v) for v in z["offset"]]
 times = []
 for frame in range(int(sys.argv[2]) + 2):  # two to warm up
@@ -87,12 +95,22 @@ pipeline = Pipeline(RunRequest(log_path=sim / "drive.mcap", out_dir=sim / "unuse
 inputs = [prepared for _, prepared in pipeline.inputs(-1)]
 out = (StoredOutputs if sys.argv[4] == "stored" else FusedOutputs).empty(inputs[0].free.shape)
 state, times = FusionState(), []
+gated = getattr(pipeline.params, "gated", False)
+if gated:  # the motion gate's pass, untimed, as Pipeline.step makes it
+    from evperc.fusion.gate import GateState, gate_step
 for frame in inputs[:10 + int(sys.argv[3])]:
     shift = state.move_to(frame.window)
+    kwargs = {}
+    if gated:
+        if state.gate is None:
+            state.gate = GateState.fresh(frame.window.shape)
+        kwargs["gate"] = gate_step(state.gate, frame.free, frame.occupied, 0.1,
+                                   pipeline.params, offset=state.offset, shift=shift,
+                                   closed=getattr(frame, "near_building", None))
     t0 = time.perf_counter()
     fused_step(state.pg, state.zeta, frame.free, frame.occupied, frame.labels, pipeline.betas,
                0.1, pipeline.params, out=out, flags=state.flags, focal=state.focal,
-               offset=state.offset, shift=shift)
+               offset=state.offset, shift=shift, **kwargs)
     times.append(time.perf_counter() - t0)
 print(json.dumps(times[10:]))
 """
@@ -106,6 +124,7 @@ def save_state() -> None:
 
     from evperc.config import load_config
     from evperc.fusion.fused import StoredOutputs
+    from evperc.fusion.gate import gate_step
     from evperc.runner import FusionState, Pipeline, RunRequest
 
     sim = bench_run.simulate("sim-hdl64-10s", "hdl64", 10.0)
@@ -120,10 +139,17 @@ def save_state() -> None:
         out = out or StoredOutputs.empty(inputs.free.shape)
         pipeline.step(state, inputs, out)
     inputs = pipeline.prepare(next(scans)[1])
+    gate = {}
+    if pipeline.params.gated:  # the next scan's gate layer, on a copy of the state
+        moved = copy.deepcopy(state)
+        shift = moved.move_to(inputs.window)
+        gate["gate"] = gate_step(moved.gate, inputs.free, inputs.occupied, 0.1,
+                                 pipeline.params, offset=moved.offset, shift=shift,
+                                 closed=inputs.near_building)
     np.savez(STATE, pg=state.pg, zeta=state.zeta, flags=state.flags,
              offset=np.array(state.offset), free=inputs.free, occupied=inputs.occupied,
              labels=inputs.labels, betas=np.array(pipeline.betas),
-             params=np.array(json.dumps(dataclasses.asdict(pipeline.params))))
+             params=np.array(json.dumps(dataclasses.asdict(pipeline.params))), **gate)
 
 
 def unpack(rev: str, into: Path) -> Path:
