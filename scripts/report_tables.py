@@ -22,7 +22,8 @@
         --config configs/ablation/no_evidence_expiry.toml \\
         --config configs/ablation/rehit_1_5.toml \\
         --config configs/ablation/clusters_on_buildings.toml \\
-        --config configs/ablation/facade_fragments_any_height.toml
+        --config configs/ablation/facade_fragments_any_height.toml \\
+        --config configs/ablation/faded_free_paper.toml
     .venv/bin/python scripts/report_tables.py --work W
 
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
@@ -78,7 +79,9 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("clusters through the façades' static cells",
               "configs/ablation/clusters_on_buildings.toml"),
              ("a small group keeps façade cells of any height",
-              "configs/ablation/facade_fragments_any_height.toml"))
+              "configs/ablation/facade_fragments_any_height.toml"),
+             ("faded free space: the paper's product under a closed gate",
+              "configs/ablation/faded_free_paper.toml"))
 
 
 #: the scores of the headline and ablation rows, in column order
