@@ -551,7 +551,7 @@ def test_road_closure_holds_for_the_numpy_step(seed: int) -> None:
                               params)[:2]
         assert not pg[..., ROAD_ZERO].any()
         # the gate's rules (a faded free set's product to O where closed) stay on it too
-        gated = gated_params(rng, params)
+        gated = FusionParams(**{**gated_params(rng, params).__dict__, "gate_faded_free": True})
         pg_g = numpy_step(pg, zeta, free, occ, prior, (free > 0) | (occ > 0), 0.1, gated,
                           gate=(rng.random(shape) < 0.5).astype(np.uint8),
                           building=labels == 2)[0]
