@@ -60,7 +60,13 @@ _MOVING = DECISION_CODES["moving"]
 
 
 def simulated_drive(work: Path, profile: str, seed: str) -> Path:
-    """WORK/drives/PROFILE-sSEED, simulated as scripts/object_study.py does if absent."""
+    """The drive of scripts/evaluation_study.py in the same work directory if it is there
+    (WORK/drives/PROFILE-sSEED-LENs, simulated in whatever city the study's ``--map``
+    named: a replay of a study's drives, e.g. Prague's); else WORK/drives/PROFILE-sSEED,
+    simulated in the Helsinki extract if absent."""
+    study_drive = study.drive_dir(work, study.Drive(profile, int(seed), SECONDS[profile]))
+    if (study_drive / "truth" / "manifest.json").exists():
+        return study_drive
     drive = work / "drives" / f"{profile}-s{seed}"
     if not (drive / "truth" / "manifest.json").exists():
         subprocess.run([sys.executable, "-m", "evperc", "-q", "simulate", "--map",
@@ -71,20 +77,22 @@ def simulated_drive(work: Path, profile: str, seed: str) -> Path:
     return drive
 
 
-def recorded(work: Path, profile: str, seed: str, config: Path | None = None
-             ) -> tuple[Path, Path]:
+def recorded(work: Path, profile: str, seed: str, config: Path | None = None,
+             with_map: bool = True) -> tuple[Path, Path]:
     """(drive, run dir) of a tuning drive in ``work``: simulated (:func:`simulated_drive`)
-    and recorded (:func:`record`) unless already there."""
+    and recorded (:func:`record`; ``with_map`` False: a ``--no-map`` run, kept apart) unless
+    already there."""
     drive = simulated_drive(work, profile, seed)
-    out = work / "replay_runs" / f"{profile}-s{seed}"
+    out = work / ("replay_runs" if with_map else "replay_runs_nomap") / f"{profile}-s{seed}"
     if not (out / INPUTS).exists():
-        record(drive, out, config)
+        record(drive, out, config, with_map)
     return drive, out
 
 
-def record(drive: Path, out: Path, config: Path | None = None) -> Path:
-    """``evperc run`` of ``drive`` (with its map) into ``out``, in this process, saving the
-    object stage's inputs of every frame to ``out/object_inputs.npz``."""
+def record(drive: Path, out: Path, config: Path | None = None, with_map: bool = True
+           ) -> Path:
+    """``evperc run`` of ``drive`` (with its map, or ``--no-map``) into ``out``, in this
+    process, saving the object stage's inputs of every frame to ``out/object_inputs.npz``."""
     from evperc.cli import cli
     frames: list[tuple[Any, ...]] = []
     original = stage_mod.ObjectStage.step
@@ -111,10 +119,13 @@ def record(drive: Path, out: Path, config: Path | None = None) -> Path:
         return original(self, state, decision, betp_moving, conflict_fo, window, stamp_ns,
                         occupied_now, heights, near_building)
 
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
     stage_mod.ObjectStage.step = hooked  # type: ignore[method-assign]
     runner_mod.Pipeline.sensor_grid = pipeline_hooked  # type: ignore[method-assign]
     try:
-        args = ["-q", "run", str(drive / "drive.mcap"), "--map", str(drive / "map.geojson"),
+        args = ["-q", "run", str(drive / "drive.mcap"),
+                *(["--map", str(drive / "map.geojson")] if with_map else ["--no-map"]),
                 "--out", str(out), "--overwrite"]
         if config is not None:
             args += ["--config", str(config)]
@@ -122,6 +133,8 @@ def record(drive: Path, out: Path, config: Path | None = None) -> Path:
     finally:
         stage_mod.ObjectStage.step = original  # type: ignore[method-assign]
         runner_mod.Pipeline.sensor_grid = original_pipeline  # type: ignore[method-assign]
+        # the CLI set up its own logging (its filter drops this script's INFO lines)
+        root.handlers[:], root.level = handlers, level
     path = out / INPUTS
     np.savez_compressed(
         path, stamp_ns=np.array([f[0] for f in frames], np.int64),
@@ -312,6 +325,8 @@ def main() -> None:
     parser.add_argument("--seeds", default="1,2")
     parser.add_argument("--profiles", default="ibeo4,hdl64")
     parser.add_argument("--config", type=Path, help="the runs' --config (and the base)")
+    parser.add_argument("--no-map", action="store_true",
+                        help="record and replay runs without the map (kept apart)")
     parser.add_argument("--set", action="append", default=None,
                         help="[objects] overrides, 'key=value;key=value' (repeatable)")
     args = parser.parse_args()
@@ -323,7 +338,7 @@ def main() -> None:
     table: dict[str, dict[str, dict[str, Any]]] = {s: {} for s in sets}
     for profile in args.profiles.split(","):
         for seed in args.seeds.split(","):
-            drive, out = recorded(args.work, profile, seed, args.config)
+            drive, out = recorded(args.work, profile, seed, args.config, not args.no_map)
             truth = load_truth(drive / "truth")
             for s in sets:
                 table[s][f"{profile}-s{seed}"] = r = scores(
