@@ -37,6 +37,7 @@ from evperc.objects.clusters import JOINS_ANY
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints
 from evperc.objects.footprint import warm_up as warm_up_footprints
 from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
+from evperc.objects.split import warm_up as warm_up_split
 from evperc.objects.stage import (
     ObjectStage,
     fill_moving,
@@ -450,6 +451,7 @@ class Pipeline:
             scan_cells(free, occupied, None)
             warm_up_footprints(self.footprint)
             warm_up_boxes(self.boxes.params)
+            warm_up_split(self.objects.splitter.params)
             if self.objects.moving_min_cells > 0 or self.moving_needs_object:
                 unfill_small(out.decision.copy(), np.zeros(1, np.int64), None)
             if self.moving_needs_object:

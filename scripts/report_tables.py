@@ -23,7 +23,8 @@
         --config configs/ablation/rehit_1_5.toml \\
         --config configs/ablation/clusters_on_buildings.toml \\
         --config configs/ablation/facade_fragments_any_height.toml \\
-        --config configs/ablation/faded_free_paper.toml
+        --config configs/ablation/faded_free_paper.toml \\
+        --config configs/ablation/no_split.toml
     .venv/bin/python scripts/report_tables.py --work W
 
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
@@ -81,7 +82,8 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("a small group keeps façade cells of any height",
               "configs/ablation/facade_fragments_any_height.toml"),
              ("faded free space: the paper's product under a closed gate",
-              "configs/ablation/faded_free_paper.toml"))
+              "configs/ablation/faded_free_paper.toml"),
+             ("no split of shared clusters", "configs/ablation/no_split.toml"))
 
 
 #: the scores of the headline and ablation rows, in column order

@@ -103,6 +103,8 @@ def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.nda
                            seeds=p.seeds)
         relaxed = self._trace_relaxed = Clusterer(rp, decision.shape)
     rc = relaxed.clusters(decision, betp_moving, conflict_fo, window, seeds, occupied_now)
+    clusters = self.splitter.split(clusters, state, window, stamp_ns, decision, betp_moving,
+                                   conflict_fo)
     records, cells = track_step(state, clusters, window, stamp_ns, self.tracking_params,
                                 decision)
     extent = np.maximum(rc.bbox_m[:, 2] - rc.bbox_m[:, 0], rc.bbox_m[:, 3] - rc.bbox_m[:, 1]) \

@@ -515,9 +515,10 @@ class Clusterer:
         self._mark = np.zeros(n, np.uint8)
         self._cells = np.empty(n, np.int64)
         self._stats = np.empty((n, 8), np.int64)
-        # the stored ∅_FO is q / 255: q >= ceil(255 · threshold) (0: no conflict seeds)
         thr = params.seed_conflict_fo
-        self._fo_q = max(1, int(np.ceil(255.0 * thr - 1e-9))) if thr > 0 else 0
+        #: the stored ∅_FO is q / 255: q >= ceil(255 · threshold) seeds (0: no conflict
+        #: seeds; read too by the passes that count a cluster's seeds again)
+        self.fo_q = max(1, int(np.ceil(255.0 * thr - 1e-9))) if thr > 0 else 0
         self._everywhere = np.ones(n, np.uint8)  # ``now`` where the growth is not limited
         self._no_words = np.zeros(0, np.uint64)
         self._no_flags = np.zeros(0, np.bool_)
@@ -555,13 +556,13 @@ class Clusterer:
         else:
             now = self._everywhere
         flat = decision.reshape(-1)
-        if seed_all or self._fo_q == 0:  # words of 8 cells for the scan's skip test
+        if seed_all or self.fo_q == 0:  # words of 8 cells for the scan's skip test
             whole = flat.size - flat.size % 8
             dec_words = flat[:whole].view(np.uint64)
             now_words = now[:whole].view(np.uint64) if seed_all else self._no_words
         else:  # seeds by ∅_FO: no skip test
             dec_words = now_words = self._no_words
-        n, _ = _flood(flat, conflict_fo.reshape(-1), now, seed_all, self.shape[1], self._fo_q,
+        n, _ = _flood(flat, conflict_fo.reshape(-1), now, seed_all, self.shape[1], self.fo_q,
                       _MOVING, _UNKNOWN, _GROWS, extra, self._mark, self._cells, self._stats,
                       dec_words, now_words)
         self._groups = n
@@ -578,7 +579,7 @@ class Clusterer:
             all_cells, stats = _off_buildings(
                 self._cells, self._stats, n,
                 np.ascontiguousarray(near_building, np.bool_).reshape(-1).view(np.uint8),
-                flat, _OFF_BUILDINGS, conflict_fo.reshape(-1), self._fo_q, _MOVING,
+                flat, _OFF_BUILDINGS, conflict_fo.reshape(-1), self.fo_q, _MOVING,
                 self.shape[1], off_buildings_small(self.params.off_buildings_small_m,
                                                    window.resolution_m),
                 _NO_FLAT_HEIGHTS if heights is None or self.params.off_buildings_max_height_m <= 0

@@ -1,6 +1,7 @@
 """The object stages of one frame in a row (docs/method.md, "Objects"): clusters
 (:mod:`evperc.objects.clusters`) of the cells seen occupied now (or seeded by the frame's
-moving cells and the footprints of the tracks that moved), then the tracker
+moving cells and the footprints of the tracks that moved), the split of the clusters shared
+by tracks that move apart (:mod:`evperc.objects.split`), then the tracker
 (:mod:`evperc.objects.tracking`), then :func:`fill_moving`, which decides the cells of the
 moving objects ``moving``.
 
@@ -18,6 +19,7 @@ import numpy as np
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
 from evperc.objects.clusters import BYTE_ONES, Clusterer, ClusterParams, block_max_at, zero_bytes
+from evperc.objects.split import SplitParams, Splitter
 from evperc.objects.tracking import TrackerState, TrackingParams, footprint_seeds, track_step
 
 MOVING = DECISION_CODES["moving"]
@@ -56,6 +58,7 @@ class ObjectStage:
         self.cluster_params = ClusterParams.from_config(config)
         self.tracking_params = TrackingParams.from_config(config)
         self.clusterer = Clusterer(self.cluster_params, shape)
+        self.splitter = Splitter(SplitParams.from_config(config), shape, self.clusterer.fo_q)
         #: objects.moving_min_cluster_cells: the fusion's moving cells of smaller clusters
         #: are decided static (:func:`unfill_small`); 0 = off
         self.moving_min_cells = moving_min_cluster_cells(config)
@@ -93,6 +96,8 @@ class ObjectStage:
         clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds,
                                            occupied_now, heights, near_building)
         self.list_small_moving(decision, heights)
+        clusters = self.splitter.split(clusters, state, window, stamp_ns, decision,
+                                       betp_moving, conflict_fo)
         return track_step(state, clusters, window, stamp_ns, self.tracking_params, decision)
 
     def list_small_moving(self, decision: np.ndarray, heights: np.ndarray | None) -> None:
