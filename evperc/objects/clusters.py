@@ -157,6 +157,7 @@ _OFF_BUILDINGS = np.zeros(256, np.bool_)
 _OFF_BUILDINGS[[DECISION_CODES[n] for n in OFF_BUILDINGS]] = True
 _NO_HEIGHTS = np.zeros((0, 0), np.float32)
 _NO_FLAT_HEIGHTS = np.zeros(0, np.float32)
+_NO_FLAT_DECISION = np.zeros(0, np.uint8)
 _MOVING = DECISION_CODES["moving"]
 _UNKNOWN = DECISION_CODES["unknown"]
 #: ``now`` value of a cell holding only returns behind the first one of their azimuth bin
@@ -331,6 +332,52 @@ def block_max_at(layer: np.ndarray, cells: np.ndarray) -> np.ndarray:  # pragma:
     return out
 
 
+@numba.njit(cache=True, inline="always")
+def group_stats(cells, first, end, decision, conflict_fo, fo_q, moving, cols, stats, k
+                ):  # pragma: no cover - compiled
+    """``stats[k]`` of the group ``cells[first:end]`` (flat window cells, ``cols`` a row),
+    as :func:`_flood` counts them: count, seeds (decided ``moving``, or ∅_FO ≥ ``fo_q`` > 0),
+    Σrow, Σcol, min row, max row, min col, max col."""
+    seeds = 0
+    sr = 0
+    sc = 0
+    r0 = 1 << 62
+    r1 = -1
+    c0 = 1 << 62
+    c1 = -1
+    for q in range(first, end):
+        i = cells[q]
+        r = i // cols
+        c = i - r * cols
+        if decision[i] == moving or (fo_q > 0 and conflict_fo[i] >= fo_q):
+            seeds += 1
+        sr += r
+        sc += c
+        r0 = min(r0, r)
+        r1 = max(r1, r)
+        c0 = min(c0, c)
+        c1 = max(c1, c)
+    stats[k, 0] = end - first
+    stats[k, 1] = seeds
+    stats[k, 2] = sr
+    stats[k, 3] = sc
+    stats[k, 4] = r0
+    stats[k, 5] = r1
+    stats[k, 6] = c0
+    stats[k, 7] = c1
+
+
+def summarise_groups(cells: np.ndarray, stats: np.ndarray, betp_moving: np.ndarray,
+                     window: Window) -> Clusters:
+    """Every group of ``cells`` / ``stats`` (:func:`group_stats`) as :class:`Clusters`, by
+    the clustering's own formulas (:func:`_summarise` with no size or extent filter)."""
+    n = stats.shape[0]
+    return Clusters(*_summarise(cells, stats, n, betp_moving.reshape(-1), window.row0,
+                                window.col0, float(window.resolution_m), 0, np.inf,
+                                np.zeros(0, np.bool_), 0, _NO_FLAT_DECISION, window.cols, 0,
+                                _STILL, _NO_HEIGHTS, np.float32(0.0)))
+
+
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _off_buildings(all_cells, stats, n, near, decision, leaves, conflict_fo, fo_q, moving,
                    cols, small, heights, max_height):  # pragma: no cover - compiled
@@ -378,32 +425,7 @@ def _off_buildings(all_cells, stats, n, near, decision, leaves, conflict_fo, fo_
         out_stats[k, 0] = kept
         if kept == 0:
             continue
-        seeds = 0
-        sr = 0
-        sc = 0
-        r0 = 1 << 62
-        r1 = -1
-        c0 = 1 << 62
-        c1 = -1
-        for q in range(first, w):
-            i = out_cells[q]
-            r = i // cols
-            c = i - r * cols
-            if decision[i] == moving or (fo_q > 0 and conflict_fo[i] >= fo_q):
-                seeds += 1
-            sr += r
-            sc += c
-            r0 = min(r0, r)
-            r1 = max(r1, r)
-            c0 = min(c0, c)
-            c1 = max(c1, c)
-        out_stats[k, 1] = seeds
-        out_stats[k, 2] = sr
-        out_stats[k, 3] = sc
-        out_stats[k, 4] = r0
-        out_stats[k, 5] = r1
-        out_stats[k, 6] = c0
-        out_stats[k, 7] = c1
+        group_stats(out_cells, first, w, decision, conflict_fo, fo_q, moving, cols, out_stats, k)
     return out_cells, out_stats
 
 

@@ -26,7 +26,7 @@ like an unpainted one; a cell is taken by the first front to reach it — the fr
 lower track row on a tie: the queue holds each distance's cells part by part); a cell no
 front reaches (the cluster's off-building cells can leave it in pieces) joins the largest
 part. The parts, in track row order, take the cluster's place in the list; each part's
-statistics are the clustering's formulas (:func:`evperc.objects.clusters._summarise`) over
+statistics are the clustering's own (:func:`evperc.objects.clusters.summarise_groups`) over
 its cells. A part may be smaller than ``min_cluster_cells``: it is a tracked object's
 visible share."""
 
@@ -40,7 +40,7 @@ import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
-from evperc.objects.clusters import Clusters
+from evperc.objects.clusters import Clusters, group_stats, summarise_groups
 from evperc.objects.tracking import TrackerState
 
 _MOVING = DECISION_CODES["moving"]
@@ -76,11 +76,12 @@ class SplitParams:
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _split(cells, offsets, fp, fp_n, missed, moving, fitted, velocity, dt, row0, col0, rows,
-           cols, res, min_overlap, dv2_min, label, part, decision, betp, fo_q, conflict_fo,
+           cols, res, min_overlap, dv2_min, label, part, decision, fo_q, conflict_fo,
            moving_code):  # pragma: no cover - compiled
-    """The module docstring's split: returns (split count, cells, offsets, centroid, bbox,
-    seeds, mean betP(M)) — the arrays of :class:`Clusters` — or split count 0 and empty
-    arrays when no cluster is shared. ``label`` and ``part`` (int32) are flat window scratch
+    """The module docstring's split: returns (split count, cells, stats) — the clusters'
+    cells, part after part in place of each shared cluster, and each group's
+    :func:`~evperc.objects.clusters.group_stats` — or split count 0 and empty arrays when
+    no cluster is shared. ``label`` and ``part`` (int32) are flat window scratch
     layers, all −1 on entry and on return.
 
     Only what can be shared is painted: a shared cluster holds cells of a moving track's
@@ -91,8 +92,7 @@ def _split(cells, offsets, fp, fp_n, missed, moving, fitted, velocity, dt, row0,
     few objects' cells, not at every track's (a window's layers do not stay in cache)."""
     n_tr = fp_n.shape[0]
     n_cl = offsets.shape[0] - 1
-    none = (0, cells[:0], offsets[:0], np.empty((0, 2)), np.empty((0, 4)),
-            np.empty(0, np.int64), np.empty(0, np.float32))
+    none = (0, cells[:0], np.empty((0, 8), np.int64))
     # each fresh track's shift and carried box (window rows / cols)
     shift = np.zeros((n_tr, 2), np.int64)
     box = np.empty((n_tr, 4), np.int64)  # row min, row max, col min, col max
@@ -217,11 +217,7 @@ def _split(cells, offsets, fp, fp_n, missed, moving, fitted, velocity, dt, row0,
         n_out += max(shared[k], 1)
     n_cells = offsets[n_cl]
     out_cells = np.empty(n_cells, np.int64)
-    out_offsets = np.zeros(n_out + 1, np.int64)
-    centroid = np.empty((n_out, 2))
-    bbox = np.empty((n_out, 4))
-    seeds = np.empty(n_out, np.int64)
-    mean_m = np.empty(n_out, np.float32)
+    stats = np.empty((n_out, 8), np.int64)
     queue = np.empty(n_cells, np.int64)
     sizes = np.empty(n_tr, np.int64)
     w = 0
@@ -290,50 +286,21 @@ def _split(cells, offsets, fp, fp_n, missed, moving, fitted, velocity, dt, row0,
             for t in range(n_tr):
                 claim[t] = -1
         for p in range(n_parts):
-            count = 0
-            n_seeds = 0
-            sr = 0
-            sc = 0
-            r0 = rows
-            r1 = -1
-            c0 = cols
-            c1 = -1
-            betp_sum = 0
+            first = w
             for q in range(a, b):
                 i = cells[q]
-                if shared[k] > 0 and part[i] != p:
-                    continue
-                out_cells[w] = i
-                w += 1
-                r = i // cols
-                c = i - r * cols
-                count += 1
-                if decision[i] == moving_code or (fo_q > 0 and conflict_fo[i] >= fo_q):
-                    n_seeds += 1
-                sr += r
-                sc += c
-                r0 = min(r0, r)
-                r1 = max(r1, r)
-                c0 = min(c0, c)
-                c1 = max(c1, c)
-                betp_sum += np.int64(betp[i])
-            out_offsets[j + 1] = w
-            cnt = float(max(count, 1))
-            centroid[j, 0] = (col0 + sc / cnt + 0.5) * res
-            centroid[j, 1] = (row0 + sr / cnt + 0.5) * res
-            bbox[j, 0] = (col0 + c0) * res
-            bbox[j, 1] = (row0 + r0) * res
-            bbox[j, 2] = (col0 + c1 + 1) * res
-            bbox[j, 3] = (row0 + r1 + 1) * res
-            seeds[j] = n_seeds
-            mean_m[j] = np.float32(betp_sum / cnt / 255.0)
+                if shared[k] == 0 or part[i] == p:
+                    out_cells[w] = i
+                    w += 1
+            group_stats(out_cells, first, w, decision, conflict_fo, fo_q, moving_code, cols,
+                        stats, j)
             j += 1
         if shared[k] > 0:
             for q in range(a, b):
                 part[cells[q]] = _OUTSIDE
     for q in range(n_painted):
         label[painted[q]] = _NO_TRACK
-    return n_split, out_cells, out_offsets, centroid, bbox, seeds, mean_m
+    return n_split, out_cells, stats
 
 
 class Splitter:
@@ -369,20 +336,21 @@ class Splitter:
                      window.row0, window.col0, window.rows, window.cols,
                      float(window.resolution_m),
                      max(int(self.params.min_overlap_cells), 1), float(dv * dv), self._label,
-                     self._part, decision.reshape(-1), betp_moving.reshape(-1), self.fo_q,
+                     self._part, decision.reshape(-1), self.fo_q,
                      conflict_fo.reshape(-1), _MOVING)
         self.last_split = int(out[0])
         if self.last_split == 0:
             return clusters
-        return Clusters(*out[1:])
+        return summarise_groups(out[1], out[2], betp_moving, window)
 
 
-def warm_up(params: SplitParams) -> None:
-    """Load (or compile) :func:`_split` for the runner's argument types on two made-up tracks
-    sharing a cluster (a parked car and one passing it): the first real frame is not charged
-    a cache load. Changes nothing."""
+def warm_up(params: SplitParams) -> int:
+    """Load (or compile) :func:`_split` and the summary of its parts for the runner's
+    argument types on two made-up tracks sharing a cluster (a parked car and one passing
+    it): the first real frame is not charged a cache load. Changes nothing; returns the
+    clusters split (1; 0 when the split is off)."""
     if not params.enabled:
-        return
+        return 0
     window = Window(0.5, 8, 8, 0, 0)
     cells = np.array([9, 10, 11, 12, 13], np.int64)
     clusters = Clusters(cells, np.array([0, 5], np.int64), np.zeros((1, 2)), np.zeros((1, 4)),
@@ -396,7 +364,8 @@ def warm_up(params: SplitParams) -> None:
     state.velocity = np.array([[0.0, 0.0], [5.0, 0.0]])
     state.sigma = np.array([0.1, 0.1])
     state.fp_n = np.array([2, 2], np.int64)
-    state.fp = np.array([[1, 1], [1, 2], [1, 4], [1, 5]], np.int64)
+    state.fp = np.array([[1, 1], [1, 2], [1, 3], [1, 4]], np.int64)  # the second one cell on
     layer = np.zeros(window.shape, np.uint8)
-    Splitter(SplitParams(True, 2, 1.0), window.shape).split(
-        clusters, state, window, 100_000_000, layer, layer, layer)
+    splitter = Splitter(SplitParams(True, 2, 1.0), window.shape)
+    splitter.split(clusters, state, window, 100_000_000, layer, layer, layer)
+    return splitter.last_split

@@ -9,7 +9,7 @@ import numpy as np
 from evperc.fusion.twin import DECISION_CODES as D
 from evperc.geo.window import Window
 from evperc.objects.clusters import Clusterer, ClusterParams, Clusters
-from evperc.objects.split import SplitParams, Splitter
+from evperc.objects.split import SplitParams, Splitter, warm_up
 from evperc.objects.tracking import TrackerState, TrackingParams, footprint_seeds, track_step
 from tests.objects import reference_split as ref
 
@@ -259,3 +259,10 @@ def test_against_the_geodesic_reference_on_tracked_random_drives():
     """The comparison on 12 drives; not vacuous: the drives do share clusters."""
     splits = [_compare_on_random_drive(seed) for seed in range(12)]
     assert sum(splits) >= 20  # 37 on these seeds
+
+
+def test_the_warm_up_reaches_every_compiled_pass():
+    """The runner's warm-up (split.warm_up) splits its made-up cluster, so the kernel and the
+    parts' summary are loaded before the first frame; off, it does nothing."""
+    assert warm_up(SplitParams(enabled=True)) == 1
+    assert warm_up(SplitParams(enabled=False)) == 0
