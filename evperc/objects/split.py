@@ -74,6 +74,13 @@ class SplitParams:
             speed_difference_m_per_s=float(o.get("split_speed_difference_m_per_s", 1.0)))
 
 
+@numba.njit(cache=True, inline="always")
+def _meet(a, b):  # pragma: no cover - compiled
+    """Whether the boxes ``a`` and ``b`` (row min, row max, col min, col max; cells,
+    inclusive) share a cell."""
+    return a[0] <= b[1] and b[0] <= a[1] and a[2] <= b[3] and b[2] <= a[3]
+
+
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _split(cells, offsets, fp, fp_n, missed, moving, fitted, velocity, dt, row0, col0, rows,
            cols, res, min_overlap, dv2_min, label, part, decision, fo_q, conflict_fo,
@@ -143,8 +150,7 @@ def _split(cells, offsets, fp, fp_n, missed, moving, fitted, velocity, dt, row0,
         cbox[k, 2] = c0
         cbox[k, 3] = c1
         for i in range(n_tr):
-            if (fresh[i] and moving[i] != 0 and fitted[i] and box[i, 0] <= r1
-                    and r0 <= box[i, 1] and box[i, 2] <= c1 and c0 <= box[i, 3]):
+            if fresh[i] and moving[i] != 0 and fitted[i] and _meet(box[i], cbox[k]):
                 candidate[k] = True
                 n_candidates += 1
                 break
@@ -157,8 +163,7 @@ def _split(cells, offsets, fp, fp_n, missed, moving, fitted, velocity, dt, row0,
             continue
         meets = False
         for k in range(n_cl):
-            if (candidate[k] and box[i, 0] <= cbox[k, 1] and cbox[k, 0] <= box[i, 1]
-                    and box[i, 2] <= cbox[k, 3] and cbox[k, 2] <= box[i, 3]):
+            if candidate[k] and _meet(box[i], cbox[k]):
                 meets = True
                 break
         if not meets:
