@@ -111,6 +111,8 @@ RULES: dict[str, tuple] = {
     "objects.footprint_frames": ("range", 0, 1_000, False, False),
     "objects.backfill_frames": ("range", 0, 100, False, False),
     "objects.bridge_reach_cells": ("range", 0, 10, False, False),
+    "objects.lead_frames": ("range", 0, 100, False, False),
+    "objects.lead_reach_cells": ("range", 0, 10, False, False),
     "objects.moving_min_height_m": ("range", 0.0, 100.0, False, False),
     "objects.arrival_share": ("range", *_UNIT_INTERVAL, False, False),
     "objects.arrival_min_cells": ("range", 0, 1_000_000, False, False),

@@ -24,7 +24,7 @@
         --config configs/ablation/clusters_on_buildings.toml \\
         --config configs/ablation/facade_fragments_any_height.toml \\
         --config configs/ablation/faded_free_paper.toml \\
-        --config configs/ablation/no_split.toml
+        --config configs/ablation/no_split.toml --config configs/ablation/no_lead.toml
     .venv/bin/python scripts/report_tables.py --work W
 
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
@@ -83,7 +83,8 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
               "configs/ablation/facade_fragments_any_height.toml"),
              ("faded free space: the paper's product under a closed gate",
               "configs/ablation/faded_free_paper.toml"),
-             ("no split of shared clusters", "configs/ablation/no_split.toml"))
+             ("no split of shared clusters", "configs/ablation/no_split.toml"),
+             ("no lead before a track's first association", "configs/ablation/no_lead.toml"))
 
 
 #: the scores of the headline and ablation rows, in column order

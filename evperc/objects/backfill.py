@@ -40,7 +40,22 @@ if there are any, the cells of P_k its scan is silent about (neither seen free n
 return: occluded, as the footprint completion fills them), none in another record of frame
 k; they are decided ``moving`` as a fill's. A gap that reaches past the held frames, or
 ends at a ``stopped`` record, is not bridged; a frame with no occupied cell near P_k gets
-nothing (nothing says the object is there)."""
+nothing (nothing says the object is there).
+
+**Lead** (``objects.lead_frames`` = N, reach ``objects.lead_reach_cells`` = ρ_l; ours): the
+held frames before the newly reported track's first association (its oldest record there,
+reported or filled, in frame q) are walked back from q, at most N of them: each frame k gets
+the cells predicted from the next newer frame that holds the track's record,
+
+    P_k = { c + ⌊v (t_k − t_q) / r⌉ : c ∈ C_q },
+
+its record as a gap frame's (the cells occupied now within ρ_l of P_k, with the silent
+predicted cells if any; age 0: the track did not exist yet), and that record is the next
+frame's C_q. The walk stops at the first frame with no occupied cell near P_k, at a frame
+that holds a record of the track, and at the held frames' end. Why: a person's first steps
+are clusters of one or two cells, under the clusters' minimum size, so the track starts
+late and its candidates begin there; its cells before are where its velocity, run back,
+puts it (docs/method.md §8 step 8)."""
 
 from __future__ import annotations
 
@@ -167,8 +182,12 @@ class Backfill:
 
     def __init__(self, frames: int, gap_cells: int = 0, extent_m: float = np.inf,
                  fill_decision: bool = True, bridge_reach: int = -1,
-                 boxes: BoxParams | None = None) -> None:
+                 boxes: BoxParams | None = None, lead_frames: int = 0,
+                 lead_reach: int = 0) -> None:
         self.frames = int(frames)
+        #: objects.lead_frames, objects.lead_reach_cells (module docstring, "Lead"); 0: off
+        self.lead_frames = int(lead_frames)
+        self.lead_reach = int(lead_reach)
         #: objects.box_length_m ...: the added moving vehicles get their boxes at release
         #: (:mod:`evperc.objects.boxes`), as the frame's own did
         self.boxes = VehicleBoxes(boxes) if boxes is not None and boxes.enabled else None
@@ -191,7 +210,8 @@ class Backfill:
         reach = int(o.get("bridge_reach_cells", 0)) if o.get("bridge_gaps", False) else -1
         return Backfill(backfill_frames(config), int(o.get("fragment_gap_cells", 0)),
                         float(o.get("fragment_extent_m", np.inf)), fills_decision(config),
-                        reach, BoxParams.from_config(config))
+                        reach, BoxParams.from_config(config), int(o.get("lead_frames", 0)),
+                        int(o.get("lead_reach_cells", 0)))
 
     def push(self, frame: HeldFrame) -> list[HeldFrame]:
         """Fill the held frames from ``frame``'s moving records, hold ``frame``; returns the
@@ -207,7 +227,7 @@ class Backfill:
                     cells, age = held.candidates.pop(track)
                     fill(held, track, cells, age, moving[bisect.bisect_left(ids, track)],
                          self.gap_cells, self.extent_m, self.fill_decision)
-            if self.bridge_reach >= 0:
+            if self.bridge_reach >= 0 or self.lead_frames > 0:
                 reported = frame.objects["track_id"].astype(np.int64)
                 for k in np.flatnonzero((frame.objects["state"] == _STATE_MOVING)
                                         & _in_sorted(reported, new)):
@@ -220,8 +240,9 @@ class Backfill:
 
     def _bridge(self, frame: HeldFrame, k: int) -> None:
         """Bridge the gaps of the track of record ``k`` of ``frame`` (newly reported moving)
-        in the held frames, newest first, each between two of its moving records (module
-        docstring)."""
+        in the held frames, newest first, each between two of its moving records, then lead
+        it back into the held frames before its first association (module docstring, "Gaps"
+        and "Lead")."""
         report = frame.objects[k]
         track = int(report["track_id"])
         newer = (_record_lattice(frame, k), frame.stamp_ns)
@@ -237,13 +258,19 @@ class Backfill:
             if held.objects["state"][b] != _STATE_MOVING:
                 return
             older = (_record_lattice(held, b), held.stamp_ns)
-            for g in gap:
+            for g in gap if self.bridge_reach >= 0 else ():
                 cells = bridge_cells(g, report["velocity_m_per_s"], (newer, older),
                                      self.bridge_reach)
                 if len(cells):
                     fill(g, track, cells, int(held.objects["age_frames"][b]), report,
                          self.gap_cells, self.extent_m, self.fill_decision)
             newer, gap = older, []
+        for g in gap[:self.lead_frames]:  # before the track's first association
+            cells = bridge_cells(g, report["velocity_m_per_s"], (newer,), self.lead_reach)
+            if not len(cells):
+                return
+            fill(g, track, cells, 0, report, self.gap_cells, self.extent_m, self.fill_decision)
+            newer = (cells, g.stamp_ns)
 
     def flush(self) -> list[HeldFrame]:
         """Every held frame, oldest first (the log's end)."""

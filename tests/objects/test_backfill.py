@@ -197,6 +197,54 @@ def test_a_bridged_record_takes_the_predicted_cells_its_scan_is_silent_about() -
     assert gap.added == [] and not (gap.decision == D["moving"]).any()
 
 
+def _lead_frames(occupied: list[list[int]], lead: int = 6, reach: int = 1
+                 ) -> list[HeldFrame]:
+    """Lag 4, track 7 moving +x at 1 m/s (a cell every 0.5 s): a candidate in frame 2 on
+    window cell (2, 4), reported moving in frame 3 on (2, 5); frames 0 and 1 hold the
+    occupied cells ``occupied[0]``, ``occupied[1]`` (flat) and no candidate of it; pushed."""
+    backfill = Backfill(4, bridge_reach=0, lead_frames=lead, lead_reach=reach)
+    frames = [_frame({}), _frame({}), _frame({7: ([[102, 204]], 2)}),
+              _frame({}, objects=_record(7, velocity=(1.0, 0.0)),
+                     cells=np.array([25], np.uint32))]
+    for k, f in enumerate(frames):
+        f.stamp_ns = k * 500_000_000
+        f.occupied = np.zeros(W.shape, np.bool_)
+        f.occupied.reshape(-1)[occupied[k] if k < 2 else [24 + k - 2]] = True
+    for f in frames:
+        backfill.push(f)
+    return frames
+
+
+def test_a_track_is_led_back_before_its_first_association() -> None:
+    """Track 7's first association is frame 2's candidate (2, 4): frame 1 gets the occupied
+    cells within one cell of (2, 3), its velocity run back (23 and 33, not 53), frame 0
+    those within one cell of frame 1's record run back one more cell ((2, 2), (3, 2):
+    22 and 41, not 55); age 0, the report's velocity, decided moving. With lead_frames 1
+    only frame 1; 0 none; reach 0 the predicted cell alone (23, then 22)."""
+    f0, f1, f2, _ = _lead_frames([[22, 41, 55], [23, 33, 53]])
+    assert [f0.added, f1.added, f2.added] == [[7], [7], [7]]
+    assert f1.object_cells.tolist() == [23, 33] and f0.object_cells.tolist() == [22, 41]
+    for f in (f0, f1):
+        (r,) = f.objects
+        assert (r["track_id"], r["state"], r["age_frames"]) == (7, MOVING, 0)
+        np.testing.assert_allclose(r["velocity_m_per_s"], [1.0, 0.0])
+    assert np.flatnonzero(f0.decision.reshape(-1) == D["moving"]).tolist() == [22, 41]
+    f0, f1, _, _ = _lead_frames([[22, 41, 55], [23, 33, 53]], lead=1)
+    assert f0.added == [] and f1.object_cells.tolist() == [23, 33]
+    f0, f1, _, _ = _lead_frames([[22, 41, 55], [23, 33, 53]], lead=0)
+    assert f0.added == f1.added == []
+    f0, f1, _, _ = _lead_frames([[22, 41, 55], [23, 33, 53]], reach=0)
+    assert f1.object_cells.tolist() == [23] and f0.object_cells.tolist() == [22]
+
+
+def test_a_lead_stops_at_the_first_frame_with_nothing_there() -> None:
+    """Frame 1 has no occupied cell within one cell of (2, 3): nothing is led into it, nor
+    into frame 0 beyond it, whose cells sit where the track would have been."""
+    f0, f1, f2, _ = _lead_frames([[22, 23], [55]])
+    assert f0.added == f1.added == [] and f2.added == [7]
+    assert not (f0.decision == D["moving"]).any()
+
+
 def test_gaps_not_bounded_by_a_moving_record_are_not_bridged() -> None:
     """Nothing is bridged when the record before the gap is stopped, when the bridge is off
     (reach -1), when the record before the gap was released already (lag 1), or into a
@@ -309,6 +357,13 @@ def test_the_key_is_off_without_objects_and_checked(tmp_path: Path) -> None:
                                 ).bridge_reach == 2
     with pytest.raises(ConfigError, match="bridge_reach_cells"):
         load_config(overrides={"objects.bridge_reach_cells": -1})
+    # the lead: 6 frames, reach 1 by default (docs/method.md §8 step 8, "Lead")
+    led = Backfill.from_config(load_config())
+    assert (led.lead_frames, led.lead_reach) == (6, 1)
+    assert Backfill.from_config(load_config(overrides={"objects.lead_frames": 0})
+                                ).lead_frames == 0
+    with pytest.raises(ConfigError, match="lead_reach_cells"):
+        load_config(overrides={"objects.lead_reach_cells": -1})
     bad = tmp_path / "bad.toml"  # a user's file: typed (overrides are the tests' own)
     bad.write_text("[objects]\nbridge_gaps = 1\n")
     with pytest.raises(ConfigError, match="bridge_gaps must be bool"):
@@ -320,14 +375,17 @@ def sample_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int | str, lis
     """The sample drive (8 s, with its map) causal and with lags 3 and 6; chunks of 7
     frames, a checkpoint at each chunk end (the backfill's snapshots taken); -6: lag 6 with
     the chunks stored uncompressed (the writer cannot hold slots: the held frames' own
-    buffers are copied into its slot); "no_bridge": lag 6 without objects.bridge_gaps."""
+    buffers are copied into its slot); "no_lead": lag 6 without objects.lead_frames;
+    "no_bridge": lag 6 without objects.bridge_gaps nor the lead."""
     root = Path(__file__).resolve().parents[2] / "sample_data"
     tmp = tmp_path_factory.mktemp("backfill")
     frames: dict[int | str, list] = {}
-    for lag, compress in ((0, True), (3, True), (6, True), (-6, False), ("no_bridge", True)):
-        config = load_config(overrides={"objects.backfill_frames": 6 if lag == "no_bridge"
+    for lag, compress in ((0, True), (3, True), (6, True), (-6, False), ("no_bridge", True),
+                          ("no_lead", True)):
+        config = load_config(overrides={"objects.backfill_frames": 6 if isinstance(lag, str)
                                         else abs(lag),
                                         "objects.bridge_gaps": lag != "no_bridge",
+                                        "objects.lead_frames": 0 if isinstance(lag, str) else 6,
                                         "output.chunk_frames": 7,
                                         "output.checkpoint_frames": 1,
                                         "output.compress": compress})
@@ -397,13 +455,15 @@ def test_a_run_with_the_backfill_adds_only_what_the_rule_allows(
 
 def test_the_bridged_gaps_of_a_run_are_bounded_by_moving_records(
         sample_runs: dict[int | str, list]) -> None:
-    """Lag 6 with and without objects.bridge_gaps, frame by frame: the layers other than the
+    """Lag 6 with and without objects.bridge_gaps (both without the lead: a frame before
+    a track's first record that the lead fills may lie in a gap once the gaps are
+    bridged), frame by frame: the layers other than the
     decision are equal; every record without the bridge is kept (same track, state, age,
     velocity, cells a superset: a bridged fragment may join it); each added record is a
     moving track absent from that frame without the bridge and holding a moving record in
     an earlier and in a later frame within the lag (the gap between them); the decision
     changes only on the added moving cells, to moving; and the sample drive has such gaps."""
-    plain, bridged = sample_runs["no_bridge"], sample_runs[6]
+    plain, bridged = sample_runs["no_bridge"], sample_runs["no_lead"]
     assert len(plain) == len(bridged) > 50
     moving_ids = _moving_ids(plain)
     added_total = 0
@@ -413,6 +473,36 @@ def test_the_bridged_gaps_of_a_run_are_bounded_by_moving_records(
         before = set().union(*moving_ids[max(k - 6, 0):k])
         after = set().union(*moving_ids[k + 1:k + 7])
         assert set(added["track_id"].tolist()) <= before & after
+        new_cells = (la == 0) & (lb > 0)
+        assert not ((a.decision != b.decision) & ~new_cells).any()
+        assert (b.decision[new_cells] == D["moving"]).all()
+        added_total += len(added)
+    assert added_total > 0
+
+
+def test_the_leads_of_a_run_come_before_the_tracks_first_association(
+        sample_runs: dict[int | str, list]) -> None:
+    """Lag 6 with and without objects.lead_frames, frame by frame: the layers other than the
+    decision are equal; every record without the lead is kept; each added record is a
+    moving track with no record in this frame or any before it without the lead, whose
+    first record comes within the next 6 frames and which is reported moving in one of
+    them; the decision changes only on the added moving cells, to moving; and the sample
+    drive has such leads."""
+    plain, led = sample_runs["no_lead"], sample_runs[6]
+    assert len(plain) == len(led) > 50
+    moving_ids = _moving_ids(plain)
+    recorded = [set(f.objects["track_id"].tolist()) for f in plain]
+    first = {}
+    for k, ids in enumerate(recorded):
+        for t in ids:
+            first.setdefault(t, k)
+    added_total = 0
+    for k, (a, b) in enumerate(zip(plain, led, strict=True)):
+        la, lb, added = _records_kept(a, b)
+        assert (added["state"] == MOVING).all()
+        for t in added["track_id"].tolist():
+            assert k < first[t] <= k + 6
+            assert t in set().union(*moving_ids[k + 1:k + 7])
         new_cells = (la == 0) & (lb > 0)
         assert not ((a.decision != b.decision) & ~new_cells).any()
         assert (b.decision[new_cells] == D["moving"]).all()
