@@ -362,45 +362,90 @@ def fill(held: HeldFrame, track: int, lattice: np.ndarray, age: int,
 def bridge_cells(held: HeldFrame, velocity_m_per_s: np.ndarray,
                  known: tuple[tuple[np.ndarray, int], ...], reach: int) -> np.ndarray:
     """The cells (global lattice (iy, ix), ascending) of a track in ``held``, a frame of
-    a gap (module docstring, "Gaps"), none of them in a record of ``held``: its cells
-    ``known`` elsewhere ((cells (n, 2), stamp_ns) pairs) carried to ``held.stamp_ns`` at
-    ``velocity_m_per_s`` (x, y) predict where it is; the cells occupied now within
-    Chebyshev distance ``reach`` of the prediction are its, and if there are any, so are
-    the predicted cells its scan is silent about (``held.speaks``). No cell at all if none
-    near the prediction is occupied now (nothing says the object is there)."""
+    a gap (module docstring, "Gaps") or of its lead ("Lead"), none of them in a record of
+    ``held``: its cells ``known`` elsewhere ((cells (n, 2), stamp_ns) pairs) carried to
+    ``held.stamp_ns`` at ``velocity_m_per_s`` (x, y) predict where it is; the cells occupied
+    now within Chebyshev distance ``reach`` of the prediction are its, and if there are any,
+    so are the predicted cells its scan is silent about (``held.speaks``). No cell at all if
+    none near the prediction is occupied now (nothing says the object is there). One
+    compiled pass over the predicted cells (:func:`_bridge_pass`)."""
     w = held.window
     v = np.asarray(velocity_m_per_s, np.float64)
-    predicted = np.concatenate([cells + np.rint(v[::-1] * (held.stamp_ns - stamp) * 1e-9
-                                                / w.resolution_m).astype(np.int64)
-                                for cells, stamp in known])
-    offsets = np.arange(-reach, reach + 1)
-    near = (predicted[:, None, None, :] + np.stack(np.meshgrid(
-        offsets, offsets, indexing="ij"), axis=-1)[None]).reshape(-1, 2)
-    records = sorted_copy(np.asarray(held.object_cells, np.int64))
-    flat = _window_flat(w, near)
-    flat = flat[held.occupied.reshape(-1)[flat] != 0]
-    flat = flat[~_in_sorted(flat, records)]
-    if flat.size and held.speaks is not None:
-        silent = _window_flat(w, predicted)
-        silent = silent[~_spoken(held.speaks, silent) & ~_in_sorted(silent, records)]
-        flat = sorted_unique(np.concatenate([flat, silent]))
-    return _lattice(w, flat)
+    shifts = np.stack([np.rint(v[::-1] * (held.stamp_ns - stamp) * 1e-9 / w.resolution_m
+                               ).astype(np.int64) for _, stamp in known])
+    cells = np.concatenate([np.asarray(c, np.int64).reshape(-1, 2) for c, _ in known])
+    counts = np.array([len(c) for c, _ in known], np.int64)
+    speaks = held.speaks
+    if isinstance(speaks, tuple):  # the sensor grid's layers (tests, callers of their own)
+        speaks = (speaks[0] > 0) | (speaks[1] > 0)
+    spoken = _NO_BYTES if speaks is None else _bytes(speaks)
+    return _bridge_pass(cells, shifts, counts, w.row0, w.col0, w.rows, w.cols, int(reach),
+                        _bytes(held.occupied), sorted_copy(np.asarray(held.object_cells,
+                                                                      np.int64)),
+                        spoken, speaks is not None)
 
 
-def _window_flat(window: Window, lattice: np.ndarray) -> np.ndarray:
-    """The flat window indices (ascending, unique) of the lattice cells inside ``window``."""
-    r = lattice[:, 0] - window.row0
-    c = lattice[:, 1] - window.col0
-    inside = (r >= 0) & (r < window.rows) & (c >= 0) & (c < window.cols)
-    return sorted_unique(np.ascontiguousarray(r[inside] * window.cols + c[inside], np.int64))
+_NO_BYTES = np.zeros(0, np.uint8)
 
 
-def _spoken(speaks: Any, flat: np.ndarray) -> np.ndarray:
-    """Whether the scan speaks of each cell ``flat``: ``speaks`` a bool layer, or the
-    sensor grid's (m({F}), m({O})) layers (either > 0)."""
-    if isinstance(speaks, tuple):
-        return (speaks[0].reshape(-1)[flat] > 0) | (speaks[1].reshape(-1)[flat] > 0)
-    return np.asarray(speaks).reshape(-1)[flat].astype(bool)
+def _bytes(layer: np.ndarray) -> np.ndarray:
+    """A window layer as flat bytes, nonzero where set (a bool layer's view: no copy)."""
+    flat = np.ascontiguousarray(layer).reshape(-1)
+    if flat.dtype == np.bool_ or flat.dtype == np.uint8:
+        return flat.view(np.uint8)
+    return (flat != 0).view(np.uint8)
+
+
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def _bridge_pass(cells, shifts, counts, row0, col0, rows, cols, reach, occupied, records,
+                 spoken, has_spoken):  # pragma: no cover - compiled
+    """:func:`bridge_cells` on the known ``cells`` (global lattice, ``counts`` per end, each
+    end's rows shifted by its ``shifts`` row): the window cells within ``reach`` of a
+    predicted one that are ``occupied`` and in no record (``records``: flat, sorted), and
+    if there are any, with the predicted cells in no record that the scan does not speak
+    of (``spoken``, with ``has_spoken``); global lattice rows, ascending, unique."""
+    side = 2 * reach + 1
+    n = cells.shape[0]
+    near = np.empty(n * side * side, np.int64)
+    silent = np.empty(n, np.int64)
+    n_near = 0
+    n_silent = 0
+    start = 0
+    for e in range(counts.shape[0]):
+        for i in range(start, start + counts[e]):
+            r = cells[i, 0] + shifts[e, 0] - row0
+            c = cells[i, 1] + shifts[e, 1] - col0
+            for a in range(r - reach, r + reach + 1):
+                if a < 0 or a >= rows:
+                    continue
+                for b in range(c - reach, c + reach + 1):
+                    if b < 0 or b >= cols:
+                        continue
+                    f = a * cols + b
+                    if occupied[f] != 0 and not _held_in(records, f):
+                        near[n_near] = f
+                        n_near += 1
+            if 0 <= r < rows and 0 <= c < cols:
+                f = r * cols + c
+                if has_spoken and spoken[f] == 0 and not _held_in(records, f):
+                    silent[n_silent] = f
+                    n_silent += 1
+        start += counts[e]
+    if n_near == 0:
+        return np.zeros((0, 2), np.int64)
+    flat = np.unique(np.concatenate((near[:n_near], silent[:n_silent])))
+    out = np.empty((flat.shape[0], 2), np.int64)
+    for k in range(flat.shape[0]):
+        out[k, 0] = flat[k] // cols + row0
+        out[k, 1] = flat[k] % cols + col0
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _held_in(records, f):  # pragma: no cover - compiled
+    """Whether ``f`` is in the sorted ``records``."""
+    at = np.searchsorted(records, f)
+    return at < records.shape[0] and records[at] == f
 
 
 def _record_lattice(frame: HeldFrame, k: int) -> np.ndarray:
@@ -489,8 +534,11 @@ def _geometry(cells, cols, betp):  # pragma: no cover - compiled
 
 
 def warm_up() -> None:
-    """Load the compiled passes of :func:`fill` (the run's warm-up: not charged to a frame)."""
+    """Load the compiled passes of :func:`fill` and :func:`bridge_cells` (the run's warm-up:
+    not charged to a frame)."""
     one = np.zeros(1, np.int64)
+    _bridge_pass(np.zeros((1, 2), np.int64), np.zeros((1, 2), np.int64), one, 0, 0, 1, 1, 1,
+                 np.ones(1, np.uint8), np.zeros(0, np.int64), np.zeros(1, np.uint8), True)
     _touching_pass(np.zeros((1, 4), np.int64), np.zeros(1, np.bool_), one, one, one, one, one,
                    1, 1, 1)
     _geometry(one, 1, np.zeros(1, np.uint8))
