@@ -51,8 +51,8 @@ the cells predicted from the next newer frame that holds the track's record,
 
 its record as a gap frame's (the cells occupied now within ρ_l of P_k, with the silent
 predicted cells if any; age 0: the track did not exist yet), and that record is the next
-frame's C_q. The walk stops at the first frame with no occupied cell near P_k, at a frame
-that holds a record of the track, and at the held frames' end. Why: a person's first steps
+frame's C_q. The walk stops at the first frame with no occupied cell near P_k and at the
+held frames' end. Why: a person's first steps
 are clusters of one or two cells, under the clusters' minimum size, so the track starts
 late and its candidates begin there; its cells before are where its velocity, run back,
 puts it (docs/method.md §8 step 8)."""
@@ -70,7 +70,7 @@ import numpy as np
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
 from evperc.gil_kept import in_sorted, sorted_copy, sorted_unique
-from evperc.objects.boxes import BoxParams, VehicleBoxes
+from evperc.objects.boxes import BoxParams, VehicleBoxes, flat_layer
 from evperc.objects.stage import fills_decision, objects_enabled
 from evperc.objects.tracking import TrackerState
 from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
@@ -378,22 +378,13 @@ def bridge_cells(held: HeldFrame, velocity_m_per_s: np.ndarray,
     speaks = held.speaks
     if isinstance(speaks, tuple):  # the sensor grid's layers (tests, callers of their own)
         speaks = (speaks[0] > 0) | (speaks[1] > 0)
-    spoken = _NO_BYTES if speaks is None else _bytes(speaks)
+    spoken = _NO_BYTES if speaks is None else flat_layer(speaks)
     return _bridge_pass(cells, shifts, counts, w.row0, w.col0, w.rows, w.cols, int(reach),
-                        _bytes(held.occupied), sorted_copy(np.asarray(held.object_cells,
-                                                                      np.int64)),
+                        flat_layer(held.occupied), np.asarray(held.object_cells, np.int64),
                         spoken, speaks is not None)
 
 
 _NO_BYTES = np.zeros(0, np.uint8)
-
-
-def _bytes(layer: np.ndarray) -> np.ndarray:
-    """A window layer as flat bytes, nonzero where set (a bool layer's view: no copy)."""
-    flat = np.ascontiguousarray(layer).reshape(-1)
-    if flat.dtype == np.bool_ or flat.dtype == np.uint8:
-        return flat.view(np.uint8)
-    return (flat != 0).view(np.uint8)
 
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
@@ -401,9 +392,9 @@ def _bridge_pass(cells, shifts, counts, row0, col0, rows, cols, reach, occupied,
                  spoken, has_spoken):  # pragma: no cover - compiled
     """:func:`bridge_cells` on the known ``cells`` (global lattice, ``counts`` per end, each
     end's rows shifted by its ``shifts`` row): the window cells within ``reach`` of a
-    predicted one that are ``occupied`` and in no record (``records``: flat, sorted), and
-    if there are any, with the predicted cells in no record that the scan does not speak
-    of (``spoken``, with ``has_spoken``); global lattice rows, ascending, unique."""
+    predicted one that are ``occupied`` and in no record (``records``: flat), and if there
+    are any, with the predicted cells in no record that the scan does not speak of
+    (``spoken``, with ``has_spoken``); global lattice rows, ascending, unique."""
     side = 2 * reach + 1
     n = cells.shape[0]
     near = np.empty(n * side * side, np.int64)
@@ -415,37 +406,26 @@ def _bridge_pass(cells, shifts, counts, row0, col0, rows, cols, reach, occupied,
         for i in range(start, start + counts[e]):
             r = cells[i, 0] + shifts[e, 0] - row0
             c = cells[i, 1] + shifts[e, 1] - col0
-            for a in range(r - reach, r + reach + 1):
-                if a < 0 or a >= rows:
-                    continue
-                for b in range(c - reach, c + reach + 1):
-                    if b < 0 or b >= cols:
-                        continue
-                    f = a * cols + b
-                    if occupied[f] != 0 and not _held_in(records, f):
-                        near[n_near] = f
+            for a in range(max(r - reach, 0), min(r + reach + 1, rows)):
+                for b in range(max(c - reach, 0), min(c + reach + 1, cols)):
+                    if occupied[a * cols + b] > 0:
+                        near[n_near] = a * cols + b
                         n_near += 1
-            if 0 <= r < rows and 0 <= c < cols:
-                f = r * cols + c
-                if has_spoken and spoken[f] == 0 and not _held_in(records, f):
-                    silent[n_silent] = f
-                    n_silent += 1
+            if has_spoken and 0 <= r < rows and 0 <= c < cols and spoken[r * cols + c] == 0:
+                silent[n_silent] = r * cols + c
+                n_silent += 1
         start += counts[e]
-    if n_near == 0:
+    held = sorted_copy(records)
+    near = near[:n_near][~in_sorted(near[:n_near], held)]
+    if near.shape[0] == 0:
         return np.zeros((0, 2), np.int64)
-    flat = np.unique(np.concatenate((near[:n_near], silent[:n_silent])))
+    silent = silent[:n_silent][~in_sorted(silent[:n_silent], held)]
+    flat = sorted_unique(np.concatenate((near, silent)))
     out = np.empty((flat.shape[0], 2), np.int64)
     for k in range(flat.shape[0]):
         out[k, 0] = flat[k] // cols + row0
         out[k, 1] = flat[k] % cols + col0
     return out
-
-
-@numba.njit(cache=True, inline="always")
-def _held_in(records, f):  # pragma: no cover - compiled
-    """Whether ``f`` is in the sorted ``records``."""
-    at = np.searchsorted(records, f)
-    return at < records.shape[0] and records[at] == f
 
 
 def _record_lattice(frame: HeldFrame, k: int) -> np.ndarray:

@@ -103,13 +103,13 @@ def complete_boxes(objects: np.ndarray, cells: np.ndarray, window: Window,
     if not params.enabled or len(objects) == 0:
         return objects, cells
     if isinstance(scan_speaks, tuple):
-        speaks_a, speaks_b = (_flat_layer(layer) for layer in scan_speaks)
+        speaks_a, speaks_b = (flat_layer(layer) for layer in scan_speaks)
     else:
-        speaks_a = speaks_b = _flat_layer(scan_speaks)
+        speaks_a = speaks_b = flat_layer(scan_speaks)
     if scratch is None:
         scratch = np.zeros(window.rows * window.cols, np.uint8)
     # without returns: a dummy of the speaks layers' dtype (one compiled variant per dtype)
-    held_returns = (_flat_layer(returns) if returns is not None
+    held_returns = (flat_layer(returns) if returns is not None
                     else np.zeros(1, speaks_a.dtype))
     moving = objects["state"] == _MOVING
     if only is not None:
@@ -131,10 +131,10 @@ def complete_boxes(objects: np.ndarray, cells: np.ndarray, window: Window,
     return out, full.astype(np.uint32)
 
 
-def _flat_layer(layer: np.ndarray) -> np.ndarray:
-    """A layer the boxes read as ``> 0``, flat and without a copy: a bool one as its 0/1
-    bytes (the runner's, :func:`evperc.objects.stage.scan_cells`), any other as float32
-    (the sensor grid's)."""
+def flat_layer(layer: np.ndarray) -> np.ndarray:
+    """A layer read as ``> 0``, flat and without a copy: a bool one as its 0/1 bytes (the
+    runner's, :func:`evperc.objects.stage.scan_cells`), any other as float32 (the sensor
+    grid's). Read by the boxes and the backfill's :func:`~evperc.objects.backfill.bridge_cells`."""
     layer = np.asarray(layer)
     if layer.dtype == np.bool_ or layer.dtype == np.uint8:
         return np.ascontiguousarray(layer).reshape(-1).view(np.uint8)
