@@ -173,34 +173,18 @@ JOINS_ANY = 2
 def _grow(start, k, n_cells, decision, conflict_fo, now, cols, rows, fo_q, moving, unknown,
           grows, mark, cells, stats):  # pragma: no cover - compiled
     """Flood fill of cluster ``k`` from ``start`` (not yet marked); its cells are appended
-    to ``cells`` from ``n_cells`` on; returns the new ``n_cells``."""
+    to ``cells`` from ``n_cells`` on, its ``stats[k]`` by :func:`group_stats`; returns the
+    new ``n_cells``."""
     first = n_cells
     mark[start] = 1
     cells[n_cells] = start
     n_cells += 1
     head = first
-    count = 0
-    seeds = 0
-    sr = 0
-    sc = 0
-    r0 = rows
-    r1 = -1
-    c0 = cols
-    c1 = -1
     while head < n_cells:  # the cluster's cells double as the queue (breadth first)
         i = cells[head]
         head += 1
         r = i // cols
         c = i - r * cols
-        count += 1
-        if decision[i] == moving or (fo_q > 0 and conflict_fo[i] >= fo_q):
-            seeds += 1
-        sr += r
-        sc += c
-        r0 = min(r0, r)
-        r1 = max(r1, r)
-        c0 = min(c0, c)
-        c1 = max(c1, c)
         if now[i] == JOINS_ANY:  # a hit-only cell joins but does not grow the cluster
             continue
         for dr in range(-1, 2):
@@ -221,14 +205,7 @@ def _grow(start, k, n_cells, decision, conflict_fo, now, cols, rows, fo_q, movin
                     mark[j] = 1
                     cells[n_cells] = j
                     n_cells += 1
-    stats[k, 0] = count
-    stats[k, 1] = seeds
-    stats[k, 2] = sr
-    stats[k, 3] = sc
-    stats[k, 4] = r0
-    stats[k, 5] = r1
-    stats[k, 6] = c0
-    stats[k, 7] = c1
+    group_stats(cells, first, n_cells, decision, conflict_fo, fo_q, moving, cols, stats, k)
     return n_cells
 
 
@@ -335,9 +312,10 @@ def block_max_at(layer: np.ndarray, cells: np.ndarray) -> np.ndarray:  # pragma:
 @numba.njit(cache=True, inline="always")
 def group_stats(cells, first, end, decision, conflict_fo, fo_q, moving, cols, stats, k
                 ):  # pragma: no cover - compiled
-    """``stats[k]`` of the group ``cells[first:end]`` (flat window cells, ``cols`` a row),
-    as :func:`_flood` counts them: count, seeds (decided ``moving``, or ∅_FO ≥ ``fo_q`` > 0),
-    Σrow, Σcol, min row, max row, min col, max col."""
+    """``stats[k]`` of the group ``cells[first:end]`` (flat window cells, ``cols`` a row;
+    the flood fill's clusters, :func:`_grow`, and the split's parts): count, seeds
+    (decided ``moving``, or ∅_FO ≥ ``fo_q`` > 0), Σrow, Σcol, min row, max row, min col,
+    max col."""
     seeds = 0
     sr = 0
     sc = 0
