@@ -48,6 +48,8 @@ from evperc.objects.stage import (
     unfill_small,
     unfill_unconfirmed,
 )
+from evperc.objects.support import SmallGroupSupport, SupportParams
+from evperc.objects.support import warm_up as warm_up_support
 from evperc.objects.tracking import TrackerState
 from evperc.objects.unmapped import UnmappedCue, UnmappedParams, UnmappedState, unmapped_enabled
 from evperc.output.manifest import read_manifest
@@ -248,6 +250,8 @@ class FusionState:
     unmapped: UnmappedState | None = None
     #: the footprint completion's per-track history (None: off, or no frame yet)
     footprints: FootprintState | None = None
+    #: the small groups' support: the last frames' motion cells (None: off, or no frame yet)
+    support: SmallGroupSupport | None = None
 
     @staticmethod
     def fresh(window: Window) -> FusionState:
@@ -303,6 +307,7 @@ class FusionState:
         into.tracks = self.tracks.copy() if self.tracks is not None else None
         into.unmapped = self.unmapped.copy() if self.unmapped is not None else None
         into.footprints = self.footprints.copy() if self.footprints is not None else None
+        into.support = self.support.copy() if self.support is not None else None
         return into
 
     def save(self, path: Path) -> None:
@@ -322,6 +327,8 @@ class FusionState:
             arrays.update(self.unmapped.to_arrays())
         if self.footprints is not None:
             arrays.update(self.footprints.to_arrays())
+        if self.support is not None:
+            arrays.update(self.support.to_arrays())
         write_npz(path, arrays, compress=False)
 
     @staticmethod
@@ -348,7 +355,8 @@ class FusionState:
                     decision_counts=npz["decision_counts"],
                     tracks=TrackerState.from_arrays(npz),
                     unmapped=UnmappedState.from_arrays(npz),
-                    footprints=FootprintState.from_arrays(npz))
+                    footprints=FootprintState.from_arrays(npz),
+                    support=SmallGroupSupport.from_arrays(npz))
         except (OSError, ValueError, KeyError) as err:
             raise OutputError(f"{path}: missing or unreadable checkpoint ({err}); rerun "
                               "without --resume and with --overwrite") from err
@@ -405,6 +413,9 @@ class Pipeline:
         self.moving_needs_object = (objects_enabled(config)
                                     and bool(config["objects"]["moving_needs_object"]))
         self.footprint = FootprintParams.from_config(config)
+        #: objects.small_support_frames: small moving groups need company (support.py)
+        self.support_params = (SupportParams.from_config(config) if self.moving_needs_object
+                               else SupportParams())
         self.boxes = VehicleBoxes(BoxParams.from_config(config))
         #: objects.backfill_frames: frames are handed to the output this many frames late,
         #: with the tracks reported moving since filled in (evperc.objects.backfill); 0 = off
@@ -456,6 +467,8 @@ class Pipeline:
                 unfill_small(out.decision.copy(), np.zeros(1, np.int64), None)
             if self.moving_needs_object:
                 unfill_unconfirmed(out.decision.copy(), np.zeros(1, np.int64))
+            if self.support_params.enabled:
+                warm_up_support()
             if self.backfill_frames > 0:
                 warm_up_backfill()
         if self.unmapped is not None:
@@ -675,9 +688,18 @@ class Pipeline:
             if self.objects.moving_min_cells > 0:  # small clusters' moving cells: static
                 unfill_small(out.decision, self.objects.small_moving, moving_cells)
                 if self.moving_needs_object:  # the small groups left moving: their own rule
-                    frame["small_groups"] = small_moving_cells(
+                    small, group_of = small_moving_cells(
                         *self.objects.clusterer.groups(), out.decision,
-                        self.objects.moving_min_cells)
+                        self.objects.moving_min_cells, with_groups=True)
+                    frame["small_groups"] = small
+                    if self.support_params.enabled:  # company in space and time (support.py)
+                        if state.support is None:
+                            state.support = SmallGroupSupport()
+                        motion = (small if moving_cells is None
+                                  else np.concatenate([small, moving_cells]))
+                        state.support.push(state.frames - 1, window.row0, window.col0,
+                                           window.cols, motion)
+                        frame["support"] = (state.frames - 1, group_of)
             clock.lap("objects")
         else:
             moving_cells = None
@@ -703,8 +725,14 @@ class Pipeline:
         (``frame["point_labels"]``). Run by :meth:`step`, or with ``objects.backfill_frames``
         when the frame leaves the backfill (:func:`run`)."""
         if self.moving_needs_object:  # the fusion's moving cells no moving object holds
+            small = frame.pop("small_groups", None)
+            support = frame.pop("support", None)
+            if support is not None and small is not None:  # small groups need company
+                origin = frame["origin"]
+                small = state.support.judge(self.support_params, support[0], *origin,
+                                            decision.shape[1], small, support[1])
             unfill_unconfirmed(decision, moving_object_cells(
-                frame["objects"], frame["object_cells"]), frame.pop("small_groups", None))
+                frame["objects"], frame["object_cells"]), small)
             self.clock.lap("objects")
         # counted after every pass that changes the decision: the counts match the stored one
         frame["decision_counts"] = counts = count_codes(decision, len(state.decision_counts))

@@ -47,6 +47,7 @@ from evperc.objects.backfill import Backfill, HeldFrame, candidates  # noqa: E40
 from evperc.objects.boxes import BoxParams, complete_boxes  # noqa: E402
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints  # noqa: E402,E501
 from evperc.objects.stage import ObjectStage, fill_moving, unfill_small  # noqa: E402
+from evperc.objects.support import SmallGroupSupport, SupportParams  # noqa: E402
 from evperc.objects.tracking import TrackerState  # noqa: E402
 from evperc.output.objects import moving_object_cells, object_labels  # noqa: E402
 
@@ -200,7 +201,8 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
     frames = []
     fill = stage_mod.fills_decision(config)
     backfill = Backfill.from_config(config)
-    small_groups: dict[int, np.ndarray] = {}
+    small_groups: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    support, support_params = SmallGroupSupport(), SupportParams.from_config(config)
     for k in range(len(stamps)):
         window = Window(res, shape[0], shape[1], int(origins[k, 0]), int(origins[k, 1]))
         decision = decisions[k].copy()
@@ -224,8 +226,12 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
         if stage.moving_min_cells > 0:
             unfill_small(decision, stage.small_moving, moving)
             # the small groups left moving: moving_needs_object leaves them to that rule
-            small_groups[k] = stage_mod.small_moving_cells(*stage.clusterer.groups(), decision,
-                                                           stage.moving_min_cells)
+            small_groups[k] = stage_mod.small_moving_cells(
+                *stage.clusterer.groups(), decision, stage.moving_min_cells, with_groups=True)
+            if support_params.enabled:  # the runner's push (evperc/objects/support.py)
+                small = small_groups[k][0]
+                support.push(k, window.row0, window.col0, window.cols,
+                             small if moving is None else np.concatenate([small, moving]))
         f = stored.get(int(stamps[k]))
         if f is not None:  # the unmapped cue's cells, where the replay did not decide moving
             relabel = (np.asarray(f.decision) == _UNMAPPED) & (decision != _MOVING)
@@ -242,9 +248,12 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
     frames.extend(_released(backfill.flush()))
     if config["objects"].get("moving_needs_object", False):  # on the final object lists
         for frame in frames:
+            small, group_of = small_groups.get(frame.index, (None, None))
+            if support_params.enabled and small is not None:
+                small = support.judge(support_params, frame.index, *frame.origin,
+                                      frame.decision.shape[1], small, group_of)
             stage_mod.unfill_unconfirmed(
-                frame.decision, moving_object_cells(frame.objects, frame.object_cells),
-                small_groups.get(frame.index))
+                frame.decision, moving_object_cells(frame.objects, frame.object_cells), small)
     return ReplayRun(run, frames)
 
 

@@ -24,7 +24,8 @@
         --config configs/ablation/clusters_on_buildings.toml \\
         --config configs/ablation/facade_fragments_any_height.toml \\
         --config configs/ablation/faded_free_paper.toml \\
-        --config configs/ablation/no_split.toml --config configs/ablation/no_lead.toml
+        --config configs/ablation/no_split.toml --config configs/ablation/no_lead.toml \\
+        --config configs/ablation/no_support.toml --config configs/ablation/no_facade_speed.toml
     .venv/bin/python scripts/report_tables.py --work W
 
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
@@ -84,7 +85,10 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("faded free space: the paper's product under a closed gate",
               "configs/ablation/faded_free_paper.toml"),
              ("no split of shared clusters", "configs/ablation/no_split.toml"),
-             ("no lead before a track's first association", "configs/ablation/no_lead.toml"))
+             ("no lead before a track's first association", "configs/ablation/no_lead.toml"),
+             ("small moving groups kept without support", "configs/ablation/no_support.toml"),
+             ("no speed bound on clusters wholly at a façade",
+              "configs/ablation/no_facade_speed.toml"))
 
 
 #: the scores of the headline and ablation rows, in column order

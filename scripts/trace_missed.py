@@ -106,7 +106,7 @@ def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.nda
     clusters = self.splitter.split(clusters, state, window, stamp_ns, decision, betp_moving,
                                    conflict_fo)
     records, cells = track_step(state, clusters, window, stamp_ns, self.tracking_params,
-                                decision)
+                                decision, near_building)
     extent = np.maximum(rc.bbox_m[:, 2] - rc.bbox_m[:, 0], rc.bbox_m[:, 3] - rc.bbox_m[:, 1]) \
         if len(rc) else np.zeros(0)
     kept_label: dict[int, int] = {}

@@ -98,7 +98,8 @@ class ObjectStage:
         self.list_small_moving(decision, heights)
         clusters = self.splitter.split(clusters, state, window, stamp_ns, decision,
                                        betp_moving, conflict_fo)
-        return track_step(state, clusters, window, stamp_ns, self.tracking_params, decision)
+        return track_step(state, clusters, window, stamp_ns, self.tracking_params, decision,
+                          near_building)
 
     def list_small_moving(self, decision: np.ndarray, heights: np.ndarray | None) -> None:
         """:attr:`small_moving` of the frame whose clusters were just made (every group of
@@ -165,21 +166,24 @@ def fill_moving(decision: np.ndarray, moving_cells: np.ndarray) -> int:
 
 def small_moving_cells(group_cells: np.ndarray, sizes: np.ndarray, decision: np.ndarray,
                        min_cells: int, heights: np.ndarray | None = None,
-                       min_height: float = 0.0) -> np.ndarray:
+                       min_height: float = 0.0, with_groups: bool = False
+                       ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """The flat window cells decided ``moving`` in the groups of fewer than ``min_cells``
     cells (``group_cells``, ``sizes``: every group of the frame, no size or extent filter,
     :meth:`evperc.objects.clusters.Clusterer.groups`). With ``heights`` (each cell's highest
     return above the local ground), only the groups whose highest return within one cell of
     their cells (:func:`block_max_at`) is lower than ``min_height``: a ground point the ground
-    split called an obstacle, not a person."""
+    split called an obstacle, not a person. ``with_groups``: also each cell's group (the
+    index in ``sizes``), for :mod:`evperc.objects.support`."""
     use_heights = heights is not None
     top = heights if use_heights else _NO_HEIGHTS
     # contiguous whatever the group count (a column of the clusterer's stats is contiguous
     # only for 0 or 1 group): one compiled signature, loaded by the warm-up, not frame 1
-    return _small_moving(group_cells, np.ascontiguousarray(sizes), decision.reshape(-1),
-                         int(min_cells),
-                         np.ascontiguousarray(top, np.float32), use_heights,
-                         np.float32(min_height), MOVING)
+    cells, groups = _small_moving(group_cells, np.ascontiguousarray(sizes),
+                                  decision.reshape(-1), int(min_cells),
+                                  np.ascontiguousarray(top, np.float32), use_heights,
+                                  np.float32(min_height), MOVING)
+    return (cells, groups) if with_groups else cells
 
 
 _NO_HEIGHTS = np.zeros((1, 1), np.float32)
@@ -191,6 +195,7 @@ def _small_moving(group_cells, sizes, decision, min_cells, heights, use_heights,
     """:func:`small_moving_cells` in one pass over the groups (numpy's per-call cost was
     0.1 ms a frame of workload (a) for a few hundred cells)."""
     out = np.empty(group_cells.shape[0], np.int64)
+    group_of = np.empty(group_cells.shape[0], np.int64)
     n = 0
     start = 0
     for g in range(sizes.shape[0]):
@@ -204,9 +209,10 @@ def _small_moving(group_cells, sizes, decision, min_cells, heights, use_heights,
                 for k in range(start, start + size):
                     if decision[group_cells[k]] == moving:
                         out[n] = group_cells[k]
+                        group_of[n] = g
                         n += 1
         start += size
-    return out[:n].copy()
+    return out[:n].copy(), group_of[:n].copy()
 
 
 def unfill_small(decision: np.ndarray, small_cells: np.ndarray,

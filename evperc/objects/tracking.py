@@ -30,6 +30,11 @@ centroid then drifts at a walking pace. Evidence of a frame, from the grid:
   left them). A static object's cells stay occupied; a car driving ahead of the ego, which
   never conflicts, frees the road behind it at every scan.
 
+Two exceptions pass no velocity test: a track never associated with a cluster at least
+``ego_clearance_m`` from the sensor (the recording vehicle's own returns), and an
+association with a cluster all of whose cells lie in the widened buildings at a speed above
+``facade_max_speed_m_per_s`` (a façade's return spot sliding with the ego).
+
 A track is reported once it has been
 associated in ``confirm_frames`` frames, and in a frame in which it is associated: as
 ``moving`` while the test passes, as ``stopped`` once it has moved and the test fails.
@@ -110,6 +115,11 @@ class TrackingParams:
     #: shows fresh evidence before it is reported moving again (:func:`track_step`); False =
     #: the counts only grow
     evidence_expires: bool = False
+    #: objects.facade_max_speed_m_per_s: with the map, an association with a cluster whose
+    #: cells all lie in the widened buildings (``near_building``) passes no motion test at a
+    #: speed above this (a façade's return spot sliding along the wall with the ego; a
+    #: person walking along it is slower); 0 = off
+    facade_max_speed_m_per_s: float = 0.0
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> TrackingParams:
@@ -129,7 +139,8 @@ class TrackingParams:
             arrival_min_cells=int(o.get("arrival_min_cells", 0)),
             centroid_sigma_per_m=float(o.get("centroid_sigma_per_m", 0.0)),
             ego_clearance_m=float(o.get("ego_clearance_m", 0.0)),
-            evidence_expires=bool(o.get("evidence_expires", False)))
+            evidence_expires=bool(o.get("evidence_expires", False)),
+            facade_max_speed_m_per_s=float(o.get("facade_max_speed_m_per_s", 0.0)))
 
 
 @dataclass
@@ -577,8 +588,8 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                   col0, rows, cols, decision, has_decision, stamp_ns, next_id, gate,
                   history, confirm, max_missed, speed2_min, motion_test, sigma0, need,
                   conflict_cells, vacated_frames, share_min, every_frame, arrival_share,
-                  arrival_cells, sigma_per_m, clearance2, centre_x, centre_y, expires
-                  ):  # pragma: no cover - compiled
+                  arrival_cells, sigma_per_m, clearance2, centre_x, centre_y, expires,
+                  near, facade_speed2):  # pragma: no cover - compiled
     """One frame of the tracker (:func:`track_step`, the module docstring) on the state's
     arrays; returns the new arrays, the next id, and the reported (track row, cluster)."""
     n_old = ids.shape[0]
@@ -772,6 +783,14 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                 o_flags[j, 2] = 1
             if o_flags[j, 2] == 0:  # never away from the sensor: the ego's own returns
                 fast = False
+            if fast and facade_speed2 > 0 and speed2 > facade_speed2:
+                inside = True  # every cell in the widened buildings: a façade's spot
+                for q in range(offsets[c], offsets[c + 1]):
+                    if not near[cells[q]]:
+                        inside = False
+                        break
+                if inside:
+                    fast = False
             if fast or every_frame:  # the frame's evidence (reference: frame_evidence)
                 conflict = 1 if seeds[c] >= conflict_cells else 0
                 if conflict and arrival_share > 0:  # arrival: the whole evidence at once
@@ -865,6 +884,7 @@ def _fill_records(rows, cl, ids, flags, hits, velocity, sigma, cells, offsets, c
     return out
 
 
+_NO_NEAR = np.zeros(1, np.bool_)
 _NO_DECISION = np.zeros(0, np.uint8)
 
 
@@ -877,13 +897,15 @@ def ego_cell_centre(window: Window) -> tuple[float, float]:
 
 
 def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns: int,
-               params: TrackingParams, decision: np.ndarray | None = None
-               ) -> tuple[np.ndarray, np.ndarray]:
+               params: TrackingParams, decision: np.ndarray | None = None,
+               near_building: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Associate this frame's ``clusters`` with ``state``'s tracks (updated in place);
     returns the frame's reported objects (records of
     :data:`evperc.output.objects.OBJECT_DTYPE`, by track id) and their cells (flat window
     indices, concatenated in record order). ``decision``: the frame's decided cells, for
-    the vacated evidence (None: no vacated evidence).
+    the vacated evidence (None: no vacated evidence). ``near_building``: (rows, cols) bool,
+    the cells of the widened buildings, for ``facade_max_speed_m_per_s`` (None: no map,
+    the rule off).
 
     The evidence a track's association with cluster ``c`` adds (module docstring) is
     counted in the frames whose velocity passes the test (or, with
@@ -905,6 +927,9 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
     centroids = clusters.centroid_m
     has_decision = decision is not None
     flat = (np.ascontiguousarray(decision).reshape(-1) if has_decision else _NO_DECISION)
+    has_near = near_building is not None and params.facade_max_speed_m_per_s > 0
+    near = (np.ascontiguousarray(near_building, np.bool_).reshape(-1) if has_near
+            else _NO_NEAR)
     out = _track_kernel(
         state.id, state.hits, state.missed, state.flags, state.hist_n, state.hist_t,
         state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
@@ -919,7 +944,8 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
         bool(params.evidence_every_frame), float(params.arrival_share),
         int(params.arrival_min_cells),
         float(params.centroid_sigma_per_m), float(params.ego_clearance_m) ** 2,
-        *ego_cell_centre(window), bool(params.evidence_expires))
+        *ego_cell_centre(window), bool(params.evidence_expires), near,
+        float(params.facade_max_speed_m_per_s) ** 2 if has_near else 0.0)
     (state.id, state.hits, state.missed, state.flags, state.hist_n, state.hist_t,
      state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
      state.past_n, state.past, state.next_id, rows, cl) = out

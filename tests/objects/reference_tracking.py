@@ -329,13 +329,16 @@ def frame_evidence(t: Track, clusters: Clusters, c: int, decision: np.ndarray | 
 
 
 def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns: int,
-               params: TrackingParams, decision: np.ndarray | None = None
-               ) -> tuple[np.ndarray, np.ndarray]:
+               params: TrackingParams, decision: np.ndarray | None = None,
+               near_building: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Associate this frame's ``clusters`` with ``state``'s tracks (updated in place);
     returns the frame's reported objects (records of
     :data:`evperc.output.objects.OBJECT_DTYPE`, by track id) and their cells (flat window
     indices, concatenated in record order). ``decision``: the frame's decided cells, for
-    the vacated evidence (None: no vacated evidence)."""
+    the vacated evidence (None: no vacated evidence). ``near_building`` (added with
+    ``facade_max_speed_m_per_s``, after the compiled rewrite): the widened buildings' cells;
+    an association with a cluster all of whose cells are there passes no motion test
+    faster than that speed."""
     dt_s = 0.0 if state.prev_ns is None else (stamp_ns - state.prev_ns) * 1e-9
     state.prev_ns = stamp_ns
     tracks = state.tracks
@@ -405,6 +408,11 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
             t.ever_far = False
         t.ever_far = t.ever_far or dx * dx + dy * dy >= params.ego_clearance_m ** 2
         fast = fast and t.ever_far  # never away from the sensor: the ego's own returns
+        if (near_building is not None and params.facade_max_speed_m_per_s > 0
+                and v[0] * v[0] + v[1] * v[1] > params.facade_max_speed_m_per_s ** 2):
+            cells = clusters.cells[clusters.offsets[c]:clusters.offsets[c + 1]]
+            if near_building.reshape(-1)[cells].all():  # a façade's spot, not a walker
+                fast = False
         if fast or params.evidence_every_frame:
             conflict, vacated = frame_evidence(t, clusters, c, decision, window, params)
             t.conflict_evidence += conflict

@@ -433,7 +433,9 @@ def sample_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int | str, lis
     frames, a checkpoint at each chunk end (the backfill's snapshots taken); -6: lag 6 with
     the chunks stored uncompressed (the writer cannot hold slots: the held frames' own
     buffers are copied into its slot); "no_lead": lag 6 without objects.lead_frames;
-    "no_bridge": lag 6 without objects.bridge_gaps nor the lead."""
+    "no_bridge": lag 6 without objects.bridge_gaps nor the lead. Without the small groups'
+    support (objects.small_support_frames), which reads as many frames ahead as the lag
+    allows (tests/objects/test_support.py): here the lag changes the records only."""
     root = Path(__file__).resolve().parents[2] / "sample_data"
     tmp = tmp_path_factory.mktemp("backfill")
     frames: dict[int | str, list] = {}
@@ -445,7 +447,8 @@ def sample_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int | str, lis
                                         "objects.lead_frames": 0 if isinstance(lag, str) else 6,
                                         "output.chunk_frames": 7,
                                         "output.checkpoint_frames": 1,
-                                        "output.compress": compress})
+                                        "output.compress": compress,
+                                        "objects.small_support_frames": 0})
         out = tmp / f"lag{lag}"
         run(RunRequest(log_path=root / "drive.mcap", out_dir=out, config=config,
                        map_path=root / "map.geojson", end_s=8.0), progress=False)

@@ -231,3 +231,39 @@ def test_the_noise_floor_grows_with_the_range_from_the_ego():
     run = Run(TrackingParams(centroid_sigma_per_m=0.01))
     reported = [run.step(_frame([(5, 10 + j)]))[0] for j in range(3)]
     assert reported[2]["speed_sigma_m_per_s"][0] == pytest.approx(0.25 / math.sqrt(0.02))
+
+
+@pytest.mark.parametrize(("cols_per_frame", "band_rows", "moving"), [
+    (1, (4, 8), False),   # 5 m/s, every cell in the widened building: a façade's spot
+    (1, (5, 7), False),   # the band just covers the block's rows 5 and 6
+    (1, (6, 8), True),    # row 5 outside the band: a cell off the building, tested as before
+    (0.25, (4, 8), True),  # 1.25 m/s inside the band: a person along the wall, tested as before
+])
+def test_a_fast_cluster_all_in_the_widened_buildings_passes_no_motion_test(
+        cols_per_frame: float, band_rows: tuple[int, int], moving: bool) -> None:
+    """objects.facade_max_speed_m_per_s = 3: the block of the first test (rows 5 and 6)
+    moving east at 5 m/s (one column a frame) or 1.25 m/s (one column every fourth frame;
+    the fit over 10 frames: 1.25 m/s, σ small enough for the test) inside a band of rows
+    marked as the widened buildings."""
+    near = np.zeros(SHAPE, np.bool_)
+    near[band_rows[0]:band_rows[1]] = True
+    params = TrackingParams(facade_max_speed_m_per_s=3.0, motion_evidence_frames=0)
+    assert (OBJECT_STATES["moving"] in _block_states(params, near, cols_per_frame)) == moving
+    # without the map (no layer) or with the rule off, every case moves
+    off = TrackingParams(motion_evidence_frames=0)
+    assert OBJECT_STATES["moving"] in _block_states(params, None, cols_per_frame)
+    assert OBJECT_STATES["moving"] in _block_states(off, near, cols_per_frame)
+
+
+def _block_states(params: TrackingParams, near: np.ndarray | None, cols_per_frame: float
+                  ) -> list[int]:
+    """The states reported over 12 frames of the block at rows 5-6 moving east."""
+    state, clusterer = TrackerState(), Clusterer(ClusterParams(), SHAPE)
+    states = []
+    for k in range(12):
+        dec = _frame([(5, 10 + int(k * cols_per_frame))])
+        z = np.zeros(SHAPE, np.uint8)
+        clusters = clusterer.clusters(dec, z, z, WIN, footprint_seeds(state, WIN))
+        recs, _ = track_step(state, clusters, WIN, T0 + k * DT, params, near_building=near)
+        states += [int(s) for s in recs["state"]]
+    return states
