@@ -33,6 +33,8 @@ from typing import Any
 import numba
 import numpy as np
 
+from evperc.objects.backfill import backfill_frames
+
 #: no cell (an empty group list)
 _NO_CELLS = np.empty(0, np.int64)
 
@@ -56,7 +58,7 @@ class SupportParams:
         frames = int(objects.get("small_support_frames", 0))
         return SupportParams(frames, int(objects.get("small_support_reach_cells", 3)),
                              int(objects.get("small_support_min_frames", 3)),
-                             min(frames, int(objects.get("backfill_frames", 0))))
+                             min(frames, backfill_frames(config)))
 
 
 class SmallGroupSupport:
