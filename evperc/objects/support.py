@@ -96,12 +96,11 @@ class SmallGroupSupport:
         if f"{prefix}number" not in arrays:
             return None
         support = SmallGroupSupport()
-        ends = np.cumsum(np.array(arrays[f"{prefix}count"], np.int64))
+        counts = np.array(arrays[f"{prefix}count"], np.int64)
         rows = np.array(arrays[f"{prefix}rows"], np.int64)
         cols = np.array(arrays[f"{prefix}cols"], np.int64)
-        for number, end, count in zip(np.array(arrays[f"{prefix}number"], np.int64), ends,
-                                      np.array(arrays[f"{prefix}count"], np.int64),
-                                      strict=True):
+        for number, end, count in zip(np.array(arrays[f"{prefix}number"], np.int64),
+                                      np.cumsum(counts), counts, strict=True):
             support._motion.append((int(number), rows[end - count:end], cols[end - count:end]))
         return support
 
