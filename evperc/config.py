@@ -88,6 +88,7 @@ RULES: dict[str, tuple] = {
     "objects.isolated_min_cells": ("range", 0, 1_000_000, False, False),
     "objects.isolated_clearance_m": ("range", 0.0, 100.0, False, False),
     "objects.isolated_min_height_m": ("range", 0.0, 100.0, False, False),
+    "objects.small_conflict_min_cells": ("range", 0, 1_000_000, False, False),
     "objects.off_buildings_small_m": ("range", 0.0, 1e4, False, False),
     "objects.off_buildings_max_height_m": ("range", 0.0, 1e3, False, False),
     "objects.max_cluster_extent_m": ("range", 0.0, 1e4, True, False),

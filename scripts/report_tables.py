@@ -25,7 +25,8 @@
         --config configs/ablation/facade_fragments_any_height.toml \\
         --config configs/ablation/faded_free_paper.toml \\
         --config configs/ablation/no_split.toml --config configs/ablation/no_lead.toml \\
-        --config configs/ablation/no_support.toml --config configs/ablation/no_facade_speed.toml
+        --config configs/ablation/no_support.toml --config configs/ablation/no_facade_speed.toml \\
+        --config configs/ablation/no_small_conflict.toml
     .venv/bin/python scripts/report_tables.py --work W
 
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
@@ -87,6 +88,7 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("no split of shared clusters", "configs/ablation/no_split.toml"),
              ("no lead before a track's first association", "configs/ablation/no_lead.toml"),
              ("small moving groups kept without support", "configs/ablation/no_support.toml"),
+             ("no small clusters that conflict", "configs/ablation/no_small_conflict.toml"),
              ("no speed bound on clusters wholly at a façade",
               "configs/ablation/no_facade_speed.toml"))
 

@@ -43,6 +43,14 @@ With ``isolated_min_cells`` > 0, a cluster of at least that many cells but fewer
 ``stopped``, ``unmapped`` or ``infrastructure``. A walking person is 1–3 cells off every
 remembered obstacle; a small group at the edge of a remembered one is its spill (a return
 of a façade, a parked car or a pole in the cell beside the ones it usually hits).
+With ``small_conflict_min_cells`` > 0, a cluster of at least that many cells but fewer than
+``min_cells`` is kept too when one of its cells is decided ``moving`` (the fusion's
+conflict through the motion gate: a person of one or two cells stepping into cells seen
+free, beside a parked car or a fence, where the isolation test fails) and its highest
+return within one cell is at least ``isolated_min_height_m`` above the ground (the
+isolated clusters' bound: a ground point the ground split called an obstacle is no person);
+the tracker's motion test and evidence still decide whether it is reported
+(docs/method.md §8 step 1).
 
 The growth is one compiled pass (numba): a scan of the window for seeds, then a flood fill
 from each seed not yet in a cluster, touching only the clusters' cells and their
@@ -94,6 +102,11 @@ class ClusterParams:
     #: least this high above the local ground (a ground point the ground split called an
     #: obstacle is no person); 0 = no height condition
     isolated_min_height_m: float = 0.0
+    #: objects.small_conflict_min_cells: a cluster of at least this many cells but fewer than
+    #: min_cells is kept when it holds a cell decided moving (or, with seed_conflict_fo, a
+    #: conflict seed) and its highest return within one cell reaches isolated_min_height_m
+    #: (module docstring); 0 = off
+    small_conflict_min_cells: int = 0
     #: objects.clusters_off_buildings: clusters keep none of the cells near a mapped
     #: building decided static, stopped or unmapped (module docstring)
     off_buildings: bool = False
@@ -115,6 +128,7 @@ class ClusterParams:
                              isolated_min_cells=int(o.get("isolated_min_cells", 0)),
                              isolated_clearance_m=float(o.get("isolated_clearance_m", 1.0)),
                              isolated_min_height_m=float(o.get("isolated_min_height_m", 0.0)),
+                             small_conflict_min_cells=int(o.get("small_conflict_min_cells", 0)),
                              off_buildings=bool(o.get("clusters_off_buildings", False)),
                              off_buildings_small_m=float(o.get("off_buildings_small_m", 0.0)),
                              off_buildings_max_height_m=float(
@@ -353,7 +367,7 @@ def summarise_groups(cells: np.ndarray, stats: np.ndarray, betp_moving: np.ndarr
     return Clusters(*_summarise(cells, stats, n, betp_moving.reshape(-1), window.row0,
                                 window.col0, float(window.resolution_m), 0, np.inf,
                                 np.zeros(0, np.bool_), 0, _NO_FLAT_DECISION, window.cols, 0,
-                                _STILL, _NO_HEIGHTS, np.float32(0.0)))
+                                _STILL, _NO_HEIGHTS, np.float32(0.0), 0))
 
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
@@ -414,7 +428,7 @@ def _isolated(cells, decision, cols, reach, still, heights, min_height
     cluster's flat window cells), other than ``cells`` themselves, is decided ``still``,
     and (``heights`` not empty) the highest return within one cell of them
     (:func:`block_max_at`) is at least ``min_height`` above the ground."""
-    if heights.size > 0 and block_max_at(heights, cells).max() < min_height:
+    if not _tall(cells, heights, min_height):
         return False
     rows = decision.shape[0] // cols
     for i in cells:
@@ -428,15 +442,24 @@ def _isolated(cells, decision, cols, reach, still, heights, min_height
     return True
 
 
+@numba.njit(cache=True, inline="always")
+def _tall(cells, heights, min_height):  # pragma: no cover - compiled
+    """Whether the highest return within one cell of ``cells`` (:func:`block_max_at`) is at
+    least ``min_height`` above the ground (no condition with ``heights`` empty)."""
+    return heights.size == 0 or block_max_at(heights, cells).max() >= min_height
+
+
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_extent,
-               tracked, iso_min, decision, cols, reach, still, heights, min_height
-               ):  # pragma: no cover - compiled
+               tracked, iso_min, decision, cols, reach, still, heights, min_height,
+               moving_min):  # pragma: no cover - compiled
     """The kept clusters of :func:`_flood`'s ``n`` (:class:`Clusters`' arrays, the
     formulas of :meth:`Clusterer.clusters` op for op): at least ``min_cells`` cells (or
-    ``tracked[k]``, if ``tracked`` is not empty, or at least ``iso_min`` > 0 cells and
-    :func:`_isolated` within ``reach`` cells of ``decision``) and a bounding box at most
-    ``max_extent`` (m, slack included) on each side."""
+    ``tracked[k]``, if ``tracked`` is not empty, or at least ``moving_min`` > 0 cells of
+    which one is decided moving — ``stats[k, 1]``, the group's seeds — and :func:`_tall`
+    by ``min_height``, or at least ``iso_min`` > 0 cells and :func:`_isolated` within
+    ``reach`` cells of ``decision``) and a bounding box at most ``max_extent`` (m, slack
+    included) on each side."""
     keep = np.zeros(n, np.bool_)
     n_kept = 0
     n_cells = 0
@@ -446,7 +469,10 @@ def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_e
         span_r = (stats[k, 5] - stats[k, 4] + 1) * res
         span_c = (stats[k, 7] - stats[k, 6] + 1) * res
         big_enough = count > 0 and (count >= min_cells
-                                    or (tracked.shape[0] > 0 and tracked[k]))
+                                    or (tracked.shape[0] > 0 and tracked[k])
+                                    or (0 < moving_min <= count and stats[k, 1] > 0
+                                        and _tall(all_cells[first:first + count], heights,
+                                                  min_height)))
         if not big_enough and count > 0 and 0 < iso_min <= count:
             big_enough = _isolated(all_cells[first:first + count], decision, cols, reach,
                                    still, heights, min_height)
@@ -592,7 +618,8 @@ class Clusterer:
                                     self.shape[1],
                                     isolated_reach(self.params.isolated_clearance_m,
                                                    window.resolution_m), _STILL, top,
-                                    np.float32(self.params.isolated_min_height_m)))
+                                    np.float32(self.params.isolated_min_height_m),
+                                    self.params.small_conflict_min_cells))
 
     def groups(self) -> tuple[np.ndarray, np.ndarray]:
         """Every 8-connected group of the last :meth:`clusters` call, before the size and

@@ -253,6 +253,29 @@ class Clusterer:
         span_r = (stats[:, 5] - stats[:, 4] + 1) * res
         span_c = (stats[:, 7] - stats[:, 6] + 1) * res
         big_enough = (count >= self.params.min_cells) | tracked
+        bound = self.params.isolated_min_height_m
+
+        def tall(k: int) -> bool:
+            """(added with isolated_min_height_m) the highest return of the 3 × 3 blocks
+            of cluster k's cells reaches the bound; no condition without heights"""
+            if heights is None or bound <= 0:
+                return True
+            padded = np.pad(heights.astype(np.float32), 1, constant_values=-np.inf)
+            r, c = np.divmod(all_cells[offsets[k]:offsets[k + 1]], self.shape[1])
+            top = max(padded[r + dr + 1, c + dc + 1].max() for dr in (-1, 0, 1)
+                      for dc in (-1, 0, 1))
+            return bool(top >= np.float32(bound))
+
+        small_moving = self.params.small_conflict_min_cells
+        if small_moving > 0:  # added with objects.small_conflict_min_cells (not in d379f5e):
+            # a cluster holding a seed by its decision (moving) or its conflict, tall enough
+            fo_q = self._fo_q
+            seeded = ((decision.reshape(-1) == _MOVING)
+                      | ((fo_q > 0) & (conflict_fo.reshape(-1).astype(np.int64) >= fo_q)))
+            for k in range(len(count)):
+                if (not big_enough[k] and count[k] >= small_moving
+                        and seeded[all_cells[offsets[k]:offsets[k + 1]]].any() and tall(k)):
+                    big_enough[k] = True
         iso = self.params.isolated_min_cells
         if iso > 0:  # added with objects.isolated_min_cells (not in d379f5e): per cluster
             reach = int(np.floor(self.params.isolated_clearance_m / window.resolution_m + 1e-9))
@@ -265,7 +288,7 @@ class Clusterer:
                 near = np.zeros(self.shape, bool)
                 for r, c in zip(*np.nonzero(own), strict=True):
                     near[max(r - reach, 0):r + reach + 1, max(c - reach, 0):c + reach + 1] = True
-                big_enough[k] = not (near & still & ~own).any()
+                big_enough[k] = not (near & still & ~own).any() and tall(int(k))
         keep = (big_enough & (count > 0) & (span_r <= self.params.max_extent_m + 1e-9)
                 & (span_c <= self.params.max_extent_m + 1e-9))
         kept = np.flatnonzero(keep)

@@ -147,6 +147,37 @@ def test_isolated_small_cluster_kept_unless_an_obstacle_is_within_the_clearance(
     assert len(_cluster(d, betp_m, fo, ClusterParams(isolated_min_cells=1))) == 1
 
 
+def test_small_cluster_holding_a_moving_cell_kept_beside_an_obstacle():
+    # a person of two cells, one stepping into a cell seen free (decided moving), beside a
+    # parked car (static, one free cell away), both seen now (the default seeds): the
+    # person is under min_cells 3 and not isolated; small_conflict_min_cells keeps it
+    dec, betp_m, fo = _grids()
+    dec[0:2, :] = D["unknown"]
+    dec[5, 5] = D["moving"]
+    dec[5, 6] = D["static"]            # the person's other cell, no conflict in it
+    dec[5, 8:11] = D["static"]         # the parked car's side
+
+    def kept(d, **keys):
+        params = ClusterParams(seeds="occupied", **keys)
+        c = Clusterer(params, d.shape).clusters(d, betp_m, fo, WIN, None, d != D["free"])
+        return sorted(sorted(c.cells_of(k).tolist()) for k in range(len(c)))
+
+    person, car = [5 * 12 + 5, 5 * 12 + 6], [5 * 12 + 8, 5 * 12 + 9, 5 * 12 + 10]
+    assert kept(dec) == [car]
+    assert kept(dec, isolated_min_cells=1, isolated_clearance_m=1.0) == [car]
+    assert kept(dec, small_conflict_min_cells=1) == [person, car]
+    assert kept(dec, small_conflict_min_cells=2) == [person, car]
+    assert kept(dec, small_conflict_min_cells=3) == [car]    # min_cells' own size
+    d = dec.copy()
+    d[5, 6] = D["free"]                # the person's one cell
+    assert kept(d, small_conflict_min_cells=2) == [car]
+    assert kept(d, small_conflict_min_cells=1) == [[5 * 12 + 5], car]
+    # no moving cell: a small static group (the car's spill) is not kept
+    d = dec.copy()
+    d[5, 5] = D["static"]
+    assert kept(d, small_conflict_min_cells=1) == [car]
+
+
 def test_isolated_small_cluster_needs_a_return_above_the_height_bound():
     dec, betp_m, fo = _grids()
     dec[5, 5:7] = D["moving"]

@@ -42,6 +42,8 @@ def test_clusters_equal_the_reference(seed: int) -> None:
                                keep_tracked_small=bool(rng.random() < 0.5),
                                isolated_min_cells=int(rng.choice([0, 1, 2, 3])),
                                isolated_clearance_m=float(rng.choice([0.3, 0.5, 1.0, 2.0])),
+                               small_conflict_min_cells=int(rng.choice([0, 1, 2, 3])),
+                               isolated_min_height_m=float(rng.choice([0.0, 0.4, 1.5])),
                                off_buildings=bool(rng.random() < 0.7),
                                off_buildings_small_m=float(rng.choice([0.0, 0.5, 1.0, 2.0])),
                                off_buildings_max_height_m=float(rng.choice([0.0, 1.0, 2.2])))
