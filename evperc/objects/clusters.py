@@ -452,10 +452,10 @@ def _tall(cells, heights, min_height):  # pragma: no cover - compiled
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
 def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_extent,
                tracked, iso_min, decision, cols, reach, still, heights, min_height,
-               moving_min):  # pragma: no cover - compiled
+               conflict_min):  # pragma: no cover - compiled
     """The kept clusters of :func:`_flood`'s ``n`` (:class:`Clusters`' arrays, the
     formulas of :meth:`Clusterer.clusters` op for op): at least ``min_cells`` cells (or
-    ``tracked[k]``, if ``tracked`` is not empty, or at least ``moving_min`` > 0 cells of
+    ``tracked[k]``, if ``tracked`` is not empty, or at least ``conflict_min`` > 0 cells of
     which one is decided moving — ``stats[k, 1]``, the group's seeds — and :func:`_tall`
     by ``min_height``, or at least ``iso_min`` > 0 cells and :func:`_isolated` within
     ``reach`` cells of ``decision``) and a bounding box at most ``max_extent`` (m, slack
@@ -470,7 +470,7 @@ def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_e
         span_c = (stats[k, 7] - stats[k, 6] + 1) * res
         big_enough = count > 0 and (count >= min_cells
                                     or (tracked.shape[0] > 0 and tracked[k])
-                                    or (0 < moving_min <= count and stats[k, 1] > 0
+                                    or (0 < conflict_min <= count and stats[k, 1] > 0
                                         and _tall(all_cells[first:first + count], heights,
                                                   min_height)))
         if not big_enough and count > 0 and 0 < iso_min <= count:

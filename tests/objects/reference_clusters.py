@@ -266,14 +266,14 @@ class Clusterer:
                       for dc in (-1, 0, 1))
             return bool(top >= np.float32(bound))
 
-        small_moving = self.params.small_conflict_min_cells
-        if small_moving > 0:  # added with objects.small_conflict_min_cells (not in d379f5e):
+        small_conflict = self.params.small_conflict_min_cells
+        if small_conflict > 0:  # added with objects.small_conflict_min_cells (not in d379f5e):
             # a cluster holding a seed by its decision (moving) or its conflict, tall enough
             fo_q = self._fo_q
             seeded = ((decision.reshape(-1) == _MOVING)
                       | ((fo_q > 0) & (conflict_fo.reshape(-1).astype(np.int64) >= fo_q)))
             for k in range(len(count)):
-                if (not big_enough[k] and count[k] >= small_moving
+                if (not big_enough[k] and count[k] >= small_conflict
                         and seeded[all_cells[offsets[k]:offsets[k + 1]]].any() and tall(k)):
                     big_enough[k] = True
         iso = self.params.isolated_min_cells

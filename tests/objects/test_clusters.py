@@ -176,6 +176,17 @@ def test_small_cluster_holding_a_moving_cell_kept_beside_an_obstacle():
     d = dec.copy()
     d[5, 5] = D["static"]
     assert kept(d, small_conflict_min_cells=1) == [car]
+    # the height bound (isolated_min_height_m): the person's highest return within one
+    # cell, here 0.35 m (ground the split called an obstacle) or 0.4 m (kept)
+    heights = np.zeros(dec.shape, np.float32)
+    heights[5, 8:11] = 1.4             # the car, two cells from the person
+    heights[5, 5:7] = 0.35
+    params = ClusterParams(seeds="occupied", small_conflict_min_cells=1,
+                           isolated_min_height_m=0.4)
+    clusterer = Clusterer(params, dec.shape)
+    assert len(clusterer.clusters(dec, betp_m, fo, WIN, None, dec != D["free"], heights)) == 1
+    heights[4, 7] = 0.4                # diagonal to (5, 6)
+    assert len(clusterer.clusters(dec, betp_m, fo, WIN, None, dec != D["free"], heights)) == 2
 
 
 def test_isolated_small_cluster_needs_a_return_above_the_height_bound():
