@@ -248,13 +248,12 @@ class Backfill:
         newer = (_record_lattice(frame, k), frame.stamp_ns)
         gap: list[HeldFrame] = []
         for held in reversed(self.held):
-            at = np.flatnonzero(held.objects["track_id"] == track)
-            if at.size == 0:
+            b = _first(np.ascontiguousarray(held.objects["track_id"]), track)
+            if b < 0:
                 if held.occupied is None:
                     return
                 gap.append(held)
                 continue
-            b = int(at[0])
             if held.objects["state"][b] != _STATE_MOVING:
                 return
             older = (_record_lattice(held, b), held.stamp_ns)
@@ -314,49 +313,116 @@ def fill(held: HeldFrame, track: int, lattice: np.ndarray, age: int,
     box is longer than ``extent_m`` along x or y. ``fill_decision`` false
     (``objects.fill_moving = false``): the record only, the decision as it was."""
     w = held.window
-    r = lattice[:, 0] - w.row0
-    c = lattice[:, 1] - w.col0
-    inside = (r >= 0) & (r < w.rows) & (c >= 0) & (c < w.cols)
-    r, c = r[inside], c[inside]
-    if r.size == 0:
-        return
-    cells = (r * w.cols + c).astype(np.int64)
-    if fill_decision:
-        held.decision.reshape(-1)[cells] = MOVING
     objects = held.objects
-    counts = objects["cell_count"].astype(np.int64)
-    ends = np.cumsum(counts)
     old_cells = np.asarray(held.object_cells)
+    span = int(np.floor(extent_m / w.resolution_m + 1e-9)) if gap_cells > 0 else 0
+    cells, into, lo, hi = _fill_pass(
+        np.asarray(lattice, np.int64), w.row0, w.col0, w.rows, w.cols, w.resolution_m,
+        held.decision.reshape(-1), fill_decision, *_fields(objects), old_cells.astype(np.int64),
+        track, gap_cells, span)
+    if cells.size == 0:
+        return
     dtype = old_cells.dtype if old_cells.size else np.uint32
-    into = (_touching(objects, old_cells, ends, counts, r, c, w, gap_cells,
-                      int(np.floor(extent_m / w.resolution_m + 1e-9)))
-            if gap_cells > 0 and len(objects) else -1)
-    if into >= 0:  # a fragment: its cells join the record beside it
-        a, b = int(ends[into] - counts[into]), int(ends[into])
-        joined = sorted_unique(np.concatenate([old_cells[a:b].astype(np.int64), cells]))
+    if into >= 0:  # a fragment: its cells join the record beside it, old_cells[lo:hi]
+        joined = sorted_unique(np.concatenate([old_cells[lo:hi].astype(np.int64), cells]))
         record = objects[into:into + 1].copy()
         _set_geometry(record, held, joined)
         objects = objects.copy()
         objects[into] = record[0]
         held.objects = objects
-        held.object_cells = np.concatenate([old_cells[:a], joined.astype(dtype),
-                                            old_cells[b:]])
+        held.object_cells = np.concatenate([old_cells[:lo], joined.astype(dtype),
+                                            old_cells[hi:]])
         return
-    record = np.zeros(1, OBJECT_DTYPE)
-    record["track_id"] = track
-    record["state"] = _STATE_MOVING
-    record["age_frames"] = age
-    record["velocity_m_per_s"] = report["velocity_m_per_s"]
-    record["speed_sigma_m_per_s"] = report["speed_sigma_m_per_s"]
-    _set_geometry(record, held, cells)
-    at = bisect.bisect_left(objects["track_id"], track)  # records stay in id order
-    offset = int(ends[at - 1]) if at else 0
+    at, offset = lo, hi  # the new record's place (records stay in id order), its cells'
     grown = np.empty(len(objects) + 1, OBJECT_DTYPE)  # (concatenating records is slow)
-    grown[:at], grown[at], grown[at + 1:] = objects[:at], record[0], objects[at:]
+    grown[:at], grown[at + 1:] = objects[:at], objects[at:]
+    centroid, box, extent, mean_betp = _geometry_fields(held, cells)
+    grown[at] = (track, _STATE_MOVING, cells.size, age, centroid, box, extent,
+                 report["velocity_m_per_s"], report["speed_sigma_m_per_s"], mean_betp)
     held.objects = grown
     held.object_cells = np.concatenate([old_cells[:offset], cells.astype(dtype),
                                         old_cells[offset:]])
     held.added.append(track)
+
+
+def _fields(objects: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The records' track ids, states, cell counts and boxes as contiguous arrays: the
+    views of a record array's fields are strided and, but for one record, unaligned — a
+    compiled pass would compile one version per case."""
+    return tuple(np.ascontiguousarray(objects[name])
+                 for name in ("track_id", "state", "cell_count", "bbox_m"))
+
+
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def _fill_pass(lattice, row0, col0, rows, cols, res, decision, fill_decision, ids, states,
+               counts, bbox, old_cells, track, gap, span):  # pragma: no cover - compiled
+    """:func:`fill`'s arithmetic in one pass: the flat window cells of ``lattice`` (global
+    (iy, ix) rows; those outside the window dropped, the rest in their order), decided
+    ``moving`` with ``fill_decision``; then, if there are any, ``(cells, into, a, b)`` with
+    ``into`` the record they join (:func:`_touching_pass`, with ``gap`` > 0) and its cells
+    ``old_cells[a:b]``, or ``(cells, -1, at, offset)``: the new record's index in the
+    records (by ``ids``, ascending) and its cells' offset."""
+    out = np.empty(lattice.shape[0], np.int64)
+    n = 0
+    for i in range(lattice.shape[0]):
+        r = lattice[i, 0] - row0
+        c = lattice[i, 1] - col0
+        if 0 <= r < rows and 0 <= c < cols:
+            out[n] = r * cols + c
+            n += 1
+    cells = out[:n]
+    if n == 0:
+        return cells, -1, 0, 0
+    if fill_decision:
+        for q in cells:
+            decision[q] = MOVING
+    ends = np.cumsum(counts.astype(np.int64))
+    if gap > 0 and ids.shape[0] > 0:
+        box = np.empty((ids.shape[0], 4), np.int64)  # outer edges, cells, inclusive, window
+        for k in range(ids.shape[0]):
+            box[k, 0] = np.int64(np.rint(bbox[k, 0] / res)) - col0
+            box[k, 1] = np.int64(np.rint(bbox[k, 1] / res)) - row0
+            box[k, 2] = np.int64(np.rint(bbox[k, 2] / res)) - (col0 + 1)
+            box[k, 3] = np.int64(np.rint(bbox[k, 3] / res)) - (row0 + 1)
+        into = _touching_pass(box, states == _STATE_MOVING, old_cells, ends,
+                              counts.astype(np.int64), cells // cols, cells % cols, gap, span,
+                              cols)
+        if into >= 0:
+            return cells, into, ends[into] - counts[into], ends[into]
+    at = 0
+    while at < ids.shape[0] and ids[at] < track:
+        at += 1
+    return cells, -1, at, ends[at - 1] if at else 0
+
+
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def _touching_pass(box, moving, cells, ends, counts, r, c, gap, span,
+                   cols):  # pragma: no cover - compiled
+    """The first moving record (in record order) with a cell within ``gap`` cells
+    (Chebyshev) of a cell (``r``, ``c``) and whose cells joined with those span at most
+    ``span`` cells along rows and columns, or -1. Records whose window boxes ``box`` (n, 4:
+    first col, first row, last col, last row, inclusive) are farther than ``gap`` from those
+    cells' box are passed over without looking at their flat ``cells``."""
+    r_lo, r_hi, c_lo, c_hi = r.min(), r.max(), c.min(), c.max()
+    for k in range(box.shape[0]):
+        if (not moving[k] or counts[k] == 0 or box[k, 1] - r_hi > gap or r_lo - box[k, 3] > gap
+                or box[k, 0] - c_hi > gap or c_lo - box[k, 2] > gap):
+            continue
+        near = False
+        rows_lo, rows_hi, cols_lo, cols_hi = r_lo, r_hi, c_lo, c_hi
+        for q in range(ends[k] - counts[k], ends[k]):
+            rq = cells[q] // cols
+            cq = cells[q] - rq * cols
+            rows_lo, rows_hi = min(rows_lo, rq), max(rows_hi, rq)
+            cols_lo, cols_hi = min(cols_lo, cq), max(cols_hi, cq)
+            if not near:
+                for i in range(r.shape[0]):
+                    if max(abs(rq - r[i]), abs(cq - c[i])) <= gap:
+                        near = True
+                        break
+        if near and rows_hi - rows_lo + 1 <= span and cols_hi - cols_lo + 1 <= span:
+            return k
+    return -1
 
 
 def bridge_cells(held: HeldFrame, velocity_m_per_s: np.ndarray,
@@ -370,28 +436,29 @@ def bridge_cells(held: HeldFrame, velocity_m_per_s: np.ndarray,
     none near the prediction is occupied now (nothing says the object is there). One
     compiled pass over the predicted cells (:func:`_bridge_pass`)."""
     w = held.window
-    v = np.asarray(velocity_m_per_s, np.float64)
-    shifts = np.stack([np.rint(v[::-1] * (held.stamp_ns - stamp) * 1e-9 / w.resolution_m
-                               ).astype(np.int64) for _, stamp in known])
-    cells = np.concatenate([np.asarray(c, np.int64).reshape(-1, 2) for c, _ in known])
+    vx, vy = (float(x) for x in velocity_m_per_s)
+    cells = (np.asarray(known[0][0], np.int64).reshape(-1, 2) if len(known) == 1 else
+             np.concatenate([np.asarray(c, np.int64).reshape(-1, 2) for c, _ in known]))
     counts = np.array([len(c) for c, _ in known], np.int64)
+    ago_ns = np.array([held.stamp_ns - stamp for _, stamp in known], np.int64)
     speaks = held.speaks
     if isinstance(speaks, tuple):  # the sensor grid's layers (tests, callers of their own)
         speaks = (speaks[0] > 0) | (speaks[1] > 0)
     spoken = _NO_BYTES if speaks is None else flat_layer(speaks)
-    return _bridge_pass(cells, shifts, counts, w.row0, w.col0, w.rows, w.cols, int(reach),
-                        flat_layer(held.occupied), np.asarray(held.object_cells, np.int64),
-                        spoken, speaks is not None)
+    return _bridge_pass(cells, counts, ago_ns, vx, vy, w.resolution_m, w.row0, w.col0,
+                        w.rows, w.cols, int(reach), flat_layer(held.occupied),
+                        np.asarray(held.object_cells, np.int64), spoken, speaks is not None)
 
 
 _NO_BYTES = np.zeros(0, np.uint8)
 
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
-def _bridge_pass(cells, shifts, counts, row0, col0, rows, cols, reach, occupied, records,
-                 spoken, has_spoken):  # pragma: no cover - compiled
+def _bridge_pass(cells, counts, ago_ns, vx, vy, res, row0, col0, rows, cols, reach, occupied,
+                 records, spoken, has_spoken):  # pragma: no cover - compiled
     """:func:`bridge_cells` on the known ``cells`` (global lattice, ``counts`` per end, each
-    end's rows shifted by its ``shifts`` row): the window cells within ``reach`` of a
+    end's rows carried ``ago_ns`` forward at (``vx``, ``vy``) m/s, rounded to cells of
+    ``res`` m): the window cells within ``reach`` of a
     predicted one that are ``occupied`` and in no record (``records``: flat), and if there
     are any, with the predicted cells in no record that the scan does not speak of
     (``spoken``, with ``has_spoken``); global lattice rows, ascending, unique."""
@@ -403,9 +470,11 @@ def _bridge_pass(cells, shifts, counts, row0, col0, rows, cols, reach, occupied,
     n_silent = 0
     start = 0
     for e in range(counts.shape[0]):
+        shift_r = np.int64(np.rint(vy * ago_ns[e] * 1e-9 / res))
+        shift_c = np.int64(np.rint(vx * ago_ns[e] * 1e-9 / res))
         for i in range(start, start + counts[e]):
-            r = cells[i, 0] + shifts[e, 0] - row0
-            c = cells[i, 1] + shifts[e, 1] - col0
+            r = cells[i, 0] + shift_r - row0
+            c = cells[i, 1] + shift_c - col0
             for a in range(max(r - reach, 0), min(r + reach + 1, rows)):
                 for b in range(max(c - reach, 0), min(c + reach + 1, cols)):
                     if occupied[a * cols + b] > 0:
@@ -430,53 +499,30 @@ def _bridge_pass(cells, shifts, counts, row0, col0, rows, cols, reach, occupied,
 
 def _record_lattice(frame: HeldFrame, k: int) -> np.ndarray:
     """The cells of record ``k`` of ``frame`` as global lattice (iy, ix) rows."""
-    counts = frame.objects["cell_count"].astype(np.int64)
-    end = int(counts[:k + 1].sum())
-    return _lattice(frame.window, frame.object_cells[end - int(counts[k]):end])
-
-
-def _lattice(window: Window, flat: np.ndarray) -> np.ndarray:
-    """Flat window cells as global lattice (iy, ix) rows."""
-    flat = np.asarray(flat, np.int64)
-    return np.stack([flat // window.cols + window.row0, flat % window.cols + window.col0],
-                    axis=1)
-
-
-def _touching(objects: np.ndarray, cells: np.ndarray, ends: np.ndarray, counts: np.ndarray,
-              r: np.ndarray, c: np.ndarray, w: Window, gap: int, span: int) -> int:
-    """The first moving record (in record order) with a cell within ``gap`` cells
-    (Chebyshev) of a cell (``r``, ``c``) and whose cells joined with those span at most
-    ``span`` cells along rows and columns, or -1. Records whose boxes are farther than
-    ``gap`` from those cells' box are passed over without looking at their cells."""
-    box = np.rint(objects["bbox_m"] / w.resolution_m).astype(np.int64)  # outer edges, cells
-    box -= np.array([w.col0, w.row0, w.col0 + 1, w.row0 + 1], np.int64)  # inclusive, window
-    return int(_touching_pass(box, objects["state"] == _STATE_MOVING, cells.astype(np.int64),
-                              ends, counts, r, c, gap, span, w.cols))
+    w = frame.window
+    return _record_lattice_pass(np.ascontiguousarray(frame.objects["cell_count"]),
+                                np.asarray(frame.object_cells), k, w.cols, w.row0, w.col0)
 
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
-def _touching_pass(box, moving, cells, ends, counts, r, c, gap, span,
-                   cols):  # pragma: no cover - compiled
-    """:func:`_touching` over the records' window boxes ``box`` (n, 4: first col, first row,
-    last col, last row) and flat ``cells``."""
-    r_lo, r_hi, c_lo, c_hi = r.min(), r.max(), c.min(), c.max()
-    for k in range(box.shape[0]):
-        if (not moving[k] or counts[k] == 0 or box[k, 1] - r_hi > gap or r_lo - box[k, 3] > gap
-                or box[k, 0] - c_hi > gap or c_lo - box[k, 2] > gap):
-            continue
-        near = False
-        rows_lo, rows_hi, cols_lo, cols_hi = r_lo, r_hi, c_lo, c_hi
-        for q in range(ends[k] - counts[k], ends[k]):
-            rq = cells[q] // cols
-            cq = cells[q] - rq * cols
-            rows_lo, rows_hi = min(rows_lo, rq), max(rows_hi, rq)
-            cols_lo, cols_hi = min(cols_lo, cq), max(cols_hi, cq)
-            if not near:
-                for i in range(r.shape[0]):
-                    if max(abs(rq - r[i]), abs(cq - c[i])) <= gap:
-                        near = True
-                        break
-        if near and rows_hi - rows_lo + 1 <= span and cols_hi - cols_lo + 1 <= span:
+def _record_lattice_pass(counts, cells, k, cols, row0, col0):  # pragma: no cover - compiled
+    """:func:`_record_lattice` on the records' ``counts`` and their flat window ``cells``."""
+    start = 0
+    for j in range(k):
+        start += np.int64(counts[j])
+    out = np.empty((np.int64(counts[k]), 2), np.int64)
+    for q in range(out.shape[0]):
+        flat = np.int64(cells[start + q])
+        out[q, 0] = flat // cols + row0
+        out[q, 1] = flat % cols + col0
+    return out
+
+
+@numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
+def _first(ids, track):  # pragma: no cover - compiled
+    """The index of the first of ``ids`` equal to ``track``, or -1."""
+    for k in range(ids.shape[0]):
+        if ids[k] == track:
             return k
     return -1
 
@@ -484,17 +530,28 @@ def _touching_pass(box, moving, cells, ends, counts, r, c, gap, span,
 def _set_geometry(record: np.ndarray, held: HeldFrame, cells: np.ndarray) -> None:
     """``record``'s cell count, centroid, box, extent and mean betP(M) from its flat window
     ``cells`` in ``held`` (as the cluster summary computes them)."""
+    centroid, box, extent, mean_betp = _geometry_fields(held, cells)
+    record["cell_count"] = cells.size
+    record["centroid_m"] = centroid
+    record["bbox_m"] = box
+    record["extent_m"] = extent
+    record["mean_betp_moving"] = mean_betp
+
+
+def _geometry_fields(held: HeldFrame, cells: np.ndarray) -> tuple[tuple[float, float],
+                                                                  tuple[float, ...],
+                                                                  tuple[float, float],
+                                                                  np.float32]:
+    """The centroid (x, y), box, extent and mean betP(M) of flat window ``cells`` in
+    ``held``, as a record's fields (metres)."""
     w, res = held.window, held.window.resolution_m
     r_lo, r_hi, c_lo, c_hi, r_sum, c_sum, betp_sum = _geometry(
         np.asarray(cells, np.int64), w.cols, held.betp_moving.reshape(-1))
     n = cells.size
-    record["cell_count"] = n
-    record["centroid_m"] = [(w.col0 + c_sum / n + 0.5) * res, (w.row0 + r_sum / n + 0.5) * res]
-    box = [(w.col0 + c_lo) * res, (w.row0 + r_lo) * res,
-           (w.col0 + c_hi + 1) * res, (w.row0 + r_hi + 1) * res]
-    record["bbox_m"] = box
-    record["extent_m"] = [box[2] - box[0], box[3] - box[1]]
-    record["mean_betp_moving"] = np.float32(betp_sum / n / 255.0)
+    box = ((w.col0 + c_lo) * res, (w.row0 + r_lo) * res,
+           (w.col0 + c_hi + 1) * res, (w.row0 + r_hi + 1) * res)
+    return (((w.col0 + c_sum / n + 0.5) * res, (w.row0 + r_sum / n + 0.5) * res), box,
+            (box[2] - box[0], box[3] - box[1]), np.float32(betp_sum / n / 255.0))
 
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass (docs/performance.md, "GIL")
@@ -517,8 +574,12 @@ def warm_up() -> None:
     """Load the compiled passes of :func:`fill` and :func:`bridge_cells` (the run's warm-up:
     not charged to a frame)."""
     one = np.zeros(1, np.int64)
-    _bridge_pass(np.zeros((1, 2), np.int64), np.zeros((1, 2), np.int64), one, 0, 0, 1, 1, 1,
+    records = np.zeros(2, OBJECT_DTYPE)
+    _bridge_pass(np.zeros((1, 2), np.int64), one, one, 0.0, 0.0, 0.5, 0, 0, 1, 1, 1,
                  np.ones(1, np.uint8), np.zeros(0, np.int64), np.zeros(1, np.uint8), True)
-    _touching_pass(np.zeros((1, 4), np.int64), np.zeros(1, np.bool_), one, one, one, one, one,
-                   1, 1, 1)
+    ids, states, counts, boxes = _fields(records)
+    _record_lattice_pass(counts, np.zeros(1, np.uint32), 0, 1, 0, 0)
+    _first(ids, 1)
+    _fill_pass(np.zeros((1, 2), np.int64), 0, 0, 1, 1, 0.5, np.zeros(1, np.uint8), True, ids,
+               states, counts, boxes, one, 1, 1, 1)
     _geometry(one, 1, np.zeros(1, np.uint8))
