@@ -23,6 +23,18 @@ gets the first cause that applies, in the order of the pipeline:
   cells next to its truth-M cells (the match counts M cells only);
 - ``other``: none of the above (the agent's returns are in no kept cluster or no track).
 
+A ``small_cluster`` agent-frame is detailed (the table "Small clusters"): its group was kept
+all the same (by the isolated or the small-conflict rule: ``kept:`` and the state of its
+track, ``young`` / ``slow`` — the velocity test — / ``no_evidence`` / ``adjacent`` /
+``no_track``), or it was dropped with a cell decided moving (``moving_cell``), or with none:
+``no_moving_cell`` and the largest ∅_FO under the agent (×255: 0, < 25, < 64, < 128, ≥ 128)
+— the conflict a gate-closed cell keeps, which no rule reads as motion. ``tall``: a return at
+least 0.4 m up within one cell.
+
+``--after-backfill``: an agent-frame is found when the run's final object list (the backfill's
+fills and gaps included) holds it, not the object stage's own records of the frame; the
+causes are those of the frame's own step all the same.
+
 Cell level: the visible truth-M cells not decided ``moving`` are split by what they are
 decided and by whether their agent was found (a found agent's undecided cells are what a
 footprint completion could fill).
@@ -81,6 +93,9 @@ class FrameRecord:
     kept_label: dict[int, int]    # flat window cell -> kept cluster index
     cluster_track: list[dict[str, Any] | None]  # per kept cluster: its track after the step
     moving_objects: list[np.ndarray]  # flat cells of each reported moving object
+    decision: np.ndarray          # flat, the fusion's decision the step read
+    conflict_fo: np.ndarray       # flat, ∅_FO ×255
+    heights: np.ndarray | None    # flat, highest return above the ground (float16)
 
 
 RECORDS: list[FrameRecord] = []
@@ -141,8 +156,40 @@ def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.nda
            else np.zeros(0, np.int64))
     RECORDS.append(FrameRecord(int(stamp_ns), window.row0, window.col0, decision.shape, occ,
                                rc.cells.copy(), rc.offsets.copy(), extent, kept_label,
-                               cluster_track, moving_objects))
+                               cluster_track, moving_objects, decision.reshape(-1).copy(),
+                               conflict_fo.reshape(-1).copy(),
+                               None if heights is None
+                               else heights.reshape(-1).astype(np.float16)))
     return records, cells
+
+
+def _final_moving(frame: Any) -> list[np.ndarray]:
+    """The flat cells of each moving record of a run frame's final object list."""
+    objects = frame.objects
+    counts = objects["cell_count"].astype(np.int64)
+    ends = np.cumsum(counts)
+    cells = np.asarray(frame.object_cells, np.int64)
+    return [cells[e - n:e] for e, n, state in zip(ends, counts, objects["state"], strict=True)
+            if state == OBJECT_STATES["moving"]]
+
+
+def _small_detail(rec: FrameRecord, near: np.ndarray, occ: np.ndarray, confirm: int) -> str:
+    """What became of a ``small_cluster`` agent-frame's group (module docstring)."""
+    kept = [k for k in (rec.kept_label.get(int(c)) for c in near.tolist()) if k is not None]
+    if kept:
+        track = rec.cluster_track[collections.Counter(kept).most_common(1)[0][0]]
+        return "kept:" + ("no_track" if track is None else "young" if track["hits"] < confirm
+                          else "slow" if not track["fast"]
+                          else "no_evidence" if not track["moving"] else "adjacent")
+    tall = (rec.heights is not None and near.size > 0
+            and float(rec.heights[near].max()) >= 0.4)
+    height = "tall" if tall else "low"
+    if (rec.decision[near] == DECISION_CODES["moving"]).any():
+        return f"moving_cell {height}"
+    fo = int(rec.conflict_fo[near].max()) if near.size else 0
+    level = next(f"<{b}" for b in (1, 25, 64, 128, 256) if fo < b)
+    decided = "/".join(sorted({_NAMES.get(int(x), "?") for x in rec.decision[near[occ[near]]]}))
+    return f"no_moving_cell {height} {decided} fo{level}"
 
 
 def _to_window(lattice_rc: np.ndarray, rec: FrameRecord) -> np.ndarray:
@@ -152,9 +199,10 @@ def _to_window(lattice_rc: np.ndarray, rec: FrameRecord) -> np.ndarray:
     return r[ok] * rec.shape[1] + c[ok]
 
 
-def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str, Any]
-              ) -> dict[str, Any]:
-    """Causes per missed agent-frame, the missed episodes and the cell-level split."""
+def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str, Any],
+              after_backfill: bool = False) -> dict[str, Any]:
+    """Causes per missed agent-frame, the missed episodes, the small clusters' detail and
+    the cell-level split; with ``after_backfill`` found by the run's final object list."""
     by_stamp = {r.stamp_ns: r for r in records}
     run_by_stamp = {f.stamp_ns: f for f in run.frames}
     min_cells = int(params["min_cluster_cells"])
@@ -165,6 +213,7 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
     by_role: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
     found_n = total_n = 0
     cells_split: collections.Counter[str] = collections.Counter()
+    small: collections.Counter[str] = collections.Counter()
     per_agent: dict[int, list[dict[str, Any]]] = collections.defaultdict(list)
     centroids: dict[int, list[tuple[int, float, float]]] = collections.defaultdict(list)
     for t in truth.frames:
@@ -199,7 +248,7 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
         agent_run[flat_run] = t.agent[tr[inside], tc[inside]]
         found: set[int] = set()
         merged_over: set[int] = set()
-        for cells in rec.moving_objects:
+        for cells in (_final_moving(f) if after_backfill else rec.moving_objects):
             hits = agent_run[cells]
             hits = hits[hits > 0]
             if hits.size:
@@ -243,6 +292,7 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
                     info["group_cells"] = int(sizes[best])
                     if sizes[lab].max() < min_cells:
                         cause = "small_cluster"
+                        small[f"{role} {_small_detail(rec, near, occ, confirm)}"] += 1
                     elif rec.relaxed_extent[best] > max_extent + 1e-9:
                         cause = "too_large"
                     else:
@@ -301,6 +351,7 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
                 "group_cells": sorted({i.get("group_cells") for i in g
                                        if i.get("group_cells") is not None})})
     return {"agent_frames": total_n, "found": found_n, "causes": dict(causes),
+            "small_clusters": dict(small),
             "by_role": {k: dict(v) for k, v in by_role.items()},
             "cells": dict(cells_split), "episodes": episodes}
 
@@ -314,6 +365,8 @@ def main() -> None:
     parser.add_argument("--set", default="", help="[objects] overrides of the replay, "
                         "'key=value;key=value' (scripts/object_replay.py)")
     parser.add_argument("--json", type=Path, help="write every result here")
+    parser.add_argument("--after-backfill", action="store_true",
+                        help="found: in the run's final object list (the backfill's fills)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     from evperc.config import load_config
@@ -326,7 +379,7 @@ def main() -> None:
             RECORDS.clear()
             run = object_replay.replay(out, config, step=traced_step)
             results[f"{profile}-s{seed}"] = attribute(list(RECORDS), load_truth(
-                drive / "truth"), run, config["objects"])
+                drive / "truth"), run, config["objects"], args.after_backfill)
     print_report(results)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1, default=str))
@@ -338,6 +391,12 @@ def print_report(results: dict[str, Any]) -> None:
     for name, r in results.items():
         print(f"| {name} | {r['agent_frames']} | {r['found']} | "
               + " | ".join(str(r["causes"].get(c, 0)) for c in CAUSES) + " |")
+    print("\nSmall clusters (missed agent-frames, all runs; module docstring):")
+    pooled: collections.Counter[str] = collections.Counter()
+    for r in results.values():
+        pooled.update(r["small_clusters"])
+    for what, n in pooled.most_common():
+        print(f"  {what}: {n}")
     print("\nBy role (missed agent-frames):")
     for name, r in results.items():
         for role, c in sorted(r["by_role"].items()):
