@@ -24,12 +24,13 @@ gets the first cause that applies, in the order of the pipeline:
 - ``other``: none of the above (the agent's returns are in no kept cluster or no track).
 
 A ``small_cluster`` agent-frame is detailed (the table "Small clusters"): its group was kept
-all the same (by the isolated or the small-conflict rule: ``kept:`` and the state of its
-track, ``young`` / ``slow`` — the velocity test — / ``no_evidence`` / ``adjacent`` /
-``no_track``), or it was dropped with a cell decided moving (``moving_cell``), or with none:
-``no_moving_cell`` and the largest ∅_FO under the agent (×255: 0, < 25, < 64, < 128, ≥ 128)
-— the conflict a gate-closed cell keeps, which no rule reads as motion. ``tall``: a return at
-least 0.4 m up within one cell.
+all the same (by the isolated or the small-conflict rule: ``kept:`` and why its track was
+not reported, the causes above — ``young_track`` / ``velocity_test`` / ``no_evidence`` /
+``adjacent`` — or ``no_track``), or it was dropped with a cell decided moving
+(``moving_cell``), or with none: ``no_moving_cell`` and the largest ∅_FO under the agent
+(×255: 0, < 25, < 64, < 128, ≥ 128) — the conflict a gate-closed cell keeps, which no rule
+reads as motion. ``tall``: a return at least ``isolated_min_height_m`` (0.4 m) up within one
+cell.
 
 ``--after-backfill``: an agent-frame is found when the run's final object list (the backfill's
 fills and gaps included) holds it, not the object stage's own records of the frame; the
@@ -173,16 +174,36 @@ def _final_moving(frame: Any) -> list[np.ndarray]:
             if state == OBJECT_STATES["moving"]]
 
 
-def _small_detail(rec: FrameRecord, near: np.ndarray, occ: np.ndarray, confirm: int) -> str:
-    """What became of a ``small_cluster`` agent-frame's group (module docstring)."""
+def _kept_track(rec: FrameRecord, near: np.ndarray) -> tuple[bool, dict[str, Any] | None]:
+    """Whether a kept cluster holds any of the cells ``near``, and the track (after the
+    step) of the one holding most of them (None: no track)."""
     kept = [k for k in (rec.kept_label.get(int(c)) for c in near.tolist()) if k is not None]
+    if not kept:
+        return False, None
+    return True, rec.cluster_track[collections.Counter(kept).most_common(1)[0][0]]
+
+
+def _track_cause(track: dict[str, Any], confirm: int) -> str:
+    """Why a track was not reported moving on an agent (module docstring's causes, in their
+    order): ``young_track``, ``velocity_test``, ``no_evidence``, else ``adjacent`` (it was,
+    on the cells next to the agent's)."""
+    if track["hits"] < confirm:
+        return "young_track"
+    if not track["fast"]:
+        return "velocity_test"
+    if not track["moving"]:
+        return "no_evidence"
+    return "adjacent"
+
+
+def _small_detail(rec: FrameRecord, near: np.ndarray, occ: np.ndarray, confirm: int,
+                  min_height_m: float) -> str:
+    """What became of a ``small_cluster`` agent-frame's group (module docstring)."""
+    kept, track = _kept_track(rec, near)
     if kept:
-        track = rec.cluster_track[collections.Counter(kept).most_common(1)[0][0]]
-        return "kept:" + ("no_track" if track is None else "young" if track["hits"] < confirm
-                          else "slow" if not track["fast"]
-                          else "no_evidence" if not track["moving"] else "adjacent")
+        return "kept:" + ("no_track" if track is None else _track_cause(track, confirm))
     tall = (rec.heights is not None and near.size > 0
-            and float(rec.heights[near].max()) >= 0.4)
+            and float(rec.heights[near].max()) >= min_height_m)
     height = "tall" if tall else "low"
     if (rec.decision[near] == DECISION_CODES["moving"]).any():
         return f"moving_cell {height}"
@@ -208,6 +229,7 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
     min_cells = int(params["min_cluster_cells"])
     max_extent = float(params["max_cluster_extent_m"])
     confirm = int(params["confirm_frames"])
+    min_height = float(params["isolated_min_height_m"])
     roles = {a["id"]: a for a in truth.agents}
     causes: collections.Counter[str] = collections.Counter()
     by_role: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
@@ -292,32 +314,21 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
                     info["group_cells"] = int(sizes[best])
                     if sizes[lab].max() < min_cells:
                         cause = "small_cluster"
-                        small[f"{role} {_small_detail(rec, near, occ, confirm)}"] += 1
+                        small[f"{role} {_small_detail(rec, near, occ, confirm, min_height)}"] += 1
                     elif rec.relaxed_extent[best] > max_extent + 1e-9:
                         cause = "too_large"
                     else:
-                        kept = [rec.kept_label.get(int(c)) for c in near.tolist()]
-                        kept = [k for k in kept if k is not None]
+                        kept, tr_ = _kept_track(rec, near)
                         if not kept:
                             cause = "other"  # returns in no kept cluster
+                        elif tr_ is None:
+                            cause = "other"
+                            info["other"] = "no_track"
                         else:
-                            k = collections.Counter(kept).most_common(1)[0][0]
-                            tr_ = rec.cluster_track[k]
-                            if tr_ is None:
-                                cause = "other"
-                                info["other"] = "no_track"
-                            else:
-                                info["track"] = tr_
-                                if tr_["hits"] < confirm:
-                                    cause = "young_track"
-                                elif not tr_["fast"]:
-                                    cause = "velocity_test"
-                                elif not tr_["moving"]:
-                                    cause = "no_evidence"
-                                elif a in merged_over:
-                                    cause = "merged"
-                                else:  # reported moving, on the cells next to the agent's
-                                    cause = "adjacent"
+                            info["track"] = tr_
+                            cause = _track_cause(tr_, confirm)
+                            if cause == "adjacent" and a in merged_over:
+                                cause = "merged"
             info["cause"] = cause
             causes[cause] += 1
             by_role[role][cause] += 1
