@@ -22,7 +22,8 @@ class StoredOutputs:
     of :mod:`evperc.output.mass_tiles` (tiles of :data:`MASS_TILE` cells: ``mass_runs`` from
     its start, ``tile_masks``, and ``mass_length[0]`` the bytes of runs written), betP,
     conflict parts, ζ and the decision, planar. Usually views into the writer's chunk
-    buffer."""
+    buffer. betP is for the frame's own passes (the objects' betP(M), ``on_frame``): since
+    format_version 4 it is not stored, a reader derives it from the masses."""
 
     mass_runs: np.ndarray  # uint8 (32 · rows · cols,): room for every plane of every cell
     tile_masks: np.ndarray  # uint32 (rows, tiles per row)

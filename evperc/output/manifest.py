@@ -11,9 +11,10 @@ from typing import Any
 from evperc.errors import OutputError
 
 #: the output format this evperc writes
-FORMAT_VERSION = 3
-#: output formats this evperc reads (2: dense mass planes, before the block-sparse runs)
-READABLE_VERSIONS = (2, FORMAT_VERSION)
+FORMAT_VERSION = 4
+#: output formats this evperc reads (2: dense mass planes, before the block-sparse runs; 3:
+#: betP stored beside the masses, before it was derived from them on reading)
+READABLE_VERSIONS = (2, 3, FORMAT_VERSION)
 MANIFEST = "manifest.json"
 
 
@@ -30,5 +31,5 @@ def read_manifest(out_dir: str | Path) -> dict[str, Any]:
         raise OutputError(f"{path}: unreadable manifest ({err})") from err
     if manifest.get("format_version") not in READABLE_VERSIONS:
         raise OutputError(f"{path}: format_version {manifest.get('format_version')!r}, this "
-                          f"evperc reads {' and '.join(map(str, READABLE_VERSIONS))}")
+                          f"evperc reads {', '.join(map(str, READABLE_VERSIONS))}")
     return manifest

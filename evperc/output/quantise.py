@@ -51,3 +51,46 @@ def dequantise_planar(q: np.ndarray) -> np.ndarray:
     """Stored ``(channels, rows, cols)`` uint8 → ``(rows, cols, channels)`` float32 (the
     inverse of :func:`quantise_planar`, to 1/510)."""
     return dequantise(np.moveaxis(q, 0, -1))
+
+
+def pignistic_of_planes(q: np.ndarray) -> np.ndarray:
+    """The pignistic probability (method.md §2, :func:`evperc.dst.pignistic.pignistic`) of
+    stored masses: ``q`` the ``(32, rows, cols)`` uint8 planes (subset bitmask first, ×255)
+    → ``(rows, cols, 5)`` float32,
+
+        betP(θ) = Σ_{A ∋ θ} q(A)/|A|  ⁄  Σ_{A ≠ ∅} q(A)
+
+    (the 1/255 of each mass cancels; 0 where every q(A ≠ ∅) is 0). How ``evperc.load`` gives
+    a frame's betP since format_version 4, one compiled pass over the planes: numpy on
+    the dequantised masses took ~5 ms a 400 × 400 frame, half of it the strided matmul."""
+    planes = np.ascontiguousarray(q, np.uint8)
+    if planes.ndim != 3 or planes.shape[0] != 32:
+        raise ValueError(f"expected (32, rows, cols) mass planes, got {planes.shape}")
+    out = _pignistic_planes(planes.reshape(32, -1))
+    return np.moveaxis(out.reshape(5, *planes.shape[1:]), 0, -1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _pignistic_planes(q: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    n = q.shape[1]
+    share = np.zeros((5, n), np.float32)
+    norm = np.zeros(n, np.int32)
+    for subset in range(1, 32):
+        size = 0
+        for k in range(5):
+            size += (subset >> k) & 1
+        w = np.float32(1.0 / size)
+        plane = q[subset]
+        for i in range(n):
+            norm[i] += plane[i]
+        for k in range(5):
+            if (subset >> k) & 1:
+                row = share[k]
+                for i in range(n):
+                    row[i] += plane[i] * w
+    for i in range(n):
+        if norm[i] > 0:
+            inv = np.float32(1.0) / np.float32(norm[i])
+            for k in range(5):
+                share[k, i] *= inv
+    return share

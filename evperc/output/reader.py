@@ -14,7 +14,7 @@ from evperc.geo.window import Window
 from evperc.output import mass_tiles
 from evperc.output.manifest import read_manifest
 from evperc.output.objects import object_labels
-from evperc.output.quantise import dequantise, dequantise_planar
+from evperc.output.quantise import dequantise, dequantise_planar, pignistic_of_planes
 
 
 @dataclass(frozen=True)
@@ -27,7 +27,9 @@ class Frame:
     origin: tuple[int, int]   # global lattice (row0, col0) of the window
     window: Window
     decision: np.ndarray      # (rows, cols) uint8
-    betp: np.ndarray          # (rows, cols, 5) float32: F, I, U, S, M
+    #: (rows, cols, 5) float32: F, I, U, S, M; the pignistic probability of ``masses``
+    #: (format_version 4; stored beside them, ×255, before)
+    betp: np.ndarray
     zeta: np.ndarray          # (rows, cols) float32
     conflict: np.ndarray      # (rows, cols, 3) float32: ∅_FO, ∅_OF, ∅_other
     masses: np.ndarray        # (rows, cols, 32) float32
@@ -87,14 +89,18 @@ class Run:
         rows, cols = self.shape
         planes = self._mass_planes(path, arrays)
         objects = self._objects(path, arrays)
+        stored_betp = self.manifest["format_version"] < 4
         for k in range(len(arrays["stamp_ns"])):
-            masses = dequantise_planar(next(planes))
+            stored = next(planes)
+            masses = dequantise_planar(stored)
+            betp = (dequantise_planar(arrays["betp"][k]) if stored_betp
+                    else pignistic_of_planes(stored))
             row0, col0 = (int(v) for v in arrays["origin"][k])
             yield Frame(
                 index=chunk["first_frame"] + k, stamp_ns=int(arrays["stamp_ns"][k]),
                 pose=arrays["pose"][k], origin=(row0, col0),
                 window=Window(self.resolution_m, rows, cols, row0, col0),
-                decision=arrays["decision"][k], betp=dequantise_planar(arrays["betp"][k]),
+                decision=arrays["decision"][k], betp=betp,
                 zeta=dequantise(arrays["zeta"][k]),
                 conflict=dequantise_planar(arrays["conflict"][k]), masses=masses,
                 decision_counts=arrays["decision_counts"][k], **next(objects))

@@ -1,4 +1,4 @@
-"""Writing an `evperc run` output directory (docs/output-format.md, format_version 3).
+"""Writing an `evperc run` output directory (docs/output-format.md, format_version 4).
 
 Frames are quantised to uint8 as they arrive and grouped in chunks. One background thread
 deflates each frame's layers as soon as the frame is committed (ISA-L releases the GIL, so
@@ -160,7 +160,7 @@ class HeldLayers:
     while they were in the cache, their ring slot free again."""
 
     decision: np.ndarray  # uint8 (rows, cols)
-    betp_moving: np.ndarray  # uint8 (rows, cols), betP(M) as stored
+    betp_moving: np.ndarray  # uint8 (rows, cols), betP(M) ×255 as the fused step quantised it
     mass_bytes: int
     #: member name -> its deflated bytes of the frame (every streamed member but the decision)
     pieces: dict[str, DeflatedPiece] = field(default_factory=dict)
@@ -233,15 +233,14 @@ class _Chunk:
                       for name, stream in self.streams.items()}
         else:
             own = self.layers
-            layers = {"tile_masks": own.tile_masks[:k], "betp": own.betp[:k],
-                      "decision": own.decision[:k], "zeta": own.zeta[:k],
-                      "conflict": own.conflict[:k],
+            layers = {"tile_masks": own.tile_masks[:k], "decision": own.decision[:k],
+                      "zeta": own.zeta[:k], "conflict": own.conflict[:k],
                       "mass_runs": Concatenated(tuple(self.layer("mass_runs", i)
                                                       for i in range(k)))}
         arrays = {"stamp_ns": self.stamp_ns[:k], "pose": self.pose[:k],
                   "origin": self.origin[:k], "tile_masks": layers["tile_masks"],
                   "mass_bytes": self.mass_bytes[:k], "mass_runs": layers["mass_runs"],
-                  "betp": layers["betp"], "decision": layers["decision"],
+                  "decision": layers["decision"],
                   "zeta": layers["zeta"], "conflict": layers["conflict"],
                   "decision_counts": self.decision_counts[:k]}
         if self.objects is not None:
@@ -258,7 +257,7 @@ class _Chunk:
 #: being filled, and up to three waiting for (or in) the writer thread
 RING_SLOTS = 4
 #: the chunk members deflated frame by frame as the frames arrive
-STREAMED = ("tile_masks", "mass_runs", "betp", "decision", "zeta", "conflict")
+STREAMED = ("tile_masks", "mass_runs", "decision", "zeta", "conflict")
 
 
 class RunWriter:
@@ -453,7 +452,8 @@ class RunWriter:
             object_cells: np.ndarray | None = None) -> bool:
         """Queue one frame of float layers, interleaved ``(rows, cols, k)`` (quantised at once:
         the caller may reuse its arrays), and its object list if any; see
-        :meth:`commit_frame`."""
+        :meth:`commit_frame`. ``betp`` goes into the frame's slot like the fused step's (a
+        held frame's betP(M)); it is not stored: a reader derives it from the masses."""
         if tuple(decision.shape) != self._shape:
             raise ValueError(f"frame of shape {decision.shape}, the run's window is "
                              f"{self._shape}")

@@ -21,7 +21,10 @@ def frame_arrays(rng: np.random.Generator):
     masses = np.zeros((ROWS, COLS, 32), np.float32)
     masses[..., 31] = rng.uniform(0, 1, (ROWS, COLS))
     masses[..., 1] = 1 - masses[..., 31]
-    betp = rng.uniform(0, 1, (ROWS, COLS, 5)).astype(np.float32)
+    # the pignistic probability of these masses, by hand: {F} keeps its mass, Ω shares its
+    # mass among the five classes
+    betp = np.repeat(masses[..., 31:] / 5, 5, axis=-1)
+    betp[..., 0] += masses[..., 1]
     decision = rng.integers(0, 7, (ROWS, COLS)).astype(np.uint8)
     zeta = rng.uniform(0, 1, (ROWS, COLS)).astype(np.float32)
     conflict = rng.uniform(0, 0.3, (ROWS, COLS, 3)).astype(np.float32)
@@ -58,7 +61,12 @@ def test_round_trip(tmp_path: Path) -> None:
         np.testing.assert_array_equal(frame.decision, decision)
         # the format stores values in [0, 1] within 1/255 (docs/output-format.md)
         np.testing.assert_allclose(frame.masses, masses, atol=1 / 510 + 1e-6)
-        np.testing.assert_allclose(frame.betp, betp, atol=1 / 510 + 1e-6)
+        # betP is not stored (format_version 4): it is the pignistic probability of the
+        # stored masses, so it carries their rounding: two focal sets each within 1/510
+        # move the numerator Σ_{A∋θ} m(A)/|A| by at most (1 + 1/5)/510 and the normaliser
+        # Σ m(A) by at most 2/510, so betP by at most (1.2 + 2)/510 / (1 − 2/510)
+        np.testing.assert_allclose(frame.betp, betp, atol=3.2 / 510 / (1 - 2 / 510) + 1e-6)
+        np.testing.assert_allclose(frame.betp.sum(axis=-1), 1.0, atol=1e-6)
         np.testing.assert_allclose(frame.zeta, zeta, atol=1 / 510 + 1e-6)
         np.testing.assert_allclose(frame.conflict, conflict, atol=1 / 510 + 1e-6)
     assert run.frame(3).stamp_ns == 1003
@@ -169,8 +177,9 @@ def test_masses_of_wide_windows_round_trip_through_the_tiles(tmp_path: Path) -> 
         written.append(masses)
     writer.close({})
     manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
-    assert manifest["format_version"] == 3 and manifest["mass_tile_cells"] == 64
+    assert manifest["format_version"] == 4 and manifest["mass_tile_cells"] == 64
     with np.load(tmp_path / "out" / "frames" / "chunk_00000.npz") as chunk:
+        assert "betp" not in chunk.files  # derived from the masses on reading
         assert chunk["tile_masks"].shape == (2, rows, 3)
         assert chunk["mass_runs"].size == chunk["mass_bytes"].sum()
         assert chunk["mass_runs"].size < 2 * 32 * rows * cols // 4  # sparse
@@ -229,6 +238,29 @@ def test_outputs_of_format_2_are_still_read_but_not_resumed(tmp_path: Path) -> N
     manifest["complete"] = False
     (tmp_path / "old" / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(OutputError, match="format_version 2 by an earlier evperc"):
+        RunWriter.resume(tmp_path / "old")
+
+
+def test_outputs_of_format_3_keep_their_stored_betp(tmp_path: Path) -> None:
+    """Format 3 stored betP beside the masses; a reader takes it as stored, not derived."""
+    rng = np.random.default_rng(9)
+    writer = make_writer(tmp_path / "old", chunk_frames=3)
+    for k in range(2):
+        writer.add(k, np.zeros(3), (0, 0), *frame_arrays(rng))
+    writer.close({})
+    path = tmp_path / "old" / "frames" / "chunk_00000.npz"
+    with np.load(path) as chunk:
+        members = {k: chunk[k] for k in chunk.files}
+    stored = rng.integers(0, 256, (2, 5, ROWS, COLS)).astype(np.uint8)
+    np.savez(path, **members, betp=stored)
+    manifest = json.loads((tmp_path / "old" / "manifest.json").read_text())
+    manifest["format_version"] = 3
+    (tmp_path / "old" / "manifest.json").write_text(json.dumps(manifest))
+    for frame, want in zip(evperc.load(tmp_path / "old").frames, stored, strict=True):
+        np.testing.assert_allclose(frame.betp, np.moveaxis(want, 0, -1) / 255, atol=1e-7)
+    manifest["complete"] = False
+    (tmp_path / "old" / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(OutputError, match="format_version 3 by an earlier evperc"):
         RunWriter.resume(tmp_path / "old")
 
 
