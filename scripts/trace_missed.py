@@ -36,6 +36,18 @@ cell.
 fills and gaps included) holds it, not the object stage's own records of the frame; the
 causes are those of the frame's own step all the same.
 
+A ``velocity_test`` agent-frame is detailed too (the table "Velocity test"): its track's
+fitted speed under ``moving_speed_m_per_s`` (``slow``, with the agent's own speed over the
+second around the frame from its truth cells' centroid: < 0.3, < 0.6 or ≥ 0.6 m/s — the
+truth calls an agent moving above 0.1 m/s), or the Mahalanobis test failing with the fit's
+centroid noise at the floor ``centroid_sigma_m`` (``floor``) or above it (``residual``: the
+centroids scatter more than the floor), each with ``evidence`` when the track already has
+some motion evidence (conflict or vacated frames) and ``no evidence`` when it has none.
+
+Found by role and range (the table "Found by role and range"): every agent-frame by the
+agent's role and the range from the sensor to the centre of its visible truth-M cells
+(< 20, 20–40, 40–60, ≥ 60 m).
+
 Cell level: the visible truth-M cells not decided ``moving`` are split by what they are
 decided and by whether their agent was found (a found agent's undecided cells are what a
 footprint completion could fill).
@@ -144,7 +156,7 @@ def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.nda
         cluster_track[k] = {"id": t.track_id, "hits": t.hits,
                             "fast": is_moving(t.velocity, t.sigma, tp), "moving": t.moving,
                             "ever_moving": t.ever_moving, "speed": math.hypot(*t.velocity),
-                            "sigma": t.sigma,
+                            "sigma": t.sigma, "floor": _at_floor(t, tp.centroid_sigma_m),
                             "evidence": (t.conflict_evidence, t.vacated_evidence)}
     moving_objects = []
     at = 0
@@ -162,6 +174,47 @@ def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.nda
                                None if heights is None
                                else heights.reshape(-1).astype(np.float16)))
     return records, cells
+
+
+def _at_floor(track: Any, sigma0: float) -> bool:
+    """Whether a track's velocity fit took the centroid noise floor ``sigma0`` (its residual
+    scatter smaller), from its standard deviation s = σ / √S (evperc.objects.tracking)."""
+    t = np.asarray(track.t_ns, np.float64) * 1e-9
+    spread = float(((t - t.mean()) ** 2).sum()) if t.size else 0.0
+    return (not math.isfinite(track.sigma) or spread <= 0.0
+            or track.sigma * math.sqrt(spread) <= sigma0 * (1 + 1e-6))
+
+
+def _velocity_detail(track: dict[str, Any], v0: float, truth_speed: float | None) -> str:
+    """A ``velocity_test`` agent-frame's detail (module docstring)."""
+    evidence = "evidence" if any(track["evidence"]) else "no evidence"
+    if track["speed"] < v0:
+        speed = ("truth ?" if truth_speed is None else "truth < 0.3" if truth_speed < 0.3
+                 else "truth < 0.6" if truth_speed < 0.6 else "truth >= 0.6")
+        return f"slow ({speed} m/s), {evidence}"
+    return f"{'floor' if track['floor'] else 'residual'}, {evidence}"
+
+
+def _speed_around(path: list[tuple[int, float, float]], stamp: int) -> float | None:
+    """An agent's speed over the second around ``stamp`` (m/s) from its truth cells'
+    centroids (``path``: (stamp, x, y) in time order); None near the ends of its path."""
+    stamps = np.array([p[0] for p in path], np.int64)
+    i0 = int(np.searchsorted(stamps, stamp - 500_000_000))
+    i1 = int(np.searchsorted(stamps, stamp + 500_000_000, "right")) - 1
+    if i0 >= i1 or stamps[i1] - stamps[i0] < 800_000_000:
+        return None
+    (t0, x0, y0), (t1, x1, y1) = path[i0], path[i1]
+    return math.hypot(x1 - x0, y1 - y0) / ((t1 - t0) * 1e-9)
+
+
+RANGES_M = (20.0, 40.0, 60.0)
+
+
+def _range_band(r: float) -> str:
+    for lo, hi in zip((0.0, *RANGES_M[:-1]), RANGES_M, strict=True):
+        if r < hi:
+            return f"{lo:.0f}-{hi:.0f} m"
+    return f">= {RANGES_M[-1]:.0f} m"
 
 
 def _final_moving(frame: Any) -> list[np.ndarray]:
@@ -238,6 +291,9 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
     small: collections.Counter[str] = collections.Counter()
     per_agent: dict[int, list[dict[str, Any]]] = collections.defaultdict(list)
     centroids: dict[int, list[tuple[int, float, float]]] = collections.defaultdict(list)
+    by_range: dict[tuple[str, str], list[int]] = collections.defaultdict(lambda: [0, 0])
+    slow_pending: list[tuple[int, int, str, dict[str, Any]]] = []  # (agent, stamp, role, track)
+    v0 = float(params["moving_speed_m_per_s"])
     for t in truth.frames:
         rec = by_stamp.get(t.stamp_ns)
         f = run_by_stamp.get(t.stamp_ns)
@@ -290,6 +346,11 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
             vr, vc = np.nonzero(vis_m & (t.agent == a))
             vis_cells = _to_window(np.stack([vr + tw.row0, vc + tw.col0], 1), rec)
             is_found = a in found
+            reach = math.hypot((vc.mean() + tw.col0 + 0.5) * res - float(t.sensor_pose[0]),
+                               (vr.mean() + tw.row0 + 0.5) * res - float(t.sensor_pose[1]))
+            band = by_range[(role, _range_band(reach))]
+            band[0] += 1
+            band[1] += int(is_found)
             for code in final[vis_cells].tolist():
                 name = _NAMES.get(int(code), "?")
                 cells_split[("found " if is_found else "missed ") + name] += 1
@@ -327,6 +388,8 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
                         else:
                             info["track"] = tr_
                             cause = _track_cause(tr_, confirm)
+                            if cause == "velocity_test":
+                                slow_pending.append((a, t.stamp_ns, role, tr_))
                             if cause == "adjacent" and a in merged_over:
                                 cause = "merged"
             info["cause"] = cause
@@ -361,8 +424,12 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
                 "causes": dict(collections.Counter(i["cause"] for i in g if i["cause"])),
                 "group_cells": sorted({i.get("group_cells") for i in g
                                        if i.get("group_cells") is not None})})
+    velocity: collections.Counter[str] = collections.Counter()
+    for a, stamp, role, tr_ in slow_pending:
+        velocity[f"{role} {_velocity_detail(tr_, v0, _speed_around(centroids[a], stamp))}"] += 1
     return {"agent_frames": total_n, "found": found_n, "causes": dict(causes),
-            "small_clusters": dict(small),
+            "small_clusters": dict(small), "velocity_test": dict(velocity),
+            "by_range": {f"{role} {band}": v for (role, band), v in sorted(by_range.items())},
             "by_role": {k: dict(v) for k, v in by_role.items()},
             "cells": dict(cells_split), "episodes": episodes}
 
@@ -408,6 +475,20 @@ def print_report(results: dict[str, Any]) -> None:
         pooled.update(r["small_clusters"])
     for what, n in pooled.most_common():
         print(f"  {what}: {n}")
+    print("\nVelocity test (missed agent-frames, all runs; module docstring):")
+    pooled = collections.Counter()
+    for r in results.values():
+        pooled.update(r["velocity_test"])
+    for what, n in pooled.most_common():
+        print(f"  {what}: {n}")
+    print("\nFound by role and range (agent-frames found / all, all runs):")
+    ranges: dict[str, list[int]] = collections.defaultdict(lambda: [0, 0])
+    for r in results.values():
+        for key, (n, found) in r["by_range"].items():
+            ranges[key][0] += n
+            ranges[key][1] += found
+    for key, (n, found) in sorted(ranges.items()):
+        print(f"  {key}: {found} / {n} ({found / n:.3f})")
     print("\nBy role (missed agent-frames):")
     for name, r in results.items():
         for role, c in sorted(r["by_role"].items()):
