@@ -82,6 +82,7 @@ RULES: dict[str, tuple] = {
     "fusion.gate_gap_s": ("range", 0.0, 3600.0, False, False),
     "fusion.gate_rehit_s": ("range", 0.0, 3600.0, False, False),
     "fusion.gate_rehit_gap": ("choice", "any", "seen_free"),
+    "fusion.gate_rehit_revokes": ("choice", "block", "recent_returns"),
     "decision.min_betp": ("range", *_UNIT_INTERVAL, False, False),
     "decision.max_ignorance": ("range", *_UNIT_INTERVAL, False, False),
     "objects.min_cluster_cells": ("range", 1, 1_000_000, False, False),

@@ -88,6 +88,8 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("no split of shared clusters", "configs/ablation/no_split.toml"),
              ("no lead before a track's first association", "configs/ablation/no_lead.toml"),
              ("small moving groups kept without support", "configs/ablation/no_support.toml"),
+             ("a re-hit revokes only its block's recently hit cells (an option)",
+              "configs/ablation/rehit_recent_returns.toml"),
              ("no small clusters that conflict", "configs/ablation/no_small_conflict.toml"),
              ("no speed bound on clusters wholly at a façade",
               "configs/ablation/no_facade_speed.toml"))

@@ -27,6 +27,13 @@ only if x was seen free in that gap (free_s ≥ 0 before this scan's update)]:
 
 (neighbours outside the window count as not free and not revoking). The gate layer of the
 scan is ``ever`` in window order: 1 where ∅_FO may go to {M}.
+
+With ``gate_rehit_revokes`` "recent_returns" (an option; "block", the rule above, is the
+default) a re-hit revokes only the cells of its block that held a return within
+``gate_rehit_s`` (quiet_s ≤ gate_rehit_s after this scan, so every cell hit now): a long
+occupancy still revokes the whole block. A pole's or a fence's cells around a flickering one
+were hit a moment ago and close with it; the pavement ahead of a walker, whose own returns
+flicker between two cells, was not, and stays open for the walker's next step.
 """
 
 from __future__ import annotations
@@ -104,18 +111,20 @@ def gate_step(state: GateState, free: np.ndarray, occupied: np.ndarray, dt_s: fl
                free32, occ32, np.float32(max(dt_s, 0.0)), np.float32(params.gate_min_free),
                np.float32(params.gate_free_s), np.float32(params.gate_revoke_s),
                np.float32(params.gate_gap_s), np.float32(params.gate_rehit_s),
-               params.gate_rehit_gap == "seen_free", shut,
-               closed is not None, out)
+               params.gate_rehit_gap == "seen_free",
+               params.gate_rehit_revokes == "recent_returns", shut, closed is not None, out)
     return out
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _update_run(times, n, b0, w0, count, free, occ, dt, min_free, t_free, t_revoke, t_gap,
-                t_rehit, rehit_free, marks, m0):  # pragma: no cover - compiled
+                t_rehit, rehit_free, rehit_recent, marks, m0):  # pragma: no cover - compiled
     """Pass 1 of ``count`` cells that are contiguous in the circular buffer (flat buffer
     index ``b0 + k``, window index ``w0 + k``, row mark ``m0 + k``; flat arrays, unsigned
     indices, no views): each cell's times and its marks (bit 0: R, free long enough; bit 1:
-    V, revoking). Selects, not branches, so that it vectorises."""
+    V, revoking its block; with ``rehit_recent`` a re-hit is bit 2 instead, revoking the
+    cells of its block that have bit 3: a return within ``t_rehit``). Selects, not
+    branches, so that it vectorises."""
     zero, minus = np.float32(0.0), np.float32(-1.0)
     any_gap = not rehit_free
     for k in range(count):
@@ -137,9 +146,13 @@ def _update_run(times, n, b0, w0, count, free, occ, dt, min_free, t_free, t_revo
         times[np.uint64(2 * n) + b] = zero if o else qs
         back = (qs > t_gap + SLACK) & (qs <= t_rehit + SLACK)  # a re-hit after a gap
         back = back & ((free_s_before >= zero) | any_gap)  # ... seen free in it
-        marks[np.uint64(m0 + k)] = (np.uint8(2) if (o & ((run >= t_revoke - SLACK) | back))
-                                    else np.uint8(0)) \
-            | (np.uint8(1) if fs >= t_free - SLACK else np.uint8(0))
+        long_run = run >= t_revoke - SLACK
+        recent = (zero if o else qs) <= t_rehit + SLACK
+        marks[np.uint64(m0 + k)] = (
+            (np.uint8(2) if (o & (long_run | (back & (not rehit_recent)))) else np.uint8(0))
+            | (np.uint8(4) if (o & back & rehit_recent) else np.uint8(0))
+            | (np.uint8(8) if (recent & rehit_recent) else np.uint8(0))
+            | (np.uint8(1) if fs >= t_free - SLACK else np.uint8(0)))
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -156,7 +169,7 @@ def _reset_run(times, ever, n, b0, count):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _times_row(times, ever, n, cols, free, occ, r, br, row_lo, row_hi, off_c, dt,
-               min_free, t_free, t_revoke, t_gap, t_rehit, rehit_free, marks
+               min_free, t_free, t_revoke, t_gap, t_rehit, rehit_free, rehit_recent, marks
                ):  # pragma: no cover - compiled
     """Pass 1 of window row ``r`` (buffer row ``br``): the cells that entered the window
     (window columns outside [row_lo, row_hi)) reset, then every cell's times and marks
@@ -173,22 +186,24 @@ def _times_row(times, ever, n, cols, free, occ, r, br, row_lo, row_hi, off_c, dt
                 _reset_run(times, ever, n, base + e0, e1 - e0)
         if a0 < a1:
             _update_run(times, n, base + a0, r * cols + a0, a1 - a0, free, occ, dt, min_free,
-                        t_free, t_revoke, t_gap, t_rehit, rehit_free, marks, a0)
+                        t_free, t_revoke, t_gap, t_rehit, rehit_free, rehit_recent, marks, a0)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _row_block(marks, h):  # pragma: no cover - compiled
     """One row of the separable 3 × 3 block: ``h[c]`` bit 0 the AND of R over
-    (c − 1, c, c + 1), bit 1 the OR of V; outside the window R is false."""
+    (c − 1, c, c + 1), bits 1 and 2 the OR of the two revocations, bit 3 the cell's own
+    recent return; outside the window R is false."""
     cols = marks.shape[0]
     for c in range(1, cols - 1):
         a, b, d = marks[c - 1], marks[c], marks[c + 1]
-        h[c] = (a & b & d & np.uint8(1)) | ((a | b | d) & np.uint8(2))
+        h[c] = (a & b & d & np.uint8(1)) | ((a | b | d) & np.uint8(6)) | (b & np.uint8(8))
     if cols > 1:
-        h[0] = (marks[0] | marks[1]) & np.uint8(2)
-        h[cols - 1] = (marks[cols - 2] | marks[cols - 1]) & np.uint8(2)
+        h[0] = ((marks[0] | marks[1]) & np.uint8(6)) | (marks[0] & np.uint8(8))
+        h[cols - 1] = (((marks[cols - 2] | marks[cols - 1]) & np.uint8(6))
+                       | (marks[cols - 1] & np.uint8(8)))
     elif cols == 1:
-        h[0] = marks[0] & np.uint8(2)
+        h[0] = marks[0] & np.uint8(14)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -202,10 +217,12 @@ def _ever_run(ever, b0, ring, u0, m0, d0, c0, inner, gate, w0, shut, has_shut, c
     for k in range(count):
         c = np.uint64(c0 + k)
         a, b, d = ring[np.uint64(u0) + c], ring[np.uint64(m0) + c], ring[np.uint64(d0) + c]
-        m = (a & b & d & inner) | ((a | b | d) & np.uint8(2))
+        m = (a & b & d & inner) | ((a | b | d) & np.uint8(6)) | (b & np.uint8(8))
         i = np.uint64(b0 + k)
         e = ever[i]
-        e = np.uint8(0) if m & np.uint8(2) else (np.uint8(1) if m & np.uint8(1) else e)
+        # bit 1, or bit 2 with bit 3 (a re-hit in the block, a recent return here)
+        revoke = (m | ((m >> np.uint8(1)) & (m >> np.uint8(2)))) & np.uint8(2)
+        e = np.uint8(0) if revoke else (np.uint8(1) if m & np.uint8(1) else e)
         ever[i] = e
         w = np.uint64(w0 + k)
         gate[w] = (e & (shut[w] ^ np.uint8(1))) if has_shut else e
@@ -228,7 +245,7 @@ def _ever_row(ever, ring, u, m, d, inner, r, br, cols, off_c, shut, has_shut, ga
 
 @numba.njit(cache=True, nogil=True)
 def _gate_pass(times, ever, off_r, off_c, dr, dc, free, occ, dt, min_free, t_free,
-               t_revoke, t_gap, t_rehit, rehit_free, shut, has_shut, gate
+               t_revoke, t_gap, t_rehit, rehit_free, rehit_recent, shut, has_shut, gate
                ):  # pragma: no cover - compiled
     """One sweep down the window: pass 1 of row r (:func:`_times_row`), its row of the
     separable 3 × 3 block (:func:`_row_block`) into a ring of three row buffers, then the
@@ -258,7 +275,7 @@ def _gate_pass(times, ever, off_r, off_c, dr, dc, free, occ, dt, min_free, t_fre
         row_lo, row_hi = (lo, hi) if 0 <= r + dr < rows else (0, 0)
         _times_row(flat_times, flat_ever, n, cols, flat_free, flat_occ, r, br, row_lo,
                    row_hi, off_c, dt, min_free, t_free, t_revoke, t_gap, t_rehit, rehit_free,
-                   marks)
+                   rehit_recent, marks)
         _row_block(marks, ring[(r % 3) * cols:(r % 3 + 1) * cols])
         if r >= 1:  # row r − 1 has both neighbours' row results now
             q = r - 1

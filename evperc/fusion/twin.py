@@ -61,6 +61,7 @@ class FusionParams:
     gate_gap_s: float = 0.2
     gate_rehit_s: float = 0.0
     gate_rehit_gap: str = "any"
+    gate_rehit_revokes: str = "block"
     gate_faded_free: bool = False
 
     @staticmethod
@@ -81,7 +82,9 @@ class FusionParams:
             building_conflict=fu["building_conflict"], gate_free_s=fu["gate_free_s"],
             gate_min_free=fu["gate_min_free"], gate_revoke_s=fu["gate_revoke_s"],
             gate_gap_s=fu["gate_gap_s"], gate_rehit_s=fu["gate_rehit_s"],
-            gate_rehit_gap=fu["gate_rehit_gap"], gate_faded_free=fu["gate_faded_free"])
+            gate_rehit_gap=fu["gate_rehit_gap"],
+            gate_rehit_revokes=fu.get("gate_rehit_revokes", "block"),
+            gate_faded_free=fu["gate_faded_free"])
 
     @property
     def gated(self) -> bool:

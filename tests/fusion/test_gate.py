@@ -19,6 +19,8 @@ PARAMS = FusionParams(motion_gate="ever_free", gate_free_s=0.3, gate_revoke_s=0.
 REHIT = replace(PARAMS, gate_rehit_s=0.6)
 #: ... and only after a gap in which the cell was seen free
 REHIT_FREE = replace(REHIT, gate_rehit_gap="seen_free")
+#: ... revoking only the cells of its block that held a return within gate_rehit_s
+REHIT_RECENT = replace(REHIT_FREE, gate_rehit_revokes="recent_returns")
 
 
 class Reference:
@@ -39,7 +41,7 @@ class Reference:
                       for r in range(self.shape[0]) for c in range(self.shape[1])}
 
     def step(self, free, occ, dt, p: FusionParams) -> np.ndarray:
-        ready, revoke = {}, {}
+        ready, revoke, rehit, recent = {}, {}, {}, {}
         for (r, c), cell in self.cells.items():
             # ages are kept as "seconds since" (None: never)
             since = None if cell["last_occ"] is None else cell["last_occ"] + dt
@@ -56,16 +58,24 @@ class Reference:
                 if p.gate_rehit_gap == "seen_free":
                     back = back and cell["free_since_occ"]
                 cell["free_since_occ"] = False
-                rev = cell["occ_run"] >= p.gate_revoke_s - 1e-3 or back
+                rev = cell["occ_run"] >= p.gate_revoke_s - 1e-3
+                if p.gate_rehit_revokes == "recent_returns":
+                    rehit[r, c] = back
+                else:
+                    rev = rev or back
             elif free[r, c] >= p.gate_min_free:
                 cell["run"] = 0.0 if cell["run"] is None else cell["run"] + dt
                 cell["free_since_occ"] = True
             ready[r, c] = cell["run"] is not None and cell["run"] >= p.gate_free_s - 1e-3
             revoke[r, c] = rev
+            # a return within gate_rehit_s, this scan's included
+            recent[r, c] = (cell["last_occ"] is not None
+                            and cell["last_occ"] <= p.gate_rehit_s + 1e-3)
         gate = np.zeros(self.shape, np.uint8)
         for (r, c), cell in self.cells.items():
             block = [(r + y, c + x) for y in (-1, 0, 1) for x in (-1, 0, 1)]
-            if any(revoke.get(b, False) for b in block):
+            if any(revoke.get(b, False) for b in block) or (
+                    recent[r, c] and any(rehit.get(b, False) for b in block)):
                 cell["ever"] = False
             elif all(ready.get(b, False) for b in block):
                 cell["ever"] = True
@@ -73,8 +83,8 @@ class Reference:
         return gate
 
 
-@pytest.mark.parametrize("params", [PARAMS, REHIT, REHIT_FREE],
-                         ids=["rehit-off", "rehit-on", "rehit-seen-free"])
+@pytest.mark.parametrize("params", [PARAMS, REHIT, REHIT_FREE, REHIT_RECENT],
+                         ids=["rehit-off", "rehit-on", "rehit-seen-free", "rehit-recent"])
 @pytest.mark.parametrize("seed", range(4))
 def test_gate_pass_matches_reference(seed: int, params: FusionParams) -> None:
     """Random free / occupied / unseen scans with long free and occupied stretches (so
@@ -89,7 +99,7 @@ def test_gate_pass_matches_reference(seed: int, params: FusionParams) -> None:
 def test_gate_pass_matches_reference_thin_windows_and_closed_cells(
         seed: int, shape: tuple[int, int]) -> None:
     check_against_reference(seed, shape, with_closed=True,
-                            params=(PARAMS, REHIT, REHIT_FREE)[seed % 3])
+                            params=(PARAMS, REHIT, REHIT_FREE, REHIT_RECENT)[seed % 4])
 
 
 def check_against_reference(seed: int, shape: tuple[int, int], with_closed: bool,
@@ -255,6 +265,51 @@ def test_rehit_seen_free_spares_a_cell_occluded_in_its_gap() -> None:
     any_gap, seen_free = run_scene(frames, REHIT), run_scene(frames, REHIT_FREE)
     assert any_gap[-1][2, 3] == 0  # the re-hit after 0.4 s revoked the block
     assert seen_free[-1][2, 3] == 1  # the gap was not free: nothing revoked
+
+
+def walker_scene() -> list[tuple[np.ndarray, np.ndarray]]:
+    """A one-cell walker on open ground: its return at (3, 3) for a scan, then its cell seen
+    free for three (the return fell beside it, in no cell the sensor model marks), then at
+    (3, 3) again (a re-hit after a free gap), then one step on, at (3, 4)."""
+    shape = (7, 9)
+    free = np.full(shape, 0.7, np.float32)
+    at = {}
+    for cell in ((3, 3), (3, 4)):
+        occ = np.zeros(shape, np.float32)
+        occ[cell] = 0.8
+        at[cell] = (np.where(occ > 0, 0, free), occ)
+    empty = (free, np.zeros(shape, np.float32))
+    return [empty] * 4 + [at[3, 3]] + [empty] * 3 + [at[3, 3], at[3, 4]]
+
+
+def test_rehit_recent_returns_spares_the_cell_ahead_of_a_walker() -> None:
+    """Under "block" the walker's re-hit at (3, 3) revokes its whole block, so the step into
+    (3, 4) meets a closed gate; under "recent_returns" only (3, 3) closes — (3, 4) held no
+    return — and the step is seen through an open gate."""
+    block, recent = run_scene(walker_scene(), REHIT_FREE), run_scene(walker_scene(),
+                                                                       REHIT_RECENT)
+    assert block[8][3, 3] == 0 and block[8][3, 4] == 0 and block[9][3, 4] == 0
+    assert recent[8][3, 3] == 0 and recent[8][3, 4] == 1 and recent[9][3, 4] == 1
+    assert recent[8][2, 2] == 1  # the rest of the block stays open too
+
+
+def test_rehit_recent_returns_closes_a_pole_and_the_cells_it_spills_into() -> None:
+    """A pole whose returns fall in (3, 3) and, now and then, in (3, 4) beside it: a re-hit
+    of (3, 3) revokes (3, 4) as well under "recent_returns" (it held a return 0.2 s before),
+    as under "block"; a cell of the block never hit stays open."""
+    shape = (7, 7)
+    free = np.full(shape, 0.7, np.float32)
+    empty = (free, np.zeros(shape, np.float32))
+    scans = {}
+    for name, cells in (("pole", [(3, 3)]), ("spill", [(3, 4)])):
+        occ = np.zeros(shape, np.float32)
+        for cell in cells:
+            occ[cell] = 0.8
+        scans[name] = (np.where(occ > 0, 0, free), occ)
+    frames = [empty] * 4 + [scans["pole"], empty, scans["spill"], empty, scans["pole"]]
+    recent = run_scene(frames, REHIT_RECENT)
+    assert recent[8][3, 3] == 0 and recent[8][3, 4] == 0
+    assert recent[8][2, 2] == 1
 
 
 def test_rejects_mismatched_grids() -> None:
