@@ -188,15 +188,19 @@ def test_masses_of_wide_windows_round_trip_through_the_tiles(tmp_path: Path) -> 
         assert (frame.masses[masses == 0] == 0).all()
 
 
-def test_a_chunk_whose_runs_do_not_match_its_masks_is_refused(tmp_path: Path) -> None:
-    rng = np.random.default_rng(4)
-    writer = make_writer(tmp_path / "out", chunk_frames=3)
+def two_frames(out: Path, rng: np.random.Generator) -> tuple[Path, dict[str, np.ndarray]]:
+    """A run of two random frames in one chunk: the chunk's path and its members."""
+    writer = make_writer(out, chunk_frames=3)
     for k in range(2):
         writer.add(k, np.zeros(3), (0, 0), *frame_arrays(rng))
     writer.close({})
-    path = tmp_path / "out" / "frames" / "chunk_00000.npz"
+    path = out / "frames" / "chunk_00000.npz"
     with np.load(path) as chunk:
-        members = {k: chunk[k] for k in chunk.files}
+        return path, {k: chunk[k] for k in chunk.files}
+
+
+def test_a_chunk_whose_runs_do_not_match_its_masks_is_refused(tmp_path: Path) -> None:
+    path, members = two_frames(tmp_path / "out", np.random.default_rng(4))
     members["mass_bytes"] = members["mass_bytes"] + np.array([1, -1])
     np.savez(path, **members)
     with pytest.raises(OutputError, match=r"chunk_00000.npz: frame 0: .* bytes of mass runs"):
@@ -244,13 +248,7 @@ def test_outputs_of_format_2_are_still_read_but_not_resumed(tmp_path: Path) -> N
 def test_outputs_of_format_3_keep_their_stored_betp(tmp_path: Path) -> None:
     """Format 3 stored betP beside the masses; a reader takes it as stored, not derived."""
     rng = np.random.default_rng(9)
-    writer = make_writer(tmp_path / "old", chunk_frames=3)
-    for k in range(2):
-        writer.add(k, np.zeros(3), (0, 0), *frame_arrays(rng))
-    writer.close({})
-    path = tmp_path / "old" / "frames" / "chunk_00000.npz"
-    with np.load(path) as chunk:
-        members = {k: chunk[k] for k in chunk.files}
+    path, members = two_frames(tmp_path / "old", rng)
     stored = rng.integers(0, 256, (2, 5, ROWS, COLS)).astype(np.uint8)
     np.savez(path, **members, betp=stored)
     manifest = json.loads((tmp_path / "old" / "manifest.json").read_text())
