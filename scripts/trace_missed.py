@@ -178,7 +178,9 @@ def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.nda
 
 def _at_floor(track: Any, sigma0: float) -> bool:
     """Whether a track's velocity fit took the centroid noise floor ``sigma0`` (its residual
-    scatter smaller), from its standard deviation s = σ / √S (evperc.objects.tracking)."""
+    scatter smaller), from its standard deviation s = σ / √S (evperc.objects.tracking). The
+    floor is ``centroid_sigma_m`` alone with ``centroid_sigma_per_m`` 0, the default; with a
+    range term the floor is higher and this reads some floor fits as residual ones."""
     t = np.asarray(track.t_ns, np.float64) * 1e-9
     spread = float(((t - t.mean()) ** 2).sum()) if t.size else 0.0
     return (not math.isfinite(track.sigma) or spread <= 0.0
