@@ -54,7 +54,7 @@ from evperc.objects.tracking import TrackerState
 from evperc.objects.unmapped import UnmappedCue, UnmappedParams, UnmappedState, unmapped_enabled
 from evperc.output.manifest import read_manifest
 from evperc.output.npz import write_npz
-from evperc.output.objects import OBJECT_STATES, moving_object_cells
+from evperc.output.objects import OBJECT_STATES, moving_object_cells, record_cells
 from evperc.output.quantise import dequantise, dequantise_planar
 from evperc.output.writer import HeldLayers, RunWriter, check_output_dir
 from evperc.plumbing import fusion_threads, keep_freed_memory, kernels_cached, prefetched
@@ -755,11 +755,9 @@ class Pipeline:
         reach = int(self.request.config.get("objects", {}).get("point_reach_cells", 0))
         if objects is None or reach <= 0 or not self.fill_moving:
             return {}
-        ends = np.cumsum(objects["cell_count"].astype(np.int64))
-        cells = np.asarray(frame["object_cells"], np.int64)
-        moving = [cells[e - n:e] for e, n, st in zip(
-            ends, objects["cell_count"].astype(np.int64), objects["state"], strict=True)
-            if st == OBJECT_STATES["moving"]]
+        moving = [c for c, st in zip(record_cells(objects, frame["object_cells"]),
+                                     objects["state"], strict=True)
+                  if st == OBJECT_STATES["moving"]]
         return {"moving_objects": moving, "reach_cells": reach,
                 "height_margin_m": float(self.request.config["objects"]["point_height_margin_m"])}
 

@@ -49,7 +49,7 @@ from scipy import ndimage
 import evperc
 from evperc.eval.metrics import TRUTH_CODES, _pairs, evaluate
 from evperc.geo.window import Window, overlap
-from evperc.output.objects import OBJECT_STATES
+from evperc.output.objects import OBJECT_STATES, record_cells
 from evperc.sim.truth import load_truth
 
 #: each profile's drive length (s), as scripts/evaluation_study.py simulates it
@@ -261,12 +261,10 @@ def coast(args: argparse.Namespace) -> None:
             dec = np.asarray(f.decision)
             rows, cols = dec.shape
             row0, col0 = int(f.origin[0]), int(f.origin[1])
-            recs, cells = f.objects, np.asarray(f.object_cells, np.int64)
-            ends = np.cumsum(recs["cell_count"].astype(np.int64))
+            recs = f.objects
             present = set(recs["track_id"].tolist())
-            for i, rec in enumerate(recs):
+            for rec, own in zip(recs, record_cells(recs, f.object_cells), strict=True):
                 if rec["state"] == OBJECT_STATES["moving"]:
-                    own = cells[ends[i] - rec["cell_count"]:ends[i]]
                     last[int(rec["track_id"])] = (k, f.stamp_ns, own // cols + row0,
                                                   own % cols + col0, *rec["velocity_m_per_s"])
             obs = np.asarray(t.observed[tr, tc], bool)

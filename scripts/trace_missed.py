@@ -81,7 +81,7 @@ from evperc.eval.metrics import dilate_one_cell  # noqa: E402
 from evperc.fusion.twin import DECISION_CODES  # noqa: E402
 from evperc.objects.clusters import Clusterer, ClusterParams  # noqa: E402
 from evperc.objects.tracking import footprint_seeds, is_moving, track_step  # noqa: E402
-from evperc.output.objects import OBJECT_STATES  # noqa: E402
+from evperc.output.objects import OBJECT_STATES, record_cells  # noqa: E402
 from evperc.sim.truth import load_truth  # noqa: E402
 
 log = logging.getLogger("trace_missed")
@@ -222,11 +222,8 @@ def _range_band(r: float) -> str:
 def _final_moving(frame: Any) -> list[np.ndarray]:
     """The flat cells of each moving record of a run frame's final object list."""
     objects = frame.objects
-    counts = objects["cell_count"].astype(np.int64)
-    ends = np.cumsum(counts)
-    cells = np.asarray(frame.object_cells, np.int64)
-    return [cells[e - n:e] for e, n, state in zip(ends, counts, objects["state"], strict=True)
-            if state == OBJECT_STATES["moving"]]
+    return [c for c, state in zip(record_cells(objects, frame.object_cells), objects["state"],
+                                  strict=True) if state == OBJECT_STATES["moving"]]
 
 
 def _kept_track(rec: FrameRecord, near: np.ndarray) -> tuple[bool, dict[str, Any] | None]:

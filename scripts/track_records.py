@@ -31,6 +31,7 @@ sys.path.insert(0, str(REPO / "scripts"))
 import object_replay  # noqa: E402
 
 from evperc.config import load_config  # noqa: E402
+from evperc.output.objects import record_cells  # noqa: E402
 from evperc.sim.truth import load_truth  # noqa: E402
 
 
@@ -54,14 +55,13 @@ def main() -> None:
         if t is None:
             continue
         objects = frame.objects
-        ends = np.cumsum(objects["cell_count"].astype(np.int64))
+        own_cells = record_cells(objects, frame.object_cells)
         for track in tracks:
             at = np.flatnonzero(objects["track_id"] == track)
             if at.size == 0:
                 continue
             k = int(at[0])
-            cells = np.asarray(frame.object_cells, np.int64)[ends[k] - objects["cell_count"][k]:
-                                                            ends[k]]
+            cells = own_cells[k]
             rows, cols = np.divmod(cells, frame.decision.shape[1])
             tr = rows + frame.origin[0] - t.origin[0]
             tc = cols + frame.origin[1] - t.origin[1]

@@ -55,3 +55,13 @@ def moving_object_cells(objects: np.ndarray | None, cells: np.ndarray | None
     counts = objects["cell_count"].astype(np.int64)
     moving = np.repeat(objects["state"] == OBJECT_STATES["moving"], counts)
     return np.asarray(cells, np.int64)[moving]
+
+
+def record_cells(objects: np.ndarray, cells: np.ndarray) -> list[np.ndarray]:
+    """Each record's flat window cells (int64), in record order: ``cells`` holds them
+    concatenated, ``objects["cell_count"]`` each (as the object stage and the chunks do)."""
+    counts = objects["cell_count"].astype(np.int64)
+    flat = np.asarray(cells, np.int64)
+    if counts.sum() != flat.size:
+        raise ValueError(f"{flat.size} object cells, the records list {int(counts.sum())}")
+    return np.split(flat, np.cumsum(counts)[:-1]) if len(counts) else []
