@@ -24,7 +24,6 @@ import argparse
 import copy
 import dataclasses
 import json
-import os
 import statistics
 import subprocess
 import sys
@@ -164,7 +163,9 @@ def unpack(rev: str, into: Path) -> Path:
 
 def time_kernel(path: Path, cache: Path, frames: int, kind: str, replay: bool = False
                 ) -> list[float]:
-    env = {**os.environ, "PYTHONPATH": str(path), "NUMBA_CACHE_DIR": str(cache)}
+    from evperc.vector_width import environ_as_given  # each tree picks its vector width
+
+    env = {**environ_as_given(), "PYTHONPATH": str(path), "NUMBA_CACHE_DIR": str(cache)}
     if replay:
         command = [REPLAY_CHILD, str(ROOT / "bench-out" / "sim-hdl64-10s"),
                    str(ROOT / "bench-out" / "configs" / "window200.toml")]

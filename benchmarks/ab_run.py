@@ -46,11 +46,14 @@ sys.path.insert(0, str(HERE))
 
 import bench_run  # noqa: E402  (benchmarks/ is on sys.path)
 
+from evperc.vector_width import environ_as_given  # noqa: E402
+
 
 def run_tree(tree: Path, name: str, sim: Path, config: Path) -> dict:
     """The manifest summary of one run of ``sim`` with the code of ``tree``."""
     out = bench_run.CACHE / "runs" / f"ab-{name}"
-    env = {**os.environ, "PYTHONPATH": str(tree),
+    # each tree picks numba's vector width itself (an older one: LLVM's; evperc.vector_width)
+    env = {**environ_as_given(), "PYTHONPATH": str(tree),
            "NUMBA_CACHE_DIR": str(bench_run.CACHE / "numba" / name)}
     subprocess.run([sys.executable, "-m", "evperc", "-q", "run", str(sim / "drive.mcap"),
                     "--map", str(sim / "map.geojson"), "--config", str(config), "--out",

@@ -6,6 +6,11 @@ Geo-referenced Maps and Evidential Grids" (2013), as specified in docs/method.md
 
 from __future__ import annotations
 
+from evperc.vector_width import prefer_wide_vectors
+
+# before any module of evperc imports numba: 16-float vectors on Intel's AVX-512 CPUs too
+prefer_wide_vectors()
+
 __version__ = "0.1.0"
 
 __all__ = ["__version__", "load"]
