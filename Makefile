@@ -38,8 +38,9 @@ sample-data: $(STAMP)
 # with AVX-512 also tests the code LLVM writes for plainer CPUs (issue 17: bits that
 # depended on the vector width). x86 models only on x86-64 hosts (arm64: none); haswell
 # only on hosts with AVX-512 (on an AVX2 host the main suite already runs 8-float code).
-# The passes run beside the main suite (each compiles its kernels, ~4 min of CPU), so that
-# on 2 cores the whole stays within 10 minutes.
+# The passes run beside the main suite (each compiles its kernels, ~3-5 min of CPU), at a
+# lower priority (nice): the main suite, one process, is the longest path, and the passes
+# take what CPU it leaves, so that on 2 cores the whole stays within 10 minutes.
 HOST_AVX512 := $(shell grep -qw avx512f /proc/cpuinfo 2>/dev/null && echo yes)
 PLAIN_CPUS ?= $(if $(filter x86_64 amd64,$(shell uname -m)),x86-64 $(if $(HOST_AVX512),haswell,),)
 # the tests that compare code paths bit for bit (where the vector width showed), and the goldens
@@ -51,7 +52,7 @@ test: $(STAMP)
 	@mkdir -p $(NUMBA_CACHE_ROOT); pids=; for cpu in $(PLAIN_CPUS); do \
 		echo "numba compiling for CPU $$cpu: $(PLAIN_CPU_TESTS) (log: $(NUMBA_CACHE_ROOT)/$$cpu.log)"; \
 		NUMBA_CPU_NAME=$$cpu NUMBA_CPU_FEATURES= NUMBA_CACHE_DIR=$(NUMBA_CACHE_ROOT)/$$cpu \
-			$(BIN)/python -m pytest -q -p no:cacheprovider $(PLAIN_CPU_TESTS) \
+			nice -n 10 $(BIN)/python -m pytest -q -p no:cacheprovider $(PLAIN_CPU_TESTS) \
 			>$(NUMBA_CACHE_ROOT)/$$cpu.log 2>&1 & pids="$$pids $$!"; \
 	done; status=0; $(BIN)/python -m pytest -q || status=1; \
 	for pid in $$pids; do wait $$pid || status=1; done; \
