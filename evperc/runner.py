@@ -9,6 +9,7 @@ import math
 import shutil
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -33,7 +34,7 @@ from evperc.objects.backfill import Backfill, HeldFrame, backfill_frames, candid
 from evperc.objects.backfill import warm_up as warm_up_backfill
 from evperc.objects.boxes import BoxParams, VehicleBoxes
 from evperc.objects.boxes import warm_up as warm_up_boxes
-from evperc.objects.clusters import JOINS_ANY
+from evperc.objects.clusters import JOINS_ANY, warm_up_return_centroids
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints
 from evperc.objects.footprint import warm_up as warm_up_footprints
 from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
@@ -106,6 +107,10 @@ class FrameInputs:
     #: each cell's highest return above the local ground (float32), with
     #: objects.moving_min_height_m only (:func:`evperc.sensor.sensor_grid`, ``heights_out``)
     heights: np.ndarray | None = None
+    #: each cell's sums of its obstacle returns' offsets from its centre and their count
+    #: (float32 (rows, cols, 3)), with objects.centroid = "returns" only
+    #: (:func:`evperc.sensor.sensor_grid`, ``sums_out``)
+    return_sums: np.ndarray | None = None
     #: with the object stage: bool layers of the cells the scan speaks of, of those holding
     #: a return and of those it marks occupied (:func:`evperc.objects.stage.scan_cells`),
     #: for the clusters, the footprints, the boxes and the backfill
@@ -429,6 +434,13 @@ class Pipeline:
         #: each cell's highest return
         self.top_heights = self.objects is not None and (self.objects.needs_heights
                                                          or self.boxes.enabled)
+        #: objects.centroid = "returns": the sensor grid also gives each cell's return sums
+        self.return_sums = self.objects is not None and self.objects.needs_return_sums
+        #: the return sums' arrays the object stage is done with, for the next sensor grids
+        #: (1.9 MB a frame on a 400 × 400 window: reused, not faulted in afresh each frame);
+        #: a deque's append and pop are atomic, and the decode thread pops while the fusion
+        #: thread appends
+        self._spare_sums: deque[np.ndarray] = deque()
         self.unmapped = (UnmappedCue(UnmappedParams.from_config(config), probe.shape,
                                      self.resolution) if unmapped_enabled(config) else None)
         self._warm_up()
@@ -443,7 +455,8 @@ class Pipeline:
         points = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, -1.5]], np.float32)
         free, occupied = sensor_grid(points, False, np.eye(4), tiny, self.sensor_params,
                                      hits_out=np.empty(tiny.shape, np.bool_),
-                                     heights_out=np.empty(tiny.shape, np.float32))
+                                     heights_out=np.empty(tiny.shape, np.float32),
+                                     sums_out=np.zeros((*tiny.shape, 3), np.float32))
         state = FusionState.fresh(tiny)
         out = StoredOutputs.empty(tiny.shape)
         gate = gate_step(state.gate, free, occupied, 0.1, self.params,
@@ -463,6 +476,8 @@ class Pipeline:
             warm_up_footprints(self.footprint)
             warm_up_boxes(self.boxes.params)
             warm_up_split(self.objects.splitter.params)
+            if self.return_sums:
+                warm_up_return_centroids()
             if self.objects.moving_min_cells > 0 or self.moving_needs_object:
                 unfill_small(out.decision.copy(), np.zeros(1, np.int64), None)
             if self.moving_needs_object:
@@ -598,15 +613,34 @@ class Pipeline:
         kinds = np.empty(len(scan.points), np.uint8) if self.request.point_labels else None
         hits = np.empty(inputs.window.shape, np.bool_) if self.cluster_all_returns else None
         heights = np.empty(inputs.window.shape, np.float32) if self.top_heights else None
+        sums = self._zeroed_sums(inputs.window.shape) if self.return_sums else None
         free, occupied = sensor_grid(scan.points, scan.planar, inputs.t_crs, inputs.window,
                                      self.sensor_params, kinds_out=kinds, hits_out=hits,
-                                     heights_out=heights)
+                                     heights_out=heights, sums_out=sums)
         cells = scan_cells(free, occupied, heights) if self.objects is not None else None
         seconds = {**inputs.seconds, "sensor": time.perf_counter() - t0}
         labelling = (scan, inputs.t_crs, kinds) if kinds is not None else None
         return replace(inputs, free=free, occupied=occupied, seconds=seconds, scan=None,
                        t_crs=None, labelling=labelling, hits=hits, heights=heights,
-                       scan_cells=cells)
+                       return_sums=sums, scan_cells=cells)
+
+    def _zeroed_sums(self, shape: tuple[int, int]) -> np.ndarray:
+        """A zeroed float32 ``(*shape, 3)`` array for the sensor grid's return sums: one the
+        object stage has handed back (:meth:`_spare`), else a new one."""
+        try:
+            sums = self._spare_sums.pop()
+        except IndexError:
+            return np.zeros((*shape, 3), np.float32)
+        if sums.shape != (*shape, 3):
+            return np.zeros((*shape, 3), np.float32)
+        sums.fill(0.0)
+        return sums
+
+    def _spare(self, sums: np.ndarray | None) -> None:
+        """Hand ``sums`` back for the next sensor grids once nothing reads it any more (a
+        few are kept: as many as scans are decoded ahead)."""
+        if sums is not None and len(self._spare_sums) < 4:
+            self._spare_sums.append(sums)
 
     def inputs(self, after_index: int, defer: threading.Event | None = None
                ) -> Iterator[tuple[int, FrameInputs]]:
@@ -668,7 +702,8 @@ class Pipeline:
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
                 inputs.stamp_ns, occupied_now=occupied_now, heights=inputs.heights,
-                near_building=inputs.near_building)
+                near_building=inputs.near_building, return_sums=inputs.return_sums)
+            self._spare(inputs.return_sums)  # read by the object stage only
             if self.backfill_frames > 0:  # the backfill's gaps (objects.bridge_gaps), boxes
                 frame["occupied_now"] = occupied_now
                 frame["speaks"], frame["returns"] = speaks, returns

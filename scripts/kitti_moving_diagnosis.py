@@ -85,7 +85,7 @@ class Recorder:
             return fill(decision, moving_cells)
 
         def step_wrap(self_, state, decision, betp_moving, conflict_fo, window, stamp_ns,
-                      occupied_now=None, heights=None, near_building=None):
+                      occupied_now=None, heights=None, near_building=None, return_sums=None):
             got: dict[str, Any] = {}
             inner = self_.clusterer.clusters
 
@@ -95,7 +95,8 @@ class Recorder:
             self_.clusterer.clusters = clusters_wrap
             try:
                 result = obj_step(self_, state, decision, betp_moving, conflict_fo, window,
-                                  stamp_ns, occupied_now, heights, near_building)
+                                  stamp_ns, occupied_now, heights, near_building,
+                                  return_sums)
             finally:
                 del self_.clusterer.clusters
             rec._cur.update(clusters=got["clusters"], conflict_fo=np.array(conflict_fo),

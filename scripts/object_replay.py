@@ -109,21 +109,30 @@ def record(drive: Path, out: Path, config: Path | None = None, with_map: bool = 
     def hooked(self: Any, state: Any, decision: np.ndarray, betp_moving: np.ndarray,
                conflict_fo: np.ndarray, window: Window, stamp_ns: int,
                occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None,
-               near_building: np.ndarray | None = None) -> Any:
+               near_building: np.ndarray | None = None,
+               return_sums: np.ndarray | None = None) -> Any:
         if decision.shape[0] >= 20:  # not the runner's warm-up on a tiny window
             frames.append((int(stamp_ns), window.row0, window.col0, decision.copy(),
                            betp_moving.copy(), conflict_fo.copy(),
                            np.packbits(np.asarray(occupied_now, bool).reshape(-1)),
                            np.packbits(speaks.pop(int(stamp_ns)).reshape(-1)),
                            np.zeros(decision.shape, np.float16) if heights is None
-                           else heights.astype(np.float16)))
+                           else heights.astype(np.float16),
+                           np.zeros((*decision.shape, 3), np.float32) if return_sums is None
+                           else return_sums.copy()))
         return original(self, state, decision, betp_moving, conflict_fo, window, stamp_ns,
-                        occupied_now, heights, near_building)
+                        occupied_now, heights, near_building, return_sums)
 
     root = logging.getLogger()
     handlers, level = list(root.handlers), root.level
+    original_needs = stage_mod.ObjectStage.needs_return_sums
     stage_mod.ObjectStage.step = hooked  # type: ignore[method-assign]
     runner_mod.Pipeline.sensor_grid = pipeline_hooked  # type: ignore[method-assign]
+    # the returns' sums recorded whatever the run's objects.centroid (the replay chooses);
+    # the object stage writes nothing back into the fusion, so the recorded inputs are the
+    # same either way
+    stage_mod.ObjectStage.needs_return_sums = property(  # type: ignore[method-assign]
+        lambda self: True)
     try:
         args = ["-q", "run", str(drive / "drive.mcap"),
                 *(["--map", str(drive / "map.geojson")] if with_map else ["--no-map"]),
@@ -134,6 +143,7 @@ def record(drive: Path, out: Path, config: Path | None = None, with_map: bool = 
     finally:
         stage_mod.ObjectStage.step = original  # type: ignore[method-assign]
         runner_mod.Pipeline.sensor_grid = original_pipeline  # type: ignore[method-assign]
+        stage_mod.ObjectStage.needs_return_sums = original_needs  # type: ignore[method-assign]
         # the CLI set up its own logging (its filter drops this script's INFO lines)
         root.handlers[:], root.level = handlers, level
     path = out / INPUTS
@@ -143,7 +153,7 @@ def record(drive: Path, out: Path, config: Path | None = None, with_map: bool = 
         decision=np.stack([f[3] for f in frames]), betp_moving=np.stack([f[4] for f in frames]),
         conflict_fo=np.stack([f[5] for f in frames]),
         occupied=np.stack([f[6] for f in frames]), speaks=np.stack([f[7] for f in frames]),
-        heights=np.stack([f[8] for f in frames]))
+        heights=np.stack([f[8] for f in frames]), return_sums=np.stack([f[9] for f in frames]))
     return path
 
 
@@ -188,6 +198,11 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
     if "speaks" not in data.files or "heights" not in data.files:
         raise SystemExit(f"{out / INPUTS}: recorded before the scan's cells or heights; "
                          "delete it")
+    if stage_mod.ObjectStage(config, (1, 1)).needs_return_sums and \
+            "return_sums" not in data.files:
+        raise SystemExit(f"{out / INPUTS}: recorded before the returns' sums "
+                         "(objects.centroid = \"returns\"); delete it")
+    sums = data["return_sums"] if "return_sums" in data.files else None
     decisions, betps, conflicts, occs = (data["decision"], data["betp_moving"],
                                          data["conflict_fo"], data["occupied"])
     shape = decisions.shape[1:]
@@ -211,7 +226,8 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
         # recorded run did not compute them (all zero: no return is that low)
         top = data["heights"][k].astype(np.float32)
         args = (state, decision, betps[k], conflicts[k], window, int(stamps[k]), occ,
-                top if top.any() else None, near_building(window))
+                top if top.any() else None, near_building(window),
+                None if sums is None else sums[k])
         objects, cells = step(stage, *args) if step is not None else stage.step(*args)
         speaks = np.unpackbits(data["speaks"][k])[:occ.size].reshape(shape).astype(bool)
         if fp_params.frames > 0:

@@ -79,7 +79,7 @@ import object_replay  # noqa: E402
 
 from evperc.eval.metrics import dilate_one_cell  # noqa: E402
 from evperc.fusion.twin import DECISION_CODES  # noqa: E402
-from evperc.objects.clusters import Clusterer, ClusterParams  # noqa: E402
+from evperc.objects.clusters import Clusterer, ClusterParams, with_return_centroids  # noqa: E402,E501
 from evperc.objects.tracking import footprint_seeds, is_moving, track_step  # noqa: E402
 from evperc.output.objects import OBJECT_STATES, record_cells  # noqa: E402
 from evperc.sim.truth import load_truth  # noqa: E402
@@ -117,7 +117,8 @@ RECORDS: list[FrameRecord] = []
 def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.ndarray,
                 conflict_fo: np.ndarray, window: Any, stamp_ns: int,
                 occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None,
-                near_building: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                near_building: np.ndarray | None = None, return_sums: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`ObjectStage.step` (the same calls, the same results) that appends a
     :class:`FrameRecord` to :data:`RECORDS`."""
     seeds = footprint_seeds(state, window)
@@ -133,6 +134,9 @@ def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.nda
     rc = relaxed.clusters(decision, betp_moving, conflict_fo, window, seeds, occupied_now)
     clusters = self.splitter.split(clusters, state, window, stamp_ns, decision, betp_moving,
                                    conflict_fo)
+    if return_sums is not None and self.needs_return_sums:
+        clusters = with_return_centroids(clusters, return_sums, window,
+                                         self.cluster_params.centroid_max_cells)
     records, cells = track_step(state, clusters, window, stamp_ns, self.tracking_params,
                                 decision, near_building)
     extent = np.maximum(rc.bbox_m[:, 2] - rc.bbox_m[:, 0], rc.bbox_m[:, 3] - rc.bbox_m[:, 1]) \

@@ -59,7 +59,7 @@ neighbours; the scratch marks are cleared cell by cell afterwards."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numba
@@ -116,6 +116,13 @@ class ClusterParams:
     #: objects.off_buildings_max_height_m: ... and none of whose cells holds a return at
     #: least this high above the local ground (m); 0 = no height condition
     off_buildings_max_height_m: float = 0.0
+    #: objects.centroid: "cells" (a cluster's centroid is the mean of its cell centres) or
+    #: "returns" (the mean of the obstacle returns of the scan in its cells, where it holds
+    #: one: :func:`with_return_centroids`)
+    centroid: str = "cells"
+    #: objects.centroid_max_cells: with centroid = "returns", only clusters of at most this
+    #: many cells take their returns' mean (0: every cluster)
+    centroid_max_cells: int = 0
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> ClusterParams:
@@ -132,7 +139,9 @@ class ClusterParams:
                              off_buildings=bool(o.get("clusters_off_buildings", False)),
                              off_buildings_small_m=float(o.get("off_buildings_small_m", 0.0)),
                              off_buildings_max_height_m=float(
-                                 o.get("off_buildings_max_height_m", 0.0)))
+                                 o.get("off_buildings_max_height_m", 0.0)),
+                             centroid=str(o.get("centroid", "cells")),
+                             centroid_max_cells=int(o.get("centroid_max_cells", 0)))
 
 
 @dataclass(frozen=True)
@@ -511,6 +520,61 @@ def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_e
             j += 1
         at += count
     return cells, offsets, centroid, bbox, seeds, mean_m
+
+
+def with_return_centroids(clusters: Clusters, sums: np.ndarray, window: Window,
+                          max_cells: int = 0) -> Clusters:
+    """``clusters`` with each centroid the mean of the scan's obstacle returns in its cells,
+
+        c = Σ_cells (n_c · x_c + Σᵢ δᵢ) / Σ_cells n_c,
+
+    (``x_c`` a cell's centre, ``n_c`` its returns, ``δᵢ`` their offsets from the centre:
+    ``sums`` (rows, cols, 3) float32 of :func:`evperc.sensor.sensor_grid`'s ``sums_out``),
+    where its cells hold a return and it has at most ``max_cells`` cells (0: any size); a
+    cluster holding no return (a track's carried cells only), or a larger one, keeps the
+    mean of its cell centres. A person is one or two 0.5 m cells: the mean of the
+    cell centres moves by half a cell or not at all as the person walks a quarter cell a
+    scan, the mean of the returns moves with the person (docs/method.md §8 "Centroids")."""
+    if len(clusters) == 0:
+        return clusters
+    flat = sums.reshape(-1, 3)
+    centroid = _return_centroids(clusters.cells, clusters.offsets, clusters.centroid_m, flat,
+                                 window.row0, window.col0, window.cols,
+                                 float(window.resolution_m), max_cells)
+    return replace(clusters, centroid_m=centroid)
+
+
+def warm_up_return_centroids() -> None:
+    """Load (or compile) :func:`with_return_centroids`' kernel before the first frame."""
+    _return_centroids(np.zeros(1, np.int64), np.array([0, 1], np.int64), np.zeros((1, 2)),
+                      np.ones((1, 3), np.float32), 0, 0, 1, 0.5, 0)
+
+
+@numba.njit(cache=True)  # keeps the GIL: a short pass over the clusters' cells
+def _return_centroids(cells, offsets, cell_centroid, sums, row0, col0, cols, res, max_cells
+                      ):  # pragma: no cover - compiled
+    """See :func:`with_return_centroids`."""
+    n = offsets.shape[0] - 1
+    out = cell_centroid.copy()
+    for k in range(n):
+        if max_cells > 0 and offsets[k + 1] - offsets[k] > max_cells:
+            continue
+        sx = 0.0
+        sy = 0.0
+        count = 0.0
+        for q in range(offsets[k], offsets[k + 1]):
+            cell = cells[q]
+            m = np.float64(sums[cell, 2])
+            if m > 0.0:
+                row = cell // cols
+                col = cell - row * cols
+                sx += m * ((col0 + col + 0.5) * res) + np.float64(sums[cell, 0])
+                sy += m * ((row0 + row + 0.5) * res) + np.float64(sums[cell, 1])
+                count += m
+        if count > 0.0:
+            out[k, 0] = sx / count
+            out[k, 1] = sy / count
+    return out
 
 
 def off_buildings_small(small_m: float, resolution_m: float) -> int:

@@ -18,7 +18,14 @@ import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
-from evperc.objects.clusters import BYTE_ONES, Clusterer, ClusterParams, block_max_at, zero_bytes
+from evperc.objects.clusters import (
+    BYTE_ONES,
+    Clusterer,
+    ClusterParams,
+    block_max_at,
+    with_return_centroids,
+    zero_bytes,
+)
 from evperc.objects.split import SplitParams, Splitter
 from evperc.objects.tracking import TrackerState, TrackingParams, footprint_seeds, track_step
 
@@ -80,10 +87,17 @@ class ObjectStage:
         return (self.moving_min_height > 0 or self.isolated_min_height > 0
                 or (p.off_buildings and p.off_buildings_max_height_m > 0))
 
+    @property
+    def needs_return_sums(self) -> bool:
+        """Whether :meth:`step` uses the cells' return sums (``objects.centroid =
+        "returns"``)."""
+        return self.cluster_params.centroid == "returns"
+
     def step(self, state: TrackerState, decision: np.ndarray, betp_moving: np.ndarray,
              conflict_fo: np.ndarray, window: Window, stamp_ns: int,
              occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None,
-             near_building: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+             near_building: np.ndarray | None = None, return_sums: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
         """The frame's reported objects and their cells (:func:`track_step`); ``state``
         is updated in place. ``occupied_now``: (rows, cols) bool, the cells holding a
         return of this scan; ``heights``: (rows, cols) float32, each cell's highest return
@@ -91,13 +105,18 @@ class ObjectStage:
         ``objects.moving_min_height_m`` and ``isolated_min_height_m`` (None: no height
         condition); ``near_building``: (rows, cols) bool, the cells within
         ``map.building_margin_m`` of a mapped building, for
-        ``objects.clusters_off_buildings`` (None: no map)."""
+        ``objects.clusters_off_buildings`` (None: no map); ``return_sums``: (rows, cols, 3)
+        float32, each cell's returns' offset sums and count (``sensor_grid(sums_out=)``), for
+        ``objects.centroid = "returns"`` (None: the cell centres' mean)."""
         seeds = footprint_seeds(state, window)
         clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds,
                                            occupied_now, heights, near_building)
         self.list_small_moving(decision, heights)
         clusters = self.splitter.split(clusters, state, window, stamp_ns, decision,
                                        betp_moving, conflict_fo)
+        if return_sums is not None and self.needs_return_sums:
+            clusters = with_return_centroids(clusters, return_sums, window,
+                                             self.cluster_params.centroid_max_cells)
         return track_step(state, clusters, window, stamp_ns, self.tracking_params, decision,
                           near_building)
 

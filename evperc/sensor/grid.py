@@ -34,6 +34,7 @@ from evperc.sensor.projection import (
     scatter_all_hits,
     scatter_free_polar_cells,
     scatter_hits,
+    scatter_return_sums,
     scatter_top_heights,
     unfree_feet,
 )
@@ -61,8 +62,8 @@ _scratch = _Scratch()
 
 def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, window: Window,
                 params: SensorParams, kinds_out: np.ndarray | None = None,
-                hits_out: np.ndarray | None = None, heights_out: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
+                hits_out: np.ndarray | None = None, heights_out: np.ndarray | None = None,
+                sums_out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(free, occupied)``: float32 ``window.shape`` arrays of m({F}) and m({O}) for one scan;
     m(Ω_SG) = 1 − free − occupied and a cell has at most one of the two nonzero.
 
@@ -89,6 +90,11 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
     the local ground of each cell's highest OBSTACLE point of the scan (0 where none; +inf
     for a ``planar`` scan's cells with a return: no ground), for
     ``objects.moving_min_height_m``; the masses do not depend on it either.
+    ``sums_out`` (float32 ``(*window.shape, 3)``, optional; pass zeros: it is added to, not
+    cleared, so that a fresh ``np.zeros`` block is touched only where the scan has returns)
+    receives each cell's sums of its OBSTACLE points' offsets from the cell centre (x, y, m)
+    and their count (:func:`~evperc.sensor.projection.scatter_return_sums`), for
+    ``objects.centroid = "returns"``; the masses do not depend on it.
     """
     layout = PolarLayout.build(params.azimuth_resolution_deg,
                                params.range_bin_m or window.resolution_m,
@@ -146,6 +152,11 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
                              f"{heights_out.dtype} {heights_out.shape}")
         heights_out.fill(0.0)
         scatter_top_heights(heights_out, window, sensor_xy, x, y, kind, height)
+    if sums_out is not None:
+        if sums_out.shape != (*window.shape, 3) or sums_out.dtype != np.float32:
+            raise ValueError(f"sums_out must be float32 {(*window.shape, 3)}, got "
+                             f"{sums_out.dtype} {sums_out.shape}")
+        scatter_return_sums(sums_out, window, sensor_xy, x, y, kind)
     if log.isEnabledFor(logging.DEBUG):
         log.debug("sensor grid: %d points kept, %d obstacle", int((az_bin >= 0).sum()),
                   int((kind == OBSTACLE).sum()))

@@ -84,6 +84,17 @@ def scatter_top_heights(top: np.ndarray, window: Window, sensor_xy: tuple[float,
                          sensor_xy[0], sensor_xy[1], x, y, kind, height)
 
 
+def scatter_return_sums(sums: np.ndarray, window: Window, sensor_xy: tuple[float, float],
+                        x: np.ndarray, y: np.ndarray, kind: np.ndarray) -> None:
+    """Add to each cell of ``sums`` (float32 ``(*window.shape, 3)``, not cleared here) the
+    offsets of its OBSTACLE points from the cell's centre, ``Σ (xᵢ − x_c)``, ``Σ (yᵢ − y_c)``
+    (m), and their count — every return, not only the first of its azimuth bin — so that a
+    group of cells has the mean of its returns for a centroid, not of its cell centres
+    (``objects.centroid = "returns"``). Not part of the sensor grid."""
+    _scatter_return_sums(sums, float(window.resolution_m), window.row0, window.col0,
+                         sensor_xy[0], sensor_xy[1], x, y, kind)
+
+
 def rasterise(state: np.ndarray, window: Window, sensor_xy: tuple[float, float],
               heading_rad: float, layout: PolarLayout, obstacle_bin: np.ndarray,
               free_end: np.ndarray, mu_free: float, mu_occupied: float,
@@ -190,6 +201,24 @@ def _scatter_top_heights(top, res, row0, col0, sx, sy, x, y, kind, height) -> No
             c = math.floor((sx + np.float64(x[i])) / res) - col0
             if 0 <= r < rows and 0 <= c < cols and height[i] > top[r, c]:
                 top[r, c] = height[i]
+
+
+@numba.njit(cache=True, nogil=True)
+def _scatter_return_sums(sums, res, row0, col0, sx, sy, x, y, kind) -> None:
+    """See :func:`scatter_return_sums` (cells as :func:`_mark`)."""
+    rows, cols = sums.shape[0], sums.shape[1]
+    for i in range(x.shape[0]):
+        if kind[i] == OBSTACLE:
+            wx = sx + np.float64(x[i])
+            wy = sy + np.float64(y[i])
+            r_abs = math.floor(wy / res)
+            c_abs = math.floor(wx / res)
+            r = r_abs - row0
+            c = c_abs - col0
+            if 0 <= r < rows and 0 <= c < cols:
+                sums[r, c, 0] += np.float32(wx - (c_abs + 0.5) * res)
+                sums[r, c, 1] += np.float32(wy - (r_abs + 0.5) * res)
+                sums[r, c, 2] += np.float32(1.0)
 
 
 @numba.njit(cache=True, nogil=True)

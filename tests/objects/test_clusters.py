@@ -370,3 +370,31 @@ def test_a_small_group_reaching_up_a_facade_is_no_walker():
     assert cells(params, heights) == []
     assert cells(replace(params, off_buildings_max_height_m=0.0), heights) == [[50, 51, 52]]
     assert cells(params, None) == [[50, 51, 52]]
+
+
+def test_return_centroids_are_the_mean_of_the_returns_in_the_cells():
+    """objects.centroid = "returns" (:func:`with_return_centroids`): hand-computed means."""
+    from evperc.objects.clusters import with_return_centroids
+    dec, betp_m, fo = _grids()
+    dec[2:4, 4:6] = D["moving"]      # cluster 0: rows 2-3, cols 4-5
+    dec[7, 9:11] = D["moving"]       # cluster 1: row 7, cols 9-10 (two cells, no returns)
+    c = _cluster(dec, betp_m, fo, ClusterParams(min_cells=2))
+    assert len(c) == 2
+    sums = np.zeros((10, 12, 3), np.float32)
+    # cell (2, 4): centre x = (20 + 4 + 0.5) * 0.5 = 12.25, y = (10 + 2 + 0.5) * 0.5 = 6.25;
+    # three returns at +0.2 m east, +0.1 m north of it: sums 0.6, 0.3, count 3
+    sums[2, 4] = (0.6, 0.3, 3.0)
+    # cell (3, 5): centre x = 12.75, y = 6.75; one return 0.1 m east: sums 0.1, 0, count 1
+    sums[3, 5] = (0.1, 0.0, 1.0)
+    out = with_return_centroids(c, sums, WIN)
+    # x = (3 * 12.25 + 0.6 + 12.75 + 0.1) / 4 = 50.2 / 4 = 12.55;
+    # y = (3 * 6.25 + 0.3 + 6.75) / 4 = 25.8 / 4 = 6.45 (float32 sums: 1e-6 m)
+    np.testing.assert_allclose(out.centroid_m[0], [12.55, 6.45], atol=1e-6)
+    # the cell centres' mean would be (12.5, 6.5): the cells without a return weigh nothing
+    np.testing.assert_allclose(c.centroid_m[0], [12.5, 6.5])
+    # cluster 1 holds no return: its cell centres' mean, x = (20 + 9.5 + 0.5) * 0.5 = 15.0,
+    # y = (10 + 7 + 0.5) * 0.5 = 8.75
+    np.testing.assert_allclose(out.centroid_m[1], [15.0, 8.75])
+    # everything else is the clustering's
+    np.testing.assert_array_equal(out.cells, c.cells)
+    np.testing.assert_array_equal(out.bbox_m, c.bbox_m)

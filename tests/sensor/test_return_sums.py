@@ -1,0 +1,66 @@
+"""Each cell's returns: the sums of their offsets from the cell centre and their count
+(``sensor_grid(..., sums_out=)``, objects.centroid = "returns"). The oracle sums the scene's
+own obstacle points (height in [ground_threshold_m, max_obstacle_height_m]) per cell with
+numpy from their world coordinates; ground and ignored points give nothing; the masses are
+unchanged."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evperc.geo.window import Window
+from evperc.sensor import sensor_grid
+from tests.sensor.scenes import pose
+from tests.sensor.test_all_hits import BEHIND, BESIDE, TOO_HIGH, level
+from tests.sensor.test_ground import RES, SENSOR, H, ground_points
+from tests.sensor.test_top_heights import LOW, PERSON
+
+
+@pytest.mark.parametrize("attitude", [{}, {"yaw_deg": 90.0, "pitch_deg": -3.0}])
+def test_return_sums_are_each_cells_obstacle_points(params, attitude):
+    t = pose(*SENSOR, 50.0, **attitude)
+    level_pts = np.vstack([ground_points(box=False),
+                           level(BEHIND, BESIDE, TOO_HIGH, LOW, *PERSON)])
+    points = (level_pts @ t[:3, :3]).astype(np.float32)
+    window = Window.centred_on(*SENSOR, 60.0, RES)
+    sums = np.zeros((*window.shape, 3), np.float32)  # added to: the caller passes zeros
+    free, occ = sensor_grid(points, False, t, window, params, sums_out=sums)
+
+    height = level_pts[:, 2] + H
+    obstacle = ((height >= params.ground_threshold_m)
+                & (height <= params.max_obstacle_height_m))
+    wx = SENSOR[0] + level_pts[obstacle, 0]
+    wy = SENSOR[1] + level_pts[obstacle, 1]
+    row = np.floor(wy / RES).astype(int) - window.row0
+    col = np.floor(wx / RES).astype(int) - window.col0
+    want = np.zeros((*window.shape, 3))
+    np.add.at(want, (row, col, 0), wx - (np.floor(wx / RES) + 0.5) * RES)
+    np.add.at(want, (row, col, 1), wy - (np.floor(wy / RES) + 0.5) * RES)
+    np.add.at(want, (row, col, 2), 1.0)
+    np.testing.assert_array_equal(sums[..., 2], want[..., 2])  # counts: exact
+    # offsets: the points pass through a float32 levelling of a tilted pose (~1e-5 m) and
+    # are summed in float32 (15 points a cell at most here); 1 mm is far below the 0.5 m
+    # cells whose sub-cell position they give
+    np.testing.assert_allclose(sums[..., :2], want[..., :2], atol=1e-3)
+    # the person's 14 returns at (11.1, -3.2): their mean is the person's position
+    r, c = window.index_of(np.array(SENSOR[0] + 11.1), np.array(SENSOR[1] - 3.2))
+    n = sums[int(r), int(c), 2]
+    assert n == 14
+    centre_x = (window.col0 + int(c) + 0.5) * RES
+    assert centre_x + sums[int(r), int(c), 0] / n == pytest.approx(SENSOR[0] + 11.1, abs=1e-3)
+
+    free0, occ0 = sensor_grid(points, False, t, window, params)
+    np.testing.assert_array_equal(free, free0)
+    np.testing.assert_array_equal(occ, occ0)
+
+    # added to, not overwritten: a second scan into the same array doubles every sum
+    sensor_grid(points, False, t, window, params, sums_out=sums)
+    np.testing.assert_array_equal(sums[..., 2], 2 * want[..., 2])
+
+
+def test_a_wrong_sums_array_is_refused(params):
+    window = Window.centred_on(*SENSOR, 20.0, RES)
+    with pytest.raises(ValueError, match="sums_out must be float32"):
+        sensor_grid(np.zeros((1, 3), np.float32), False, pose(*SENSOR, 0.0), window, params,
+                    sums_out=np.zeros(window.shape, np.float32))
