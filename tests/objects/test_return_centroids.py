@@ -6,15 +6,21 @@ it sees a staircase (the centroid stands, then jumps half a cell) and the fit is
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
+import evperc
+from evperc.cli import cli
 from evperc.config import load_config
 from evperc.fusion.twin import DECISION_CODES as D
 from evperc.geo.window import Window
 from evperc.objects.stage import ObjectStage
 from evperc.objects.tracking import TrackerState
 
+SAMPLE = Path(__file__).resolve().parents[2] / "sample_data"
 RES = 0.5
 SHAPE = (20, 40)
 WINDOW = Window(RES, SHAPE[0], SHAPE[1], 0, 0)
@@ -94,12 +100,6 @@ def test_a_run_hands_the_returns_to_the_tracker(tmp_path):
     the object stage (the object lists change), the fusion does not (the masses and ζ are
     the same: the object stage writes nothing back), and every record's centroid lies in
     its cells' bounding box (a mean of returns that lie in those cells)."""
-    from click.testing import CliRunner
-
-    import evperc
-    from evperc.cli import cli
-    from tests.e2e.test_evaluate_cli import SAMPLE
-
     runs = {}
     for name, centroid in (("cells", "cells"), ("returns", "returns")):
         config = tmp_path / f"{name}.toml"
