@@ -12,24 +12,17 @@ import pytest
 from evperc.geo.window import Window
 from evperc.sensor import sensor_grid
 from tests.sensor.scenes import pose
-from tests.sensor.test_all_hits import BEHIND, BESIDE, TOO_HIGH, level
-from tests.sensor.test_ground import RES, SENSOR, H, ground_points
-from tests.sensor.test_top_heights import LOW, PERSON
+from tests.sensor.test_ground import RES, SENSOR
+from tests.sensor.test_top_heights import obstacle_points, scene
 
 
 @pytest.mark.parametrize("attitude", [{}, {"yaw_deg": 90.0, "pitch_deg": -3.0}])
 def test_return_sums_are_each_cells_obstacle_points(params, attitude):
-    t = pose(*SENSOR, 50.0, **attitude)
-    level_pts = np.vstack([ground_points(box=False),
-                           level(BEHIND, BESIDE, TOO_HIGH, LOW, *PERSON)])
-    points = (level_pts @ t[:3, :3]).astype(np.float32)
-    window = Window.centred_on(*SENSOR, 60.0, RES)
+    t, level_pts, points, window = scene(attitude)
     sums = np.zeros((*window.shape, 3), np.float32)  # added to: the caller passes zeros
     free, occ = sensor_grid(points, False, t, window, params, sums_out=sums)
 
-    height = level_pts[:, 2] + H
-    obstacle = ((height >= params.ground_threshold_m)
-                & (height <= params.max_obstacle_height_m))
+    obstacle = obstacle_points(level_pts, params)
     wx = SENSOR[0] + level_pts[obstacle, 0]
     wy = SENSOR[1] + level_pts[obstacle, 1]
     row = np.floor(wy / RES).astype(int) - window.row0

@@ -21,21 +21,33 @@ LOW = (5.0, -6.0, 0.4)        # a return just above the 0.3 m threshold: a low o
 PERSON = tuple((11.1, -3.2, 0.4 + 0.1 * k) for k in range(14)) + ((11.6, -3.2, 1.1),)
 
 
-@pytest.mark.parametrize("attitude", [{}, {"yaw_deg": 90.0, "pitch_deg": -3.0}])
-def test_top_heights_are_the_highest_obstacle_point_of_each_cell(params, attitude):
+def scene(attitude: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, Window]:
+    """The flat ground, the obstacles above and the person, seen from a sensor posed with
+    ``attitude``: (pose, points in the level frame, points in the sensor frame, window)."""
     t = pose(*SENSOR, 50.0, **attitude)
     level_pts = np.vstack([ground_points(box=False),
                            level(BEHIND, BESIDE, TOO_HIGH, LOW, *PERSON)])
     points = (level_pts @ t[:3, :3]).astype(np.float32)
-    window = Window.centred_on(*SENSOR, 60.0, RES)
+    return t, level_pts, points, Window.centred_on(*SENSOR, 60.0, RES)
+
+
+def obstacle_points(level_pts: np.ndarray, params) -> np.ndarray:
+    """bool: the points whose height above the flat ground is in [ground_threshold_m,
+    max_obstacle_height_m] (the ground split's OBSTACLE over a flat scene)."""
+    height = level_pts[:, 2] + H
+    return (height >= params.ground_threshold_m) & (height <= params.max_obstacle_height_m)
+
+
+@pytest.mark.parametrize("attitude", [{}, {"yaw_deg": 90.0, "pitch_deg": -3.0}])
+def test_top_heights_are_the_highest_obstacle_point_of_each_cell(params, attitude):
+    t, level_pts, points, window = scene(attitude)
     top = np.full(window.shape, 7.0, np.float32)  # stale contents must be overwritten
     free, occ = sensor_grid(points, False, t, window, params, heights_out=top)
 
     # independent: the highest point of each cell among those whose height is in
     # [ground_threshold_m, max_obstacle_height_m]
     height = level_pts[:, 2] + H
-    obstacle = ((height >= params.ground_threshold_m)
-                & (height <= params.max_obstacle_height_m))
+    obstacle = obstacle_points(level_pts, params)
     want = np.zeros(window.shape, np.float32)
     for (x, y, _), h in zip(level_pts[obstacle], height[obstacle], strict=True):
         at = cell(window, x, y)
