@@ -106,6 +106,7 @@ RULES: dict[str, tuple] = {
     "objects.cluster_on": ("choice", "first_returns", "all_returns", "all_returns_join"),
     "objects.centroid": ("choice", "cells", "returns"),
     "objects.centroid_max_cells": ("range", 0, 1_000_000, False, False),
+    "objects.backfill_candidate_frames": ("range", -1, 1_000_000, False, False),
     "objects.motion_evidence_frames": ("range", 0, 10_000, False, False),
     "objects.conflict_cells": ("range", 1, 1_000_000, False, False),
     "objects.vacated_frames": ("range", 1, 1_000, False, False),

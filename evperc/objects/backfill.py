@@ -55,11 +55,18 @@ frame's C_q. The walk stops at the first frame with no occupied cell near P_k an
 held frames' end. Why: a person's first steps
 are clusters of one or two cells, under the clusters' minimum size, so the track starts
 late and its candidates begin there; its cells before are where its velocity, run back,
-puts it (docs/method.md §8 step 8)."""
+puts it (docs/method.md §8 step 8).
+
+**Candidate window** (``objects.backfill_candidate_frames`` = K; ours, -1 = L): a report fills
+its track's candidates only in the K held frames just before it; the gaps and the lead reach
+all L. With a longer lag the lead goes further back on a person's velocity while a track's
+older candidates — associated long before it moved, or before a false report — stay unfilled
+(docs/evaluation.md § Since 2026-12-06, sixth session)."""
 
 from __future__ import annotations
 
 import bisect
+import itertools
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
@@ -201,8 +208,11 @@ class Backfill:
     def __init__(self, frames: int, gap_cells: int = 0, extent_m: float = np.inf,
                  fill_decision: bool = True, bridge_reach: int = -1,
                  boxes: BoxParams | None = None, lead_frames: int = 0,
-                 lead_reach: int = 0) -> None:
+                 lead_reach: int = 0, candidate_frames: int = -1) -> None:
         self.frames = int(frames)
+        #: objects.backfill_candidate_frames: a report fills its track's candidates in at
+        #: most this many held frames before it (-1: every held frame)
+        self.candidate_frames = self.frames if candidate_frames < 0 else int(candidate_frames)
         #: objects.lead_frames, objects.lead_reach_cells (module docstring, "Lead"); 0: off
         self.lead_frames = int(lead_frames)
         self.lead_reach = int(lead_reach)
@@ -229,7 +239,8 @@ class Backfill:
         return Backfill(backfill_frames(config), int(o.get("fragment_gap_cells", 0)),
                         float(o.get("fragment_extent_m", np.inf)), fills_decision(config),
                         reach, BoxParams.from_config(config), int(o.get("lead_frames", 0)),
-                        int(o.get("lead_reach_cells", 0)))
+                        int(o.get("lead_reach_cells", 0)),
+                        int(o.get("backfill_candidate_frames", -1)))
 
     def push(self, frame: HeldFrame) -> list[HeldFrame]:
         """Fill the held frames from ``frame``'s moving records, hold ``frame``; returns the
@@ -239,7 +250,8 @@ class Backfill:
         new = ids[~_in_sorted(ids, self.last_moving)]
         self.last_moving = ids
         if len(new) and self.held:
-            for held in self.held:
+            newest = len(self.held) - min(self.candidate_frames, len(self.held))
+            for held in itertools.islice(self.held, newest, None):
                 for k in held.candidates.matching(new):
                     track = int(held.candidates.ids[k])
                     cells, age = held.candidates.pop(track)

@@ -112,6 +112,32 @@ def test_a_report_that_drops_out_and_returns_fills_the_frame_between() -> None:
     assert f0.added == f2.added == [7] and f1.added == f3.added == []
 
 
+def test_a_report_fills_candidates_only_within_the_candidate_frames() -> None:
+    """Lag 4, objects.backfill_candidate_frames 2: track 7 is a candidate in frames 0-3 and
+    reported moving in frame 4; only the two frames before the report (2 and 3) get its
+    record, frames 0 and 1 keep none and stay candidates (a report within 2 frames of them
+    could still fill them). The same frames with the window at its default (-1, every held
+    frame) fill all four: the count is what limits it."""
+    def frames() -> list[HeldFrame]:
+        return [_frame({7: ([[101, 202 + k]], k + 1)}) for k in range(4)]
+    limited, every = frames(), frames()
+    for backfill, held in ((Backfill(4, candidate_frames=2), limited), (Backfill(4), every)):
+        for f in held:
+            assert backfill.push(f) == []
+        backfill.push(_frame({}, objects=_record(7), cells=np.array([16], np.uint32)))
+    assert [f.added for f in limited] == [[], [], [7], [7]]
+    assert [7 in f.candidates for f in limited] == [True, True, False, False]
+    assert np.flatnonzero(limited[2].decision.reshape(-1) == D["moving"]).tolist() == [14]
+    assert np.count_nonzero(limited[0].decision == D["moving"]) == 0
+    assert [f.added for f in every] == [[7], [7], [7], [7]]
+    assert Backfill.from_config(load_config()).candidate_frames == 6  # -1: the lag's 6
+    assert Backfill.from_config(load_config(overrides={
+        "objects.backfill_frames": 10, "objects.backfill_candidate_frames": 6})
+        ).candidate_frames == 6
+    with pytest.raises(ConfigError, match="backfill_candidate_frames"):
+        load_config(overrides={"objects.backfill_candidate_frames": -2})
+
+
 def _gap_frames(before_state: int = MOVING, reach: int = 1
                 ) -> tuple[Backfill, list[HeldFrame]]:
     """Lag 3, frames 0.5 s apart: track 7 (velocity 1 m/s along x: one 0.5 m cell a frame)
