@@ -131,9 +131,11 @@ def test_a_report_fills_candidates_only_within_the_candidate_frames() -> None:
     assert np.count_nonzero(limited[0].decision == D["moving"]) == 0
     assert [f.added for f in every] == [[7], [7], [7], [7]]
     assert Backfill.from_config(load_config()).candidate_frames == 6  # -1: the lag's 6
+    assert Backfill.from_config(load_config(overrides={"objects.backfill_frames": 10})
+                                ).candidate_frames == 10  # -1 follows the lag
     assert Backfill.from_config(load_config(overrides={
-        "objects.backfill_frames": 10, "objects.backfill_candidate_frames": 6})
-        ).candidate_frames == 6
+        "objects.backfill_frames": 10, "objects.backfill_candidate_frames": 3})
+        ).candidate_frames == 3
     with pytest.raises(ConfigError, match="backfill_candidate_frames"):
         load_config(overrides={"objects.backfill_candidate_frames": -2})
 
