@@ -168,6 +168,9 @@ class ReplayFrame:
     decision: np.ndarray
     objects: np.ndarray
     object_cells: np.ndarray
+    #: the backfill's step behind each cell it decided moving (:attr:`HeldFrame.added_by`;
+    #: replay(trace_backfill=True)), else None
+    added_by: dict[int, str] | None = None
 
     def object_labels(self) -> np.ndarray:
         return object_labels(self.objects, self.object_cells, self.decision.shape)
@@ -188,9 +191,12 @@ StepFn = Callable[[ObjectStage, TrackerState, np.ndarray, np.ndarray, np.ndarray
                   tuple[np.ndarray, np.ndarray]]
 
 
-def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> ReplayRun:
+def replay(out: Path, config: dict[str, Any], step: StepFn | None = None,
+           trace_backfill: bool = False) -> ReplayRun:
     """The recorded run ``out`` with its object stage replayed under ``config``. ``step``:
-    replaces :meth:`ObjectStage.step` (same signature), e.g. to trace it."""
+    replaces :meth:`ObjectStage.step` (same signature), e.g. to trace it;
+    ``trace_backfill``: each frame's ``added_by`` says which of the backfill's steps decided
+    its cells moving (:attr:`evperc.objects.backfill.HeldFrame.added_by`)."""
     from evperc import load
     run = load(out)
     data = np.load(out / INPUTS)
@@ -216,6 +222,7 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None) -> Rep
     frames = []
     fill = stage_mod.fills_decision(config)
     backfill = Backfill.from_config(config)
+    backfill.trace = trace_backfill
     small_groups: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     support, support_params = SmallGroupSupport(), SupportParams.from_config(config)
     for k in range(len(stamps)):
@@ -297,6 +304,7 @@ def _released(held: list[HeldFrame]) -> list[ReplayFrame]:
     frame's own array, filled in place)."""
     for h in held:
         h.payload.objects, h.payload.object_cells = h.objects, h.object_cells
+        h.payload.added_by = h.added_by
     return [h.payload for h in held]
 
 

@@ -16,8 +16,13 @@ Path (first that applies, in the order of the pipeline):
   (the fill would have decided it moving anyway);
 - ``fill``: the fusion did not decide it moving, the cluster cells of a reported moving
   object did (:func:`evperc.objects.stage.fill_moving`);
-- ``completion``: a completed cell (:mod:`evperc.objects.footprint`: carried forward from
-  the object's earlier cluster cells where the scan is silent).
+- ``backfill_candidate``, ``backfill_gap``, ``backfill_lead``, ``backfill_box``: a cell the
+  backfill decided moving after the frame's own step (docs/method.md §8 step 8: a track's
+  candidate filled when it was reported later, a gap bridged, the lead before its first
+  association, the vehicle box of a record it added);
+- ``completion``: a completed cell of the frame's own step (:mod:`evperc.objects.footprint`:
+  carried forward from the object's earlier cluster cells where the scan is silent; the
+  vehicle boxes of its own records).
 
 Truth: its class (free / infrastructure / stopped / unmapped) and what is near it, the first
 that applies within ``--near`` cells (Chebyshev): a moving agent (a spill of 2+ cells), a
@@ -67,7 +72,8 @@ log = logging.getLogger("trace_false_moving")
 
 #: the status of the track whose cluster (this frame's association) holds a cell
 TRACK_STATUS = ("young", "confirmed_still", "confirmed_moving")
-PATHS = ("fusion_no_object", "fusion_in_object", "fill", "completion")
+PATHS = ("fusion_no_object", "fusion_in_object", "fill", "backfill_candidate", "backfill_gap",
+         "backfill_lead", "backfill_box", "completion")
 NEAR = ("moving_agent", "stopped_car", "parked_car", "pedestrian", "unmapped", "building",
         "open")
 UNMAPPED_SHAPES = ("none", "pole_or_bollard", "trunk", "fence")
@@ -235,7 +241,7 @@ def attribute(stage: list[StageFrame], run: Any, truth: Any, cells: str, reach: 
         for i in np.flatnonzero(good).tolist():  # the correct ones, for what a rule costs
             w = int(flat.reshape(-1)[i])
             path = ("fusion_in_object" if final_objects[w] else "fusion_no_object") \
-                if fusion_m[w] else "fill" if tracker[w] else "completion"
+                if fusion_m[w] else "fill" if tracker[w] else _completed(f, w)
             st = int(s.track_status.reshape(-1)[w])
             aspects[("correct " + path, "track", "none" if st < 0 else TRACK_STATUS[st])] += 1
             if st < 0:  # which agent a rule on untracked moving cells would cost
@@ -251,7 +257,7 @@ def attribute(stage: list[StageFrame], run: Any, truth: Any, cells: str, reach: 
             elif tracker[w]:
                 path = "fill"
             elif final_objects[w]:
-                path = "completion"
+                path = _completed(f, w)
             else:
                 path = "?"
             counts[(path, class_names.get(int(cls.reshape(-1)[i]), "?"),
@@ -310,6 +316,13 @@ def attribute(stage: list[StageFrame], run: Any, truth: Any, cells: str, reach: 
             "false_tracks": tracks}
 
 
+def _completed(frame: Any, cell: int) -> str:
+    """The path of a moving cell of ``frame`` neither the fusion nor the frame's own fill
+    decided: the backfill's step that did (``backfill_…``), else ``completion``."""
+    step = (frame.added_by or {}).get(cell)
+    return "completion" if step is None else "backfill_" + step
+
+
 def _what(rec: dict[str, Any]) -> str:
     """One word for what a false track's cells are in the truth."""
     if rec["stopped_roles"]:
@@ -342,7 +355,7 @@ def main() -> None:
         for seed in args.seeds.split(","):
             drive, out = object_replay.recorded(args.work, profile, seed, args.config)
             STAGE.clear()
-            run = object_replay.replay(out, config, step=traced_step)
+            run = object_replay.replay(out, config, step=traced_step, trace_backfill=True)
             results[f"{profile}-s{seed}"] = attribute(list(STAGE), run,
                                                       load_truth(drive / "truth"), args.cells,
                                                       args.near, need)

@@ -122,6 +122,10 @@ class HeldFrame:
     #: bool layer, the sensor grid's heights > 0), for the vehicle boxes of the added
     #: records; None: the first returns only
     returns: np.ndarray | None = None
+    #: with :attr:`Backfill.trace`: which of the backfill's steps decided each cell
+    #: ``moving`` that was not before (flat window cell -> "candidate", "gap", "lead" or
+    #: "box"; the first step wins), for scripts/trace_false_moving.py; None: not kept
+    added_by: dict[int, str] | None = None
 
 
 class Candidates:
@@ -208,7 +212,7 @@ class Backfill:
     def __init__(self, frames: int, gap_cells: int = 0, extent_m: float = np.inf,
                  fill_decision: bool = True, bridge_reach: int = -1,
                  boxes: BoxParams | None = None, lead_frames: int = 0,
-                 lead_reach: int = 0, candidate_frames: int = -1) -> None:
+                 lead_reach: int = 0, candidate_frames: int = -1, trace: bool = False) -> None:
         self.frames = int(frames)
         #: objects.backfill_candidate_frames: a report fills its track's candidates in at
         #: most this many held frames before it (-1: every held frame)
@@ -228,6 +232,9 @@ class Backfill:
         #: objects.fragment_extent_m: ... unless their joined box is longer along x or y
         self.extent_m = float(extent_m)
         self.held: deque[HeldFrame] = deque()
+        #: note in each held frame's ``added_by`` which step decided its cells moving
+        #: (diagnostics: scripts/trace_false_moving.py); off in a run
+        self.trace = bool(trace)
         #: the track ids reported moving by the last frame pushed (their candidates in the
         #: frames held before it were taken then, and it has none: nothing left to fill)
         self.last_moving = np.zeros(0, np.int64)
@@ -255,6 +262,7 @@ class Backfill:
                 for k in held.candidates.matching(new):
                     track = int(held.candidates.ids[k])
                     cells, age = held.candidates.pop(track)
+                    self._note(held, cells, "candidate")
                     fill(held, track, cells, age, moving[bisect.bisect_left(ids, track)],
                          self.gap_cells, self.extent_m, self.fill_decision)
             if self.bridge_reach >= 0 or self.lead_frames > 0:
@@ -291,6 +299,7 @@ class Backfill:
                 cells = bridge_cells(g, report["velocity_m_per_s"], (newer, older),
                                      self.bridge_reach)
                 if len(cells):
+                    self._note(g, cells, "gap")
                     fill(g, track, cells, int(held.objects["age_frames"][b]), report,
                          self.gap_cells, self.extent_m, self.fill_decision)
             newer, gap = older, []
@@ -298,8 +307,15 @@ class Backfill:
             cells = bridge_cells(g, report["velocity_m_per_s"], (newer,), self.lead_reach)
             if not len(cells):
                 return
+            self._note(g, cells, "lead")
             fill(g, track, cells, 0, report, self.gap_cells, self.extent_m, self.fill_decision)
             newer = (cells, g.stamp_ns)
+
+    def _note(self, held: HeldFrame, lattice: np.ndarray, step: str) -> None:
+        """With :attr:`trace` (and the fill deciding cells), note ``step`` for ``lattice``'s
+        cells in ``held.added_by`` before they are filled."""
+        if self.trace and self.fill_decision:
+            _note(held, lattice, step)
 
     def flush(self) -> list[HeldFrame]:
         """Every held frame, oldest first (the log's end)."""
@@ -327,7 +343,10 @@ class Backfill:
                 # records' cells) takes its general path, which releases the GIL
                 cells64 = np.asarray(cells, np.int64)
                 for k in np.flatnonzero(only):
-                    flat[cells64[ends[k] - counts[k]:ends[k]]] = MOVING
+                    box = cells64[ends[k] - counts[k]:ends[k]]
+                    if self.trace:
+                        _note_flat(held, box, "box")
+                    flat[box] = MOVING
         return held
 
 
@@ -373,6 +392,25 @@ def fill(held: HeldFrame, track: int, lattice: np.ndarray, age: int,
     held.object_cells = np.concatenate([old_cells[:offset], cells.astype(dtype),
                                         old_cells[offset:]])
     held.added.append(track)
+
+
+def _note(held: HeldFrame, lattice: np.ndarray, step: str) -> None:
+    """Note ``step`` in ``held.added_by`` for the cells of ``lattice`` (global (iy, ix))
+    in its window not yet decided ``moving`` (:attr:`HeldFrame.added_by`)."""
+    w = held.window
+    rc = np.asarray(lattice, np.int64).reshape(-1, 2) - (w.row0, w.col0)
+    inside = (rc[:, 0] >= 0) & (rc[:, 0] < w.rows) & (rc[:, 1] >= 0) & (rc[:, 1] < w.cols)
+    _note_flat(held, rc[inside, 0] * w.cols + rc[inside, 1], step)
+
+
+def _note_flat(held: HeldFrame, flat: np.ndarray, step: str) -> None:
+    """:func:`_note` on flat window cells."""
+    if held.added_by is None:
+        held.added_by = {}
+    decision = held.decision.reshape(-1)
+    for q in np.asarray(flat, np.int64).tolist():
+        if decision[q] != MOVING:
+            held.added_by.setdefault(q, step)
 
 
 def _fields(objects: np.ndarray) -> tuple[np.ndarray, ...]:

@@ -226,15 +226,19 @@ def test_a_bridged_record_takes_the_predicted_cells_its_scan_is_silent_about() -
     assert gap.added == [] and not (gap.decision == D["moving"]).any()
 
 
-def _lead_frames(occupied: list[list[int]], lead: int = 6, reach: int = 1
+def _lead_frames(occupied: list[list[int]], lead: int = 6, reach: int = 1,
+                 trace: bool = False, moving_before: tuple[int, ...] = ()
                  ) -> list[HeldFrame]:
     """Lag 4, track 7 moving +x at 1 m/s (a cell every 0.5 s): a candidate in frame 2 on
     window cell (2, 4), reported moving in frame 3 on (2, 5); frames 0 and 1 hold the
-    occupied cells ``occupied[0]``, ``occupied[1]`` (flat) and no candidate of it; pushed."""
-    backfill = Backfill(4, bridge_reach=0, lead_frames=lead, lead_reach=reach)
+    occupied cells ``occupied[0]``, ``occupied[1]`` (flat) and no candidate of it; frame 1
+    decides the flat cells ``moving_before`` moving before any fill; pushed (``trace``:
+    :attr:`Backfill.trace`)."""
+    backfill = Backfill(4, bridge_reach=0, lead_frames=lead, lead_reach=reach, trace=trace)
     frames = [_frame({}), _frame({}), _frame({7: ([[102, 204]], 2)}),
               _frame({}, objects=_record(7, velocity=(1.0, 0.0)),
                      cells=np.array([25], np.uint32))]
+    frames[1].decision.reshape(-1)[list(moving_before)] = D["moving"]
     for k, f in enumerate(frames):
         f.stamp_ns = k * 500_000_000
         f.occupied = np.zeros(W.shape, np.bool_)
@@ -272,6 +276,25 @@ def test_a_lead_stops_at_the_first_frame_with_nothing_there() -> None:
     f0, f1, f2, _ = _lead_frames([[22, 23], [55]])
     assert f0.added == f1.added == [] and f2.added == [7]
     assert not (f0.decision == D["moving"]).any()
+
+
+def test_a_traced_backfill_notes_the_step_that_decided_each_cell() -> None:
+    """With ``trace`` each held frame's ``added_by`` names the step that decided a cell
+    moving (scripts/trace_false_moving.py reads it): frame 2's candidate cell 24 was filled
+    ("candidate"), frames 1 and 0 were led into (cells 23, 33 and 22, 41: "lead"; the same
+    cells as test_a_track_is_led_back_before_its_first_association). A cell already decided
+    moving before the fill (33 in frame 1) is not the backfill's and is not noted; the
+    records and decisions are those of the untraced backfill, whose frames note nothing."""
+    f0, f1, f2, f3 = _lead_frames([[22, 41, 55], [23, 33, 53]], trace=True, moving_before=(33,))
+    assert f2.added_by == {24: "candidate"}
+    assert f1.added_by == {23: "lead"} and f0.added_by == {22: "lead", 41: "lead"}
+    assert f3.added_by is None  # the reporting frame: nothing added to it
+    plain = _lead_frames([[22, 41, 55], [23, 33, 53]], moving_before=(33,))
+    for traced, untraced in zip((f0, f1, f2, f3), plain, strict=True):
+        assert untraced.added_by is None
+        np.testing.assert_array_equal(traced.decision, untraced.decision)
+        assert traced.object_cells.tolist() == untraced.object_cells.tolist()
+    assert f1.object_cells.tolist() == [23, 33]
 
 
 def _bridge_reference(held: HeldFrame, velocity: np.ndarray, known: tuple, reach: int
