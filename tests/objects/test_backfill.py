@@ -140,14 +140,14 @@ def test_a_report_fills_candidates_only_within_the_candidate_frames() -> None:
         load_config(overrides={"objects.backfill_candidate_frames": -2})
 
 
-def _gap_frames(before_state: int = MOVING, reach: int = 1
+def _gap_frames(before_state: int = MOVING, reach: int = 1, trace: bool = False
                 ) -> tuple[Backfill, list[HeldFrame]]:
     """Lag 3, frames 0.5 s apart: track 7 (velocity 1 m/s along x: one 0.5 m cell a frame)
     has a record in frame 0 on window cell (2, 2), none in frame 1, and is reported moving
     in frame 2 on (2, 4). Frame 1 holds a stopped record of track 12 on (1, 2); its cells
     occupied now: (2, 3) and (3, 4) (within one cell of the prediction (2, 3) from both
-    ends), (2, 5) (two cells away) and (1, 2) (track 12's)."""
-    backfill = Backfill(3, bridge_reach=reach)
+    ends), (2, 5) (two cells away) and (1, 2) (track 12's). ``trace``: :attr:`Backfill.trace`."""
+    backfill = Backfill(3, bridge_reach=reach, trace=trace)
 
     def frame(k: int, objects: np.ndarray, cells: list[int], occupied: list[int]
               ) -> HeldFrame:
@@ -166,8 +166,9 @@ def _gap_frames(before_state: int = MOVING, reach: int = 1
 def test_a_gap_between_two_moving_records_is_bridged() -> None:
     """The gap frame gets track 7's record on its occupied cells within one cell of the
     predicted (2, 3), not on the cell two away nor on track 12's; they are decided moving,
-    the record takes the age of the record before the gap and the report's velocity."""
-    backfill, (f0, f1, f2) = _gap_frames()
+    the record takes the age of the record before the gap and the report's velocity; traced,
+    the frame notes them as the gap's."""
+    backfill, (f0, f1, f2) = _gap_frames(trace=True)
     f0.objects["age_frames"] = 5
     for f in (f0, f1, f2):
         backfill.push(f)
@@ -178,6 +179,7 @@ def test_a_gap_between_two_moving_records_is_bridged() -> None:
     assert (r["state"], r["age_frames"], r["cell_count"]) == (MOVING, 5, 2)
     np.testing.assert_allclose(r["velocity_m_per_s"], [1.0, 0.0])
     assert f0.added == f2.added == []
+    assert f1.added_by == {23: "gap", 34: "gap"} and f0.added_by is f2.added_by is None
 
 
 def test_a_gap_between_two_candidates_is_bridged_when_they_are_filled() -> None:
@@ -723,14 +725,15 @@ def test_a_filled_vehicle_gets_its_box_when_the_frame_leaves() -> None:
     reported moving at (5, 0) m/s in frame 1. Frame 0 leaves with its record completed to
     the box: along u = x from 10.25 to 10.25 + 4.4 = 14.65 (columns 20-28; the sensor,
     the window's centre (7.75, 7.75), lies behind the face); across, the face's 1.5 m grows
-    to 1.8 m away from the sensor (y ≥ 6.45: rows 13-16 still). Without boxes: the face."""
+    to 1.8 m away from the sensor (y ≥ 6.45: rows 13-16 still). Without boxes: the face.
+    Traced, the face's cells are the candidate's and the rest of the box the box's."""
     from evperc.objects.boxes import BoxParams
     window = Window(0.5, 30, 30, 0, 0)
     silent = (np.zeros(window.shape, np.float32), np.zeros(window.shape, np.float32))
     face = [[r, 20] for r in range(13, 17)]
     got = {}
     for name, boxes in (("boxes", BoxParams(4.4, 1.8, 3.0, 1.0)), ("none", None)):
-        backfill = Backfill(1, boxes=boxes)
+        backfill = Backfill(1, boxes=boxes, trace=True)
         f0 = HeldFrame(window, np.full(window.shape, D["free"], np.uint8),
                        np.zeros(window.shape, np.uint8), empty_objects(),
                        np.zeros(0, np.uint32),
@@ -748,5 +751,7 @@ def test_a_filled_vehicle_gets_its_box_when_the_frame_leaves() -> None:
         assert {divmod(int(c), 30) for c in np.flatnonzero(
             f0.decision.reshape(-1) == D["moving"])} == cells
         got[name] = cells
+        assert {divmod(q, 30): step for q, step in f0.added_by.items()} == {
+            cell: "candidate" if cell[1] == 20 else "box" for cell in cells}
     assert got["none"] == {(r, 20) for r in range(13, 17)}
     assert got["boxes"] == {(r, c) for r in range(13, 17) for c in range(20, 29)}
