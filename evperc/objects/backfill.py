@@ -79,7 +79,7 @@ from evperc.geo.window import Window
 from evperc.gil_kept import in_sorted, sorted_copy, sorted_unique
 from evperc.objects.boxes import BoxParams, VehicleBoxes, flat_layer
 from evperc.objects.stage import fills_decision, objects_enabled
-from evperc.objects.tracking import TrackerState
+from evperc.objects.tracking import TrackerState, window_indices
 from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
 
 MOVING = DECISION_CODES["moving"]
@@ -397,10 +397,8 @@ def fill(held: HeldFrame, track: int, lattice: np.ndarray, age: int,
 def _note(held: HeldFrame, lattice: np.ndarray, step: str) -> None:
     """Note ``step`` in ``held.added_by`` for the cells of ``lattice`` (global (iy, ix))
     in its window not yet decided ``moving`` (:attr:`HeldFrame.added_by`)."""
-    w = held.window
-    rc = np.asarray(lattice, np.int64).reshape(-1, 2) - (w.row0, w.col0)
-    inside = (rc[:, 0] >= 0) & (rc[:, 0] < w.rows) & (rc[:, 1] >= 0) & (rc[:, 1] < w.cols)
-    _note_flat(held, rc[inside, 0] * w.cols + rc[inside, 1], step)
+    _note_flat(held, window_indices(np.asarray(lattice, np.int64).reshape(-1, 2), held.window),
+               step)
 
 
 def _note_flat(held: HeldFrame, flat: np.ndarray, step: str) -> None:
