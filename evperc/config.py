@@ -109,6 +109,7 @@ RULES: dict[str, tuple] = {
     "objects.backfill_candidate_frames": ("range", -1, 1_000_000, False, False),
     "objects.motion_evidence_frames": ("range", 0, 10_000, False, False),
     "objects.conflict_cells": ("range", 1, 1_000_000, False, False),
+    "objects.single_conflict_max_cells": ("range", 0, 1_000_000, False, False),
     "objects.vacated_frames": ("range", 1, 1_000, False, False),
     "objects.vacated_share": ("range", *_UNIT_INTERVAL, True, False),
     "objects.point_reach_cells": ("range", 0, 100, False, False),

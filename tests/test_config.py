@@ -174,6 +174,8 @@ def test_packaged_preset_is_the_repo_file() -> None:
     ("box_width_m = 200.0", r"objects.box_width_m = 200.0 is outside"),
     ('box_min_length_m = "long"', r"objects.box_min_length_m"),
     ("box_min_width_m = -1.0", r"objects.box_min_width_m = -1.0 is outside"),
+    ("single_conflict_max_cells = -1", r"objects.single_conflict_max_cells = -1 is outside"),
+    ("single_conflict_max_cells = 1.5", r"objects.single_conflict_max_cells"),
 ])
 def test_object_evidence_keys_are_validated(tmp_path: Path, line: str, match: str) -> None:
     with pytest.raises(ConfigError, match=match):

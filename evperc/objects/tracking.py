@@ -24,7 +24,9 @@ cluster of a parked car grows as the ego drives past and more of it comes into v
 centroid then drifts at a walking pace. Evidence of a frame, from the grid:
 
 - *conflict*: the cluster holds at least ``conflict_cells`` cells decided ``moving`` (the
-  fusion's ∅_FO, through the motion gate: free before, occupied now);
+  fusion's ∅_FO, through the motion gate: free before, occupied now) — one, if it has at
+  most ``single_conflict_max_cells`` cells (a person of one to three cells steps into one
+  cell seen free at a time);
 - *vacated*: of the cells the track held ``vacated_frames`` associations ago, a share of at
   least ``vacated_share`` is decided ``free`` now (occupied then, seen free now: the object
   left them). A static object's cells stay occupied; a car driving ahead of the ego, which
@@ -89,6 +91,9 @@ class TrackingParams:
     motion_evidence_frames: int = 0  # configs/default.toml: 3
     #: objects.conflict_cells: decided-moving cells a cluster needs for conflict evidence
     conflict_cells: int = 2
+    #: objects.single_conflict_max_cells: a cluster of at most this many cells needs one
+    #: (a person's one step into cells seen free is all the conflict it gives); 0 = off
+    single_conflict_max_cells: int = 0
     #: objects.vacated_frames: the footprint compared is the one this many associations ago
     vacated_frames: int = 3
     #: objects.vacated_share: share of that footprint decided free now for vacated evidence
@@ -132,7 +137,9 @@ class TrackingParams:
             motion_test=float(o["motion_test"]),
             centroid_sigma_m=float(o["centroid_sigma_m"]),
             motion_evidence_frames=int(o["motion_evidence_frames"]),
-            conflict_cells=int(o["conflict_cells"]), vacated_frames=int(o["vacated_frames"]),
+            conflict_cells=int(o["conflict_cells"]),
+            single_conflict_max_cells=int(o.get("single_conflict_max_cells", 0)),
+            vacated_frames=int(o["vacated_frames"]),
             vacated_share=float(o["vacated_share"]),
             evidence_every_frame=bool(o.get("evidence_every_frame", False)),
             arrival_share=float(o.get("arrival_share", 0.0)),
@@ -589,7 +596,7 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                   history, confirm, max_missed, speed2_min, motion_test, sigma0, need,
                   conflict_cells, vacated_frames, share_min, every_frame, arrival_share,
                   arrival_cells, sigma_per_m, clearance2, centre_x, centre_y, expires,
-                  near, facade_speed2):  # pragma: no cover - compiled
+                  near, facade_speed2, single_max):  # pragma: no cover - compiled
     """One frame of the tracker (:func:`track_step`, the module docstring) on the state's
     arrays; returns the new arrays, the next id, and the reported (track row, cluster)."""
     n_old = ids.shape[0]
@@ -792,7 +799,9 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                 if inside:
                     fast = False
             if fast or every_frame:  # the frame's evidence (reference: frame_evidence)
-                conflict = 1 if seeds[c] >= conflict_cells else 0
+                size = offsets[c + 1] - offsets[c]
+                least = min(conflict_cells, 1) if size <= single_max else conflict_cells
+                conflict = 1 if seeds[c] >= least else 0
                 if conflict and arrival_share > 0:  # arrival: the whole evidence at once
                     if (seeds[c] >= arrival_cells
                             and seeds[c] >= arrival_share * (offsets[c + 1] - offsets[c])):
@@ -945,7 +954,8 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
         int(params.arrival_min_cells),
         float(params.centroid_sigma_per_m), float(params.ego_clearance_m) ** 2,
         *ego_cell_centre(window), bool(params.evidence_expires), near,
-        float(params.facade_max_speed_m_per_s) ** 2 if has_near else 0.0)
+        float(params.facade_max_speed_m_per_s) ** 2 if has_near else 0.0,
+        int(params.single_conflict_max_cells))
     (state.id, state.hits, state.missed, state.flags, state.hist_n, state.hist_t,
      state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
      state.past_n, state.past, state.next_id, rows, cl) = out

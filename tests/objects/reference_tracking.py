@@ -316,11 +316,14 @@ def frame_evidence(t: Track, clusters: Clusters, c: int, decision: np.ndarray | 
     ``arrival_share`` > 0, a cluster of which at least that share of the cells is decided
     moving (free before, occupied now: the object arrived in cells seen free), and at least
     ``arrival_min_cells`` of them, counts ``motion_evidence_frames`` frames of conflict
-    evidence at once."""
+    evidence at once. A cluster of at most ``single_conflict_max_cells`` cells (added after
+    the compiled rewrite) needs one cell decided moving, not ``conflict_cells``."""
     seeds = int(clusters.seeds[c])
-    conflict = int(seeds >= params.conflict_cells)
+    size = int(clusters.offsets[c + 1] - clusters.offsets[c])
+    least = (min(params.conflict_cells, 1) if size <= params.single_conflict_max_cells
+             else params.conflict_cells)
+    conflict = int(seeds >= least)
     if conflict and params.arrival_share > 0:
-        size = int(clusters.offsets[c + 1] - clusters.offsets[c])
         if seeds >= params.arrival_min_cells and seeds >= params.arrival_share * size:
             conflict = max(1, params.motion_evidence_frames)
     vacated = int(decision is not None and len(t.past) == params.vacated_frames

@@ -138,6 +138,30 @@ def test_conflict_cells_are_evidence_from_the_frames_whose_velocity_passes() -> 
     assert _moving_from(frames, strict) is None
 
 
+def _walker(k: int) -> np.ndarray:
+    """A 1 x 3 group one cell east per frame, only its front cell decided moving (one
+    conflict cell: a person steps into one cell seen free at a time), the road behind it
+    unknown (no vacated evidence)."""
+    dec = np.full(SHAPE, D["unknown"], np.uint8)
+    dec[5, 10 + k:13 + k] = D["static"]
+    dec[5, 12 + k] = D["moving"]
+    return dec
+
+
+def test_a_small_cluster_shows_conflict_with_one_moving_cell() -> None:
+    frames = [_walker(k) for k in range(8)]
+    # one conflict cell a frame is short of conflict_cells = 2: never moving
+    assert _moving_from(frames, EVIDENCE) is None
+    # a cluster of at most 3 cells needs one: the velocity passes from frame 2 (as the
+    # 2 x 3 block's above, the same centroids), evidence in frames 2, 3, 4 -> moving at 4
+    assert _moving_from(frames, replace(EVIDENCE, single_conflict_max_cells=3)) == 4
+    # the bound is on the cluster's cells: 3 cells are more than 2
+    assert _moving_from(frames, replace(EVIDENCE, single_conflict_max_cells=2)) is None
+    # the 2 x 3 block's two conflict cells pass whatever the bound (6 cells > 3)
+    blocks = [_conflicting_block(k) for k in range(8)]
+    assert _moving_from(blocks, replace(EVIDENCE, single_conflict_max_cells=3)) == 4
+
+
 def test_checkpoint_keeps_the_evidence_and_the_past_footprints() -> None:
     frames = [_car_ahead(k) for k in range(10)]
     a, b = Run(EVIDENCE), Run(EVIDENCE)

@@ -75,6 +75,7 @@ def _params(rng: np.random.Generator) -> TrackingParams:
         centroid_sigma_m=float(rng.choice([0.0, 0.05, 0.25])),
         motion_evidence_frames=int(rng.integers(0, 4)),
         conflict_cells=int(rng.integers(1, 4)),
+        single_conflict_max_cells=int(rng.choice([0, 0, 2, 3, 8])),
         vacated_frames=int(rng.integers(1, 5)),
         vacated_share=float(rng.choice([0.1, 0.3, 0.6])),
         evidence_every_frame=bool(rng.random() < 0.5),
