@@ -800,11 +800,10 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                     fast = False
             if fast or every_frame:  # the frame's evidence (reference: frame_evidence)
                 size = offsets[c + 1] - offsets[c]
-                least = min(conflict_cells, 1) if size <= single_max else conflict_cells
+                least = 1 if size <= single_max else conflict_cells
                 conflict = 1 if seeds[c] >= least else 0
                 if conflict and arrival_share > 0:  # arrival: the whole evidence at once
-                    if (seeds[c] >= arrival_cells
-                            and seeds[c] >= arrival_share * (offsets[c + 1] - offsets[c])):
+                    if seeds[c] >= arrival_cells and seeds[c] >= arrival_share * size:
                         conflict = max(1, need)
                 o_evidence[j, 0] += conflict
                 if has_decision and n_past == vacated_frames:

@@ -320,8 +320,7 @@ def frame_evidence(t: Track, clusters: Clusters, c: int, decision: np.ndarray | 
     the compiled rewrite) needs one cell decided moving, not ``conflict_cells``."""
     seeds = int(clusters.seeds[c])
     size = int(clusters.offsets[c + 1] - clusters.offsets[c])
-    least = (min(params.conflict_cells, 1) if size <= params.single_conflict_max_cells
-             else params.conflict_cells)
+    least = 1 if size <= params.single_conflict_max_cells else params.conflict_cells
     conflict = int(seeds >= least)
     if conflict and params.arrival_share > 0:
         if seeds >= params.arrival_min_cells and seeds >= params.arrival_share * size:
