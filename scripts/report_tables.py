@@ -26,7 +26,8 @@
         --config configs/ablation/faded_free_paper.toml \\
         --config configs/ablation/no_split.toml --config configs/ablation/no_lead.toml \\
         --config configs/ablation/no_support.toml --config configs/ablation/no_facade_speed.toml \\
-        --config configs/ablation/no_small_conflict.toml
+        --config configs/ablation/no_small_conflict.toml \\
+        --config configs/ablation/rehit_recent_returns.toml --config configs/hdl64.toml
     .venv/bin/python scripts/report_tables.py --work W
 
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
@@ -62,6 +63,8 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
              ("no footprint completion", "configs/ablation/no_footprint_completion.toml"),
              ("no arrival evidence", "configs/ablation/no_arrival_evidence.toml"),
              ("configs/ibeo4.toml (small moving groups static)", "configs/ibeo4.toml"),
+             ("configs/hdl64.toml (recent re-hits, small clusters' returns' centroids)",
+              "configs/hdl64.toml"),
              ("ground fallback on the prior plane", "configs/ablation/ground_prior.toml"),
              ("no re-hit revocation, 3 free scans", "configs/ablation/no_rehit.toml"),
              ("re-hit after any gap, 1.0 s", "configs/ablation/rehit_any_gap.toml"),
@@ -216,8 +219,9 @@ def main() -> int:
 
     print("\n### Objects (defaults, visible cells, pooled over the seeds)\n")
     print("| profile | map | moving objects reported | matched | precision | true moving "
-          "(agent-frames) | found | recall | track switches | P / R within one cell |")
-    print("|" + "---|" * 10)
+          "(agent-frames) | found | recall | track switches | identity switches | agent-frames "
+          "matched twice or more | P / R within one cell |")
+    print("|" + "---|" * 12)
     for profile in profiles:
         if not evaluated(profile, "default"):
             continue
@@ -230,6 +234,10 @@ def main() -> int:
             tru = sum(o["moving_truth"] for o in obj)
             fnd = sum(o["moving_found"] for o in obj)
             sw = sum(o["track_switches"] for o in obj)
+            # evaluations made before the identity switches (2026-12-06) lack them
+            ids = ("– | –" if any("identity_switches" not in o for o in obj) else
+                   f"{sum(o['identity_switches'] for o in obj)} | "
+                   f"{sum(o['duplicate_matches'] for o in obj)}")
             p = f"{mat / rep:.3f}" if rep else "–"
             r = f"{fnd / tru:.3f}" if tru else "–"
             near_p = (f"{sum(o['within_one_cell']['moving_matched'] for o in obj) / rep:.3f}"
@@ -237,7 +245,7 @@ def main() -> int:
             near_r = (f"{sum(o['within_one_cell']['moving_found'] for o in obj) / tru:.3f}"
                       if tru else "–")
             print(f"| {profile} | {with_map} | {rep:,} | {mat:,} | {p} | {tru:,} | {fnd:,} | "
-                  f"{r} | {sw} | {near_p} / {near_r} |")
+                  f"{r} | {sw} | {ids} | {near_p} / {near_r} |")
     return 0
 
 

@@ -175,9 +175,11 @@ def main() -> None:
                 r = trace(run, truth, raw)
                 obj = evaluate(run, truth, cells="visible")["objects"]
                 assert obj["track_switches"] == r["switches"], (obj, r["switches"])
+                p_r = " / ".join("–" if v is None else f"{v:.3f}"  # a drive without a mover
+                                 for v in (obj["precision"], obj["recall"]))
                 print(f"| {s or 'defaults'} | {profile}-s{seed} | {r['switches']} | "
                       f"{r['matched']} | {r['switches'] / max(r['matched'], 1):.3f} | "
-                      f"{obj['precision']:.3f} / {obj['recall']:.3f} | "
+                      f"{p_r} | "
                       f"{r['kept_switches']} | {r['duplicates']} | "
                       f"{dict(sorted(r['causes'].items()))} |")
                 if args.events:

@@ -246,8 +246,13 @@ class ObjectScore:
     matches the moving agent that holds most of its cells (class M cells of the truth), if
     any. Precision = matched moving objects / moving objects reported; recall = true moving
     objects matched by some reported one / true moving objects. A track switch: an agent
-    matched in a frame by a track other than the one that matched it last. Frames of a run
-    without an object list (``frame.objects is None``) are not scored.
+    matched in a frame by a track other than the one that matched it last (two tracks on one
+    agent in a frame count a switch each, in record order). An identity switch (CLEAR MOT's
+    IDSW: Bernardin and Stiefelhagen 2008): each agent keeps one track, the one it kept
+    before if that track matches it in this frame, else the first that does; a change of the
+    kept track is one switch. A duplicate: an agent-frame matched by more than one reported
+    moving object (MOT's one-to-one matching would count the extra ones as false). Frames of
+    a run without an object list (``frame.objects is None``) are not scored.
 
     Within one cell (``within_one_cell`` of the summary): the same with each reported
     object's cells widened by their 8 neighbours before the vote — it matches the moving
@@ -262,6 +267,9 @@ class ObjectScore:
         self.found = 0
         self.switches = 0
         self.last_track: dict[int, int] = {}
+        self.identity_switches = 0
+        self.kept_track: dict[int, int] = {}
+        self.duplicates = 0
         self.matched_near = 0  # within one cell
         self.found_near = 0
 
@@ -280,6 +288,7 @@ class ObjectScore:
         self.reported += len(moving)
         found: set[int] = set()
         found_near: set[int] = set()
+        tracks_on: dict[int, list[int]] = {}  # agent: the tracks matching it, in record order
         for o in moving:
             own = labels == o["track_id"]
             near = _near_agent(own, agent)
@@ -296,6 +305,13 @@ class ObjectScore:
             if previous is not None and previous != int(o["track_id"]):
                 self.switches += 1
             self.last_track[best] = int(o["track_id"])
+            tracks_on.setdefault(best, []).append(int(o["track_id"]))
+        for best, tracks in tracks_on.items():
+            self.duplicates += len(tracks) > 1
+            kept = self.kept_track.get(best)
+            if kept is None or kept not in tracks:
+                self.identity_switches += kept is not None
+                self.kept_track[best] = tracks[0]
         self.found += len(found & visible_agents)
         self.found_near += len(found_near & visible_agents)
 
@@ -308,6 +324,8 @@ class ObjectScore:
                 "precision": self.matched / self.reported if self.reported else None,
                 "recall": self.found / self.truth if self.truth else None,
                 "track_switches": self.switches,
+                "identity_switches": self.identity_switches,
+                "duplicate_matches": self.duplicates,
                 "within_one_cell": {
                     "moving_matched": self.matched_near, "moving_found": self.found_near,
                     "precision": self.matched_near / self.reported if self.reported else None,
@@ -443,7 +461,9 @@ def format_report(metrics: dict[str, Any], other: dict[str, Any] | None = None,
         obj = m.get("objects")
         if obj is not None:  # strict, then within one cell
             for label, scores, tail in (
-                    (f"objects ({n})", obj, f", track switches {obj['track_switches']}"),
+                    (f"objects ({n})", obj, f", track switches {obj['track_switches']} "
+                     f"(identity switches {obj['identity_switches']}, agent-frames matched "
+                     f"twice or more {obj['duplicate_matches']})"),
                     (f"objects within one cell ({n})", obj.get("within_one_cell"), "")):
                 if scores is not None:
                     lines.append(f"{label}: moving P {num(scores['precision']).strip()} "

@@ -269,8 +269,32 @@ def test_object_precision_recall_and_track_switches_by_hand(tmp_path: Path) -> N
     assert obj["moving_truth"] == 5 and obj["moving_found"] == 2
     assert obj["precision"] == 0.75 and obj["recall"] == 0.4
     assert obj["track_switches"] == 1
+    assert obj["identity_switches"] == 1 and obj["duplicate_matches"] == 0
     # a run without object lists has no object scores
     assert evaluate(fake_run([{"stamp": 0, "decision": dec}]), truth)["objects"] is None
+
+
+def test_identity_switches_and_duplicates_by_hand(tmp_path: Path) -> None:
+    """Two tracks on one agent count a track switch per frame in record order, but no
+    identity switch while the kept track still matches it (CLEAR MOT's IDSW)."""
+    classes, agent = [[M, M, M, M, F]], [[1, 1, 1, 1, 0]]
+    truth = load_truth(write_truth(tmp_path, [
+        {"stamp": k, "classes": classes, "agent": agent} for k in range(5)], agents=1))
+    dec = [[MOV, MOV, MOV, MOV, FREE]]
+    run = SimpleNamespace(decision_codes=CODES, frames=[
+        _objects_frame(0, dec, [(5, 1, [0, 1])]),                # kept 5
+        _objects_frame(1, dec, [(5, 1, [0, 1]), (6, 1, [2, 3])]),  # 6 after 5: switch; kept 5
+        _objects_frame(2, dec, [(6, 1, [2, 3]), (5, 1, [0, 1])]),  # 5 after 6: switch; kept 5
+        _objects_frame(3, dec, [(5, 1, [0, 1])]),                # 5 alone: no switch
+        _objects_frame(4, dec, [(7, 1, [0, 1, 2])])])            # a new track: both count
+    obj = evaluate(run, truth)["objects"]
+    # last-match switches: frames 1, 2, 4 -> 3; identity: frame 4 -> 1 (a rule keeping the
+    # first match of a frame would switch at frames 2, 3 and 4);
+    # agent-frames matched twice: frames 1, 2 -> 2
+    assert obj["track_switches"] == 3
+    assert obj["identity_switches"] == 1
+    assert obj["duplicate_matches"] == 2
+    assert obj["moving_reported"] == 7 and obj["moving_matched"] == 7
 
 
 def test_objects_and_episodes_within_one_cell_by_hand(tmp_path: Path) -> None:
