@@ -340,6 +340,8 @@ def scores(run: Any, truth: Any) -> dict[str, Any]:
             "oP": obj.get("precision"), "oR": obj.get("recall"),
             "oc": (obj.get("moving_matched", 0), obj.get("moving_reported", 0),
                    obj.get("moving_found", 0), obj.get("moving_truth", 0)),
+            "sw": (obj.get("track_switches"), obj.get("identity_switches"),
+                   obj.get("duplicate_matches")),
             "obsF1": o["per_class"]["moving"]["f1"],
             "stoppedF1": v["per_class"].get("stopped", {}).get("f1")}
 
