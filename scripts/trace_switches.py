@@ -21,7 +21,9 @@ applies:
 
 Also counted: switches by an identity-kept rule (an agent switches only when none of the
 tracks matching it in frame k is the one it kept; with several, it keeps the first), and the
-agent-frames matched by more than one track (``duplicates``).
+agent-frames matched by more than one track (``duplicates``) — `evperc evaluate`'s
+``identity_switches`` and ``duplicate_matches``, counted here apart from the scorer and
+checked against it on every drive.
 
 Each switch also says whether the frame-k match of ``n`` needs the completed cells (without
 them ``n`` would match no agent, or another) — ``by_completion``.
@@ -175,6 +177,9 @@ def main() -> None:
                 r = trace(run, truth, raw)
                 obj = evaluate(run, truth, cells="visible")["objects"]
                 assert obj["track_switches"] == r["switches"], (obj, r["switches"])
+                # the scorer's identity rule and this module's, written apart, agree
+                assert (obj["identity_switches"], obj["duplicate_matches"]) == (
+                    r["kept_switches"], r["duplicates"]), (obj, r)
                 p_r = " / ".join("–" if v is None else f"{v:.3f}"  # a drive without a mover
                                  for v in (obj["precision"], obj["recall"]))
                 print(f"| {s or 'defaults'} | {profile}-s{seed} | {r['switches']} | "
