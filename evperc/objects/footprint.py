@@ -73,14 +73,14 @@ class FootprintParams:
     #: an older moving one is reported as part of it (0: off)
     fragment_gap_cells: int = 0
     #: objects.fragment_extent_m: largest side (m) of the joined footprint's box
-    fragment_extent_m: float = 6.0
+    fragment_extent_m: float = 7.0
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> FootprintParams:
         o = config.get("objects", {})
         return FootprintParams(frames=int(o.get("footprint_frames", 0)),
                                fragment_gap_cells=int(o.get("fragment_gap_cells", 0)),
-                               fragment_extent_m=float(o.get("fragment_extent_m", 6.0)))
+                               fragment_extent_m=float(o.get("fragment_extent_m", 7.0)))
 
 
 
