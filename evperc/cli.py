@@ -21,6 +21,14 @@ from evperc.errors import EvpercError, OutputError, UsageError
 
 log = logging.getLogger("evperc")
 
+PRESET_HELP = ("Shipped config applied under --config: kurdej2013 = the paper's method as "
+               "docs/method.md reads it (no conservative free space, widened buildings, motion "
+               "gate or object list); hdl64 = for 64-layer scanners (KITTI / SemanticKITTI's "
+               "HDL-64E: configs/hdl64.toml); ibeo4 = for 4-layer scanners (configs/ibeo4.toml).")
+
+#: the log kinds whose sensor is known, and the preset measured better for it than the defaults
+SENSOR_PRESET = {"kitti": "hdl64"}
+
 
 def _setup_logging(verbose: int, quiet: int) -> None:
     """evperc's own messages from INFO (each -v one level more, each -q one less); other
@@ -103,6 +111,22 @@ def _run_map(run: Any) -> tuple[Path | None, Path | None]:
     return found[0], found[1]
 
 
+def suggest_preset(log_path: Path, preset: str | None, config_path: Path | None) -> None:
+    """With neither --preset nor --config, name the preset measured better than the defaults
+    for the log's sensor when its kind says which sensor it is (a KITTI folder: an HDL-64E;
+    docs/evaluation.md § Real data). A hint only: the defaults stay the defaults."""
+    if preset is not None or config_path is not None:
+        return
+    from evperc.logs.factory import log_kind
+
+    kind = log_kind(log_path)
+    better = SENSOR_PRESET.get(kind)
+    if better is not None:
+        log.info("%s: a %s folder (a 64-layer HDL-64E); --preset %s is measured better than the "
+                 "defaults for such a scanner (docs/evaluation.md § Real data)", log_path,
+                 kind.upper(), better)
+
+
 def check_map_options(map_path: Path | None, roads_path: Path | None, no_map: bool) -> None:
     """--map, --roads and --no-map of `run` and `batch`: a map, or explicitly none."""
     if map_path is None and not no_map:
@@ -134,9 +158,7 @@ def cli(ctx: click.Context, verbose: int, quiet: int) -> None:
 @click.option("--config", "config_path", type=click.Path(path_type=Path),
               help="TOML file overriding configs/default.toml.")
 @click.option("--preset", type=click.Choice(PRESETS),
-              help="Shipped config applied under --config: kurdej2013 = the paper's method "
-                   "as docs/method.md reads it (no conservative free space, widened "
-                   "buildings, motion gate or object list).")
+              help=PRESET_HELP)
 @click.option("--out", "out_dir", type=click.Path(path_type=Path),
               help="Output directory  [default: ./evperc-out/<log stem>/]")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output directory.")
@@ -187,6 +209,7 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
                              "or --resume DIR")
         check_map_options(map_path, roads_path, no_map)
         config = load_config(config_path, preset=preset)
+        suggest_preset(log_path, preset, config_path)
         out_dir = out_dir or Path("evperc-out") / log_path.stem
         request = RunRequest(log_path=log_path, out_dir=out_dir, config=config,
                              map_path=map_path, roads_path=roads_path, overwrite=overwrite,
@@ -536,9 +559,7 @@ def _check_same_frames(out_dir: Path, metrics: dict[str, Any], compare_dir: Path
 @click.option("--config", "config_path", type=click.Path(path_type=Path),
               help="TOML file overriding configs/default.toml (same for every log).")
 @click.option("--preset", type=click.Choice(PRESETS),
-              help="Shipped config applied under --config: kurdej2013 = the paper's method "
-                   "as docs/method.md reads it (no conservative free space, widened "
-                   "buildings, motion gate or object list).")
+              help=PRESET_HELP)
 @click.option("--workers", type=click.IntRange(min=1),
               help="Worker processes of the local cluster  [default: number of cores]")
 @click.option("--scheduler", metavar="ADDR",

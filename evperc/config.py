@@ -1,9 +1,12 @@
 """Configuration: defaults from ``configs/default.toml``, optionally a preset, a user file on
 top, validation.
 
-A *preset* is a shipped TOML file (``configs/<name>.toml``, listed in :data:`PRESETS`) applied
-between the defaults and the user's file: ``--preset kurdej2013`` is the paper's method as
-docs/method.md reads it (every mechanism evperc adds switched off, every value the untuned one).
+A *preset* is a shipped TOML file (``configs/<name>.toml``, listed in :data:`PRESETS`, packaged
+as ``evperc/presets/<name>.toml``) applied between the defaults and the user's file:
+``--preset kurdej2013`` is the paper's method as docs/method.md reads it (every mechanism evperc
+adds switched off, every value the untuned one); ``--preset hdl64`` and ``--preset ibeo4`` are the
+sensor files of configs/ (64-layer scanners such as KITTI's HDL-64E; 4-layer scanners), so that an
+installed evperc has them without the repository.
 
 The default file is the schema: a user key must exist there (except in open tables such as
 ``map.road_width_m``) and have the same type. Ranges and choices are declared in
@@ -27,7 +30,7 @@ DEFAULT_PATH = Path(__file__).with_name("default.toml")
 PRESET_DIR = Path(__file__).with_name("presets")
 
 #: shipped presets (``evperc run --preset NAME``), each ``PRESET_DIR/NAME.toml``
-PRESETS = ("kurdej2013",)
+PRESETS = ("kurdej2013", "hdl64", "ibeo4")
 
 #: Tables whose keys are free (a user may add classes); values must be numbers.
 OPEN_TABLES = {"map.road_width_m"}

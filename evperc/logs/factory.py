@@ -34,6 +34,12 @@ SOURCES: list[Source] = [
 ]
 
 
+def log_kind(path: str | Path) -> str:
+    """The :attr:`Source.kind` of the log at ``path`` (the first source that recognises it)."""
+    path = Path(path)
+    return next(source.kind for source in SOURCES if source.recognises(path))
+
+
 def open_log(path: str | Path, **options: Any) -> Any:
     """Open the log at ``path`` with the reader of its kind (:data:`SOURCES`); ``options``
     are the reader's (topics, world frame, extrinsic, ``max_pose_gap_s``, ``strict``: see

@@ -12,7 +12,8 @@ import pytest
 from click.testing import CliRunner
 from scipy.spatial import cKDTree
 
-from evperc.cli import cli
+import evperc
+from evperc.cli import cli, suggest_preset
 from evperc.errors import LogError, PoseError
 from evperc.logs.factory import open_log
 from evperc.logs.kitti import KittiLog, is_kitti_sequence
@@ -177,3 +178,43 @@ def test_non_finite_points_are_dropped_with_their_index(tmp_path: Path) -> None:
     np.testing.assert_array_equal(scan.source_index,
                                   np.delete(np.arange(len(pts)), [0, 5]))
     np.testing.assert_array_equal(scan.points, pts[scan.source_index, :3])
+
+
+HINT = "--preset hdl64 is measured better than the defaults"
+
+
+def test_a_kitti_run_names_the_hdl64_preset_and_keeps_the_defaults(tmp_path: Path) -> None:
+    # a KITTI folder is an HDL-64E: without --preset or --config the run says which preset
+    # was measured better for it, and runs the defaults (the re-hit revokes the 3 x 3 block)
+    result = CliRunner().invoke(cli, ["run", str(SMALL), "--no-map", "--out",
+                                      str(tmp_path / "a")])
+    assert result.exit_code == 0, result.output
+    assert HINT in result.output
+    config = evperc.load(tmp_path / "a").manifest["config"]
+    assert config["fusion"]["gate_rehit_revokes"] == "block"
+
+
+def test_the_hdl64_preset_on_a_kitti_folder(tmp_path: Path) -> None:
+    result = CliRunner().invoke(cli, ["run", str(SMALL), "--no-map", "--preset", "hdl64",
+                                      "--out", str(tmp_path / "b")])
+    assert result.exit_code == 0, result.output
+    assert HINT not in result.output
+    config = evperc.load(tmp_path / "b").manifest["config"]
+    assert config["fusion"]["gate_rehit_revokes"] == "recent_returns"
+    assert (config["objects"]["centroid"], config["objects"]["centroid_sigma_m"]) == (
+        "returns", 0.1)
+
+
+def test_no_preset_hint_for_a_user_config_or_another_kind_of_log(tmp_path: Path,
+                                                               caplog) -> None:
+    user = tmp_path / "u.toml"
+    user.write_text("[grid]\nwindow_size_m = 30.0\n")
+    mcap = tmp_path / "drive.mcap"
+    mcap.write_bytes(b"")
+    with caplog.at_level("INFO", logger="evperc"):
+        suggest_preset(SMALL, None, user)
+        suggest_preset(SMALL, "ibeo4", None)
+        suggest_preset(mcap, None, None)
+        assert not [r for r in caplog.records if "--preset" in r.getMessage()]
+        suggest_preset(SMALL, None, None)
+        assert [r for r in caplog.records if HINT in r.getMessage()]
