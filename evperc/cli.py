@@ -26,8 +26,9 @@ PRESET_HELP = ("Shipped config applied under --config: kurdej2013 = the paper's 
                "gate or object list); hdl64 = for 64-layer scanners (KITTI / SemanticKITTI's "
                "HDL-64E: configs/hdl64.toml); ibeo4 = for 4-layer scanners (configs/ibeo4.toml).")
 
-#: the log kinds whose sensor is known, and the preset measured better for it than the defaults
-SENSOR_PRESET = {"kitti": "hdl64"}
+#: the log kinds whose sensor is known: the sensor, and the preset measured better for it than
+#: the defaults
+SENSOR_PRESET = {"kitti": ("a KITTI folder, an HDL-64E's 64 layers", "hdl64")}
 
 
 def _setup_logging(verbose: int, quiet: int) -> None:
@@ -120,11 +121,10 @@ def suggest_preset(log_path: Path, preset: str | None, config_path: Path | None)
     from evperc.logs.factory import log_kind
 
     kind = log_kind(log_path)
-    better = SENSOR_PRESET.get(kind)
-    if better is not None:
-        log.info("%s: a %s folder (a 64-layer HDL-64E); --preset %s is measured better than the "
-                 "defaults for such a scanner (docs/evaluation.md § Real data)", log_path,
-                 kind.upper(), better)
+    if kind in SENSOR_PRESET:
+        sensor, better = SENSOR_PRESET[kind]
+        log.info("%s: %s; --preset %s is measured better than the defaults for such a scanner "
+                 "(docs/evaluation.md § Real data)", log_path, sensor, better)
 
 
 def check_map_options(map_path: Path | None, roads_path: Path | None, no_map: bool) -> None:

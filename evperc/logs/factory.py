@@ -34,10 +34,15 @@ SOURCES: list[Source] = [
 ]
 
 
-def log_kind(path: str | Path) -> str:
-    """The :attr:`Source.kind` of the log at ``path`` (the first source that recognises it)."""
+def source_of(path: str | Path) -> Source:
+    """The first of :data:`SOURCES` that recognises ``path`` (the last one takes any)."""
     path = Path(path)
-    return next(source.kind for source in SOURCES if source.recognises(path))
+    return next(source for source in SOURCES if source.recognises(path))
+
+
+def log_kind(path: str | Path) -> str:
+    """The :attr:`Source.kind` of the log at ``path``, without opening it."""
+    return source_of(path).kind
 
 
 def open_log(path: str | Path, **options: Any) -> Any:
@@ -45,8 +50,4 @@ def open_log(path: str | Path, **options: Any) -> Any:
     are the reader's (topics, world frame, extrinsic, ``max_pose_gap_s``, ``strict``: see
     :func:`evperc.logs.message_log.open_message_log`). Raises :class:`~evperc.errors.LogError` for a
     missing or unreadable file."""
-    path = Path(path)
-    for source in SOURCES:
-        if source.recognises(path):
-            return source.open(path, **options)
-    raise AssertionError("the last source takes every path")  # pragma: no cover
+    return source_of(path).open(Path(path), **options)
