@@ -157,8 +157,7 @@ def cli(ctx: click.Context, verbose: int, quiet: int) -> None:
 @click.option("--no-map", is_flag=True, help="Run without a map (vacuous prior): the baseline.")
 @click.option("--config", "config_path", type=click.Path(path_type=Path),
               help="TOML file overriding configs/default.toml.")
-@click.option("--preset", type=click.Choice(PRESETS),
-              help=PRESET_HELP)
+@click.option("--preset", type=click.Choice(PRESETS), metavar="NAME", help=PRESET_HELP)
 @click.option("--out", "out_dir", type=click.Path(path_type=Path),
               help="Output directory  [default: ./evperc-out/<log stem>/]")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output directory.")
@@ -558,8 +557,7 @@ def _check_same_frames(out_dir: Path, metrics: dict[str, Any], compare_dir: Path
                    "outputs, resume interrupted ones).")
 @click.option("--config", "config_path", type=click.Path(path_type=Path),
               help="TOML file overriding configs/default.toml (same for every log).")
-@click.option("--preset", type=click.Choice(PRESETS),
-              help=PRESET_HELP)
+@click.option("--preset", type=click.Choice(PRESETS), metavar="NAME", help=PRESET_HELP)
 @click.option("--workers", type=click.IntRange(min=1),
               help="Worker processes of the local cluster  [default: number of cores]")
 @click.option("--scheduler", metavar="ADDR",
