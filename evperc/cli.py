@@ -112,19 +112,24 @@ def _run_map(run: Any) -> tuple[Path | None, Path | None]:
     return found[0], found[1]
 
 
-def suggest_preset(log_path: Path, preset: str | None, config_path: Path | None) -> None:
+def suggest_preset(log_paths: list[Path], preset: str | None, config_path: Path | None) -> None:
     """With neither --preset nor --config, name the preset measured better than the defaults
-    for the log's sensor when its kind says which sensor it is (a KITTI folder: an HDL-64E;
-    docs/evaluation.md § Real data). A hint only: the defaults stay the defaults."""
+    for the logs' sensor when their kind says which sensor it is (a KITTI folder: an
+    HDL-64E; docs/evaluation.md § Real data): one line per such kind. A hint only: the
+    defaults stay the defaults."""
     if preset is not None or config_path is not None:
         return
     from evperc.logs.factory import log_kind
 
-    kind = log_kind(log_path)
-    if kind in SENSOR_PRESET:
-        sensor, better = SENSOR_PRESET[kind]
-        log.info("%s: %s; --preset %s is measured better than the defaults for such a scanner "
-                 "(docs/evaluation.md § Real data)", log_path, sensor, better)
+    of_kind: dict[str, list[Path]] = {}
+    for path in log_paths:
+        of_kind.setdefault(log_kind(path), []).append(path)
+    for kind, paths in of_kind.items():
+        if kind in SENSOR_PRESET:
+            sensor, better = SENSOR_PRESET[kind]
+            where = str(paths[0]) if len(paths) == 1 else f"{len(paths)} logs ({paths[0]}, …)"
+            log.info("%s: %s; --preset %s is measured better than the defaults for such a "
+                     "scanner (docs/evaluation.md § Real data)", where, sensor, better)
 
 
 def check_map_options(map_path: Path | None, roads_path: Path | None, no_map: bool) -> None:
@@ -208,7 +213,7 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
                              "or --resume DIR")
         check_map_options(map_path, roads_path, no_map)
         config = load_config(config_path, preset=preset)
-        suggest_preset(log_path, preset, config_path)
+        suggest_preset([log_path], preset, config_path)
         out_dir = out_dir or Path("evperc-out") / log_path.stem
         request = RunRequest(log_path=log_path, out_dir=out_dir, config=config,
                              map_path=map_path, roads_path=roads_path, overwrite=overwrite,
@@ -590,6 +595,7 @@ def batch_command(logs: tuple[Path, ...], list_path: Path | None, map_path: Path
         raise UsageError("--workers sizes the local cluster; the cluster at --scheduler has "
                          "its own workers, give one of the two")
     all_logs = list(logs) + (read_log_list(list_path) if list_path is not None else [])
+    suggest_preset(all_logs, preset, config_path)
     request = BatchRequest(logs=tuple(all_logs), out_root=out_root,
                            config=load_config(config_path, preset=preset), map_path=map_path,
                            roads_path=roads_path, workers=workers or os.cpu_count() or 1,

@@ -212,9 +212,19 @@ def test_no_preset_hint_for_a_user_config_or_another_kind_of_log(tmp_path: Path,
     mcap = tmp_path / "drive.mcap"
     mcap.write_bytes(b"")
     with caplog.at_level("INFO", logger="evperc"):
-        suggest_preset(SMALL, None, user)
-        suggest_preset(SMALL, "ibeo4", None)
-        suggest_preset(mcap, None, None)
+        suggest_preset([SMALL], None, user)
+        suggest_preset([SMALL], "ibeo4", None)
+        suggest_preset([mcap], None, None)
         assert not [r for r in caplog.records if "--preset" in r.getMessage()]
-        suggest_preset(SMALL, None, None)
+        suggest_preset([SMALL], None, None)
         assert [r for r in caplog.records if HINT in r.getMessage()]
+
+
+def test_one_preset_hint_for_many_kitti_folders(tmp_path: Path, caplog) -> None:
+    # `evperc batch` over two KITTI folders and an MCAP: one line naming the two folders
+    mcap = tmp_path / "drive.mcap"
+    mcap.write_bytes(b"")
+    with caplog.at_level("INFO", logger="evperc"):
+        suggest_preset([SMALL, mcap, SMALL], None, None)
+    hints = [r.getMessage() for r in caplog.records if HINT in r.getMessage()]
+    assert len(hints) == 1 and hints[0].startswith(f"2 logs ({SMALL}")
