@@ -595,11 +595,11 @@ def batch_command(logs: tuple[Path, ...], list_path: Path | None, map_path: Path
         raise UsageError("--workers sizes the local cluster; the cluster at --scheduler has "
                          "its own workers, give one of the two")
     all_logs = list(logs) + (read_log_list(list_path) if list_path is not None else [])
-    suggest_preset(all_logs, preset, config_path)
     request = BatchRequest(logs=tuple(all_logs), out_root=out_root,
                            config=load_config(config_path, preset=preset), map_path=map_path,
                            roads_path=roads_path, workers=workers or os.cpu_count() or 1,
                            scheduler=scheduler, overwrite=overwrite)
+    suggest_preset(all_logs, preset, config_path)
     if json_path is not None and json_path.exists() and not overwrite:
         raise OutputError(f"{json_path}: exists; pass --overwrite to replace it")
     t0 = time.perf_counter()
