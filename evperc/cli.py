@@ -24,7 +24,8 @@ log = logging.getLogger("evperc")
 PRESET_HELP = ("Shipped config applied under --config: kurdej2013 = the paper's method as "
                "docs/method.md reads it (no conservative free space, widened buildings, motion "
                "gate or object list); hdl64 = for 64-layer scanners (KITTI / SemanticKITTI's "
-               "HDL-64E: configs/hdl64.toml); ibeo4 = for 4-layer scanners (configs/ibeo4.toml).")
+               "HDL-64E: configs/hdl64.toml); ibeo4 = for 4-layer scanners (configs/ibeo4.toml); "
+               "vlp16 = for 16-layer scanners (configs/vlp16.toml).")
 
 #: the log kinds whose sensor is known: the sensor, and the preset measured better for it than
 #: the defaults

@@ -4,9 +4,10 @@ top, validation.
 A *preset* is a shipped TOML file (``configs/<name>.toml``, listed in :data:`PRESETS`, packaged
 as ``evperc/presets/<name>.toml``) applied between the defaults and the user's file:
 ``--preset kurdej2013`` is the paper's method as docs/method.md reads it (every mechanism evperc
-adds switched off, every value the untuned one); ``--preset hdl64`` and ``--preset ibeo4`` are the
-sensor files of configs/ (64-layer scanners such as KITTI's HDL-64E; 4-layer scanners), so that an
-installed evperc has them without the repository.
+adds switched off, every value the untuned one); ``--preset hdl64``, ``--preset ibeo4`` and
+``--preset vlp16`` are the sensor files of configs/ (64-layer scanners such as KITTI's HDL-64E;
+4-layer scanners; 16-layer scanners), so that an installed evperc has them without the
+repository.
 
 The default file is the schema: a user key must exist there (except in open tables such as
 ``map.road_width_m``) and have the same type. Ranges and choices are declared in
@@ -30,7 +31,7 @@ DEFAULT_PATH = Path(__file__).with_name("default.toml")
 PRESET_DIR = Path(__file__).with_name("presets")
 
 #: shipped presets (``evperc run --preset NAME``), each ``PRESET_DIR/NAME.toml``
-PRESETS = ("kurdej2013", "hdl64", "ibeo4")
+PRESETS = ("kurdej2013", "hdl64", "ibeo4", "vlp16")
 
 #: Tables whose keys are free (a user may add classes); values must be numbers.
 OPEN_TABLES = {"map.road_width_m"}
@@ -115,6 +116,10 @@ RULES: dict[str, tuple] = {
     "objects.single_conflict_max_cells": ("range", 0, 1_000_000, False, False),
     "objects.vacated_frames": ("range", 1, 1_000, False, False),
     "objects.vacated_share": ("range", *_UNIT_INTERVAL, True, False),
+    "objects.growth_kept_share": ("range", *_UNIT_INTERVAL, False, False),
+    "objects.growth_more_cells": ("range", 0, 1_000_000, False, False),
+    "objects.growth_min_cells": ("range", 0, 1_000_000, False, False),
+    "objects.growth_reach_cells": ("range", 0, 100, False, False),
     "objects.point_reach_cells": ("range", 0, 100, False, False),
     "objects.point_height_margin_m": ("range", 0.0, 100.0, False, False),
     "objects.footprint_frames": ("range", 0, 1_000, False, False),

@@ -95,7 +95,9 @@ ABLATIONS = (("paper's method (`--preset kurdej2013`)", "kurdej2013"),
               "configs/ablation/rehit_recent_returns.toml"),
              ("no small clusters that conflict", "configs/ablation/no_small_conflict.toml"),
              ("no speed bound on clusters wholly at a façade",
-              "configs/ablation/no_facade_speed.toml"))
+              "configs/ablation/no_facade_speed.toml"),
+             ("no growth rule (a cluster that only grew shows motion evidence)",
+              "configs/ablation/no_growth.toml"))
 
 
 #: the scores of the headline and ablation rows, in column order

@@ -152,7 +152,7 @@ def test_unknown_preset_names_the_shipped_ones() -> None:
         load_config(preset="paper")
 
 
-@pytest.mark.parametrize("name", ["kurdej2013", "hdl64", "ibeo4"])
+@pytest.mark.parametrize("name", ["kurdej2013", "hdl64", "ibeo4", "vlp16"])
 def test_packaged_preset_is_the_repo_file(name: str) -> None:
     from evperc.config import preset_path
 
@@ -160,13 +160,15 @@ def test_packaged_preset_is_the_repo_file(name: str) -> None:
 
 
 # the sensor presets' keys, written out here from docs/method.md and docs/evaluation.md (what
-# was measured as configs/hdl64.toml and configs/ibeo4.toml), not read from the files
+# was measured as configs/hdl64.toml, configs/ibeo4.toml and configs/vlp16.toml), not read
+# from the files
 SENSOR_PRESETS = {
     "hdl64": {("fusion", "gate_rehit_revokes"): "recent_returns",
               ("objects", "centroid"): "returns", ("objects", "centroid_max_cells"): 8,
               ("objects", "centroid_sigma_m"): 0.1},
     "ibeo4": {("objects", "moving_min_cluster_cells"): 3,
               ("objects", "moving_min_height_m"): 0.0},
+    "vlp16": {("objects", "growth_reach_cells"): 1, ("objects", "growth_early"): True},
 }
 
 
@@ -204,6 +206,14 @@ def test_sensor_preset_changes_its_keys_and_nothing_else(name: str) -> None:
     ("box_min_width_m = -1.0", r"objects.box_min_width_m = -1.0 is outside"),
     ("single_conflict_max_cells = -1", r"objects.single_conflict_max_cells = -1 is outside"),
     ("single_conflict_max_cells = 1.5", r"objects.single_conflict_max_cells"),
+    ("growth_kept_share = 1.5", r"objects.growth_kept_share = 1.5 is outside"),
+    ("growth_kept_share = -0.1", r"objects.growth_kept_share = -0.1 is outside"),
+    ("growth_more_cells = -1", r"objects.growth_more_cells = -1 is outside"),
+    ("growth_more_cells = 2.5", r"objects.growth_more_cells"),
+    ("growth_min_cells = -1", r"objects.growth_min_cells = -1 is outside"),
+    ("growth_min_cells = 2.5", r"objects.growth_min_cells"),
+    ("growth_reach_cells = -1", r"objects.growth_reach_cells = -1 is outside"),
+    ('growth_early = "yes"', r"objects.growth_early"),
 ])
 def test_object_evidence_keys_are_validated(tmp_path: Path, line: str, match: str) -> None:
     with pytest.raises(ConfigError, match=match):

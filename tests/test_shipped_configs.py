@@ -27,7 +27,8 @@ def changed_keys(config: dict, defaults: dict) -> set[tuple[str, str]]:
 
 def test_there_are_shipped_configs() -> None:
     names = {p.relative_to(CONFIGS).as_posix() for p in SHIPPED}
-    assert {"semantickitti.toml", "ibeo4.toml", "hdl64.toml", "ablation/no_rehit.toml"} <= names
+    assert {"semantickitti.toml", "ibeo4.toml", "hdl64.toml", "vlp16.toml",
+            "ablation/no_rehit.toml", "ablation/no_growth.toml"} <= names
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.relative_to(CONFIGS).as_posix())

@@ -32,6 +32,18 @@ centroid then drifts at a walking pace. Evidence of a frame, from the grid:
   left them). A static object's cells stay occupied; a car driving ahead of the ego, which
   never conflicts, frees the road behind it at every scan.
 
+A frame of *growth* adds no evidence of either kind: the cluster, of at least
+``growth_min_cells`` cells (more than a person's footprint), still holds at least
+``growth_kept_share`` of the cells the track held ``vacated_frames`` associations ago and at
+least ``growth_more_cells`` cells more than then (a cell held then counts as kept when the
+cluster holds a cell within ``growth_reach_cells`` of it, Chebyshev; with ``growth_early``,
+a track with fewer associations behind it is compared with the oldest it has). Its centroid
+moved because more of the
+object came into view (a fence or a parked car along which a sparse scanner's layer sweeps
+as the ego drives by, its new cells seen free before: conflict), not because it moved; a
+moving object leaves cells behind (a car drives out of its old footprint within a few scans,
+and the cells behind a car coming closer are hidden, not held).
+
 Two exceptions pass no velocity test: a track never associated with a cluster at least
 ``ego_clearance_m`` from the sensor (the recording vehicle's own returns), and an
 association with a cluster all of whose cells lie in the widened buildings at a speed above
@@ -125,6 +137,20 @@ class TrackingParams:
     #: speed above this (a façade's return spot sliding along the wall with the ego; a
     #: person walking along it is slower); 0 = off
     facade_max_speed_m_per_s: float = 0.0
+    #: objects.growth_kept_share: an association whose cluster keeps at least this share of
+    #: the track's cells of ``vacated_frames`` associations ago ... (0: off)
+    growth_kept_share: float = 0.0
+    #: objects.growth_more_cells: ... and holds at least this many cells more than then ...
+    growth_more_cells: int = 0
+    #: objects.growth_min_cells: ... and at least this many cells is growth: no motion
+    #: evidence (module docstring)
+    growth_min_cells: int = 0
+    #: objects.growth_reach_cells: a cell of that footprint is kept if the cluster holds a
+    #: cell within this many cells of it (Chebyshev; 0: the cell itself)
+    growth_reach_cells: int = 0
+    #: objects.growth_early: a track with fewer than ``vacated_frames`` associations behind
+    #: it (but one) is compared with its oldest footprint (False: not tested)
+    growth_early: bool = False
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> TrackingParams:
@@ -147,7 +173,12 @@ class TrackingParams:
             centroid_sigma_per_m=float(o.get("centroid_sigma_per_m", 0.0)),
             ego_clearance_m=float(o.get("ego_clearance_m", 0.0)),
             evidence_expires=bool(o.get("evidence_expires", False)),
-            facade_max_speed_m_per_s=float(o.get("facade_max_speed_m_per_s", 0.0)))
+            facade_max_speed_m_per_s=float(o.get("facade_max_speed_m_per_s", 0.0)),
+            growth_kept_share=float(o.get("growth_kept_share", 0.0)),
+            growth_more_cells=int(o.get("growth_more_cells", 0)),
+            growth_min_cells=int(o.get("growth_min_cells", 0)),
+            growth_reach_cells=int(o.get("growth_reach_cells", 0)),
+            growth_early=bool(o.get("growth_early", False)))
 
 
 @dataclass
@@ -596,11 +627,13 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                   history, confirm, max_missed, speed2_min, motion_test, sigma0, need,
                   conflict_cells, vacated_frames, share_min, every_frame, arrival_share,
                   arrival_cells, sigma_per_m, clearance2, centre_x, centre_y, expires,
-                  near, facade_speed2, single_max):  # pragma: no cover - compiled
+                  near, facade_speed2, single_max, kept_share, growth_more,
+                  growth_least, growth_reach, growth_early):  # pragma: no cover - compiled
     """One frame of the tracker (:func:`track_step`, the module docstring) on the state's
     arrays; returns the new arrays, the next id, and the reported (track row, cluster)."""
     n_old = ids.shape[0]
     n_cl = offsets.shape[0] - 1
+    mark = np.zeros(rows * cols if kept_share > 0 else 1, np.uint8)  # a cluster's cells
     if n_old > 0 and n_cl > 0:  # read only within the gate
         dist = _distances(hist_xy, hist_n, velocity, dt, centroid, gate)
     else:
@@ -798,8 +831,29 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                         break
                 if inside:
                     fast = False
-            if fast or every_frame:  # the frame's evidence (reference: frame_evidence)
-                size = offsets[c + 1] - offsets[c]
+            size = offsets[c + 1] - offsets[c]
+            grown = False  # (reference: frame_evidence)
+            if ((fast or every_frame) and kept_share > 0 and size >= growth_least
+                    and (n_past == vacated_frames or (growth_early and n_past > 0))):
+                for q in range(offsets[c], offsets[c + 1]):
+                    mark[cells[q]] = 1
+                kept = 0
+                src = fp if from_new[0] else past
+                for q in range(starts[0], starts[0] + lens[0]):
+                    r = src[q, 0] - row0
+                    cc = src[q, 1] - col0
+                    near_cell = False
+                    for r2 in range(max(r - growth_reach, 0), min(r + growth_reach + 1, rows)):
+                        for c2 in range(max(cc - growth_reach, 0),
+                                        min(cc + growth_reach + 1, cols)):
+                            if mark[r2 * cols + c2]:
+                                near_cell = True
+                    if near_cell:
+                        kept += 1
+                for q in range(offsets[c], offsets[c + 1]):
+                    mark[cells[q]] = 0
+                grown = kept >= kept_share * lens[0] and size >= lens[0] + growth_more
+            if (fast or every_frame) and not grown:  # the frame's evidence
                 least = 1 if size <= single_max else conflict_cells
                 conflict = 1 if seeds[c] >= least else 0
                 if conflict and arrival_share > 0:  # arrival: the whole evidence at once
@@ -954,7 +1008,9 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
         float(params.centroid_sigma_per_m), float(params.ego_clearance_m) ** 2,
         *ego_cell_centre(window), bool(params.evidence_expires), near,
         float(params.facade_max_speed_m_per_s) ** 2 if has_near else 0.0,
-        int(params.single_conflict_max_cells))
+        int(params.single_conflict_max_cells), float(params.growth_kept_share),
+        int(params.growth_more_cells), int(params.growth_min_cells),
+        int(params.growth_reach_cells), bool(params.growth_early))
     (state.id, state.hits, state.missed, state.flags, state.hist_n, state.hist_t,
      state.hist_xy, state.velocity, state.sigma, state.fp_n, state.fp, state.evidence,
      state.past_n, state.past, state.next_id, rows, cl) = out

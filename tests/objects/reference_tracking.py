@@ -317,9 +317,25 @@ def frame_evidence(t: Track, clusters: Clusters, c: int, decision: np.ndarray | 
     moving (free before, occupied now: the object arrived in cells seen free), and at least
     ``arrival_min_cells`` of them, counts ``motion_evidence_frames`` frames of conflict
     evidence at once. A cluster of at most ``single_conflict_max_cells`` cells (added after
-    the compiled rewrite) needs one cell decided moving, not ``conflict_cells``."""
+    the compiled rewrite) needs one cell decided moving, not ``conflict_cells``. Growth (added
+    after the compiled rewrite, ``growth_kept_share`` > 0): a cluster of at least
+    ``growth_min_cells`` cells that keeps that share of ``t.past[0]``'s cells (a cell kept
+    when the cluster holds one within ``growth_reach_cells``) and holds ``growth_more_cells``
+    more adds nothing; with ``growth_early``, also before ``t.past`` is full."""
     seeds = int(clusters.seeds[c])
     size = int(clusters.offsets[c + 1] - clusters.offsets[c])
+    full = len(t.past) == params.vacated_frames
+    if (params.growth_kept_share > 0 and size >= params.growth_min_cells
+            and (full or (params.growth_early and len(t.past) > 0))):
+        old = t.past[0]
+        r, col = np.divmod(clusters.cells_of(c), window.cols)
+        held = set(zip((r + window.row0).tolist(), (col + window.col0).tolist(), strict=True))
+        reach = range(-params.growth_reach_cells, params.growth_reach_cells + 1)
+        kept = sum(any((int(iy) + dy, int(ix) + dx) in held for dy in reach for dx in reach)
+                   for iy, ix in old)
+        if (kept >= params.growth_kept_share * len(old)
+                and size >= len(old) + params.growth_more_cells):
+            return 0, 0
     least = 1 if size <= params.single_conflict_max_cells else params.conflict_cells
     conflict = int(seeds >= least)
     if conflict and params.arrival_share > 0:

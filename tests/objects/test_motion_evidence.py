@@ -162,6 +162,49 @@ def test_a_small_cluster_shows_conflict_with_one_moving_cell() -> None:
     assert _moving_from(blocks, replace(EVIDENCE, single_conflict_max_cells=3)) == 4
 
 
+def _fence_coming_into_view(k: int) -> np.ndarray:
+    """A fence a sparse scanner's layer sweeps along as the ego drives by: a 2-row block
+    that grows a column east per frame, its new column decided moving (seen free before,
+    hit now: 2 conflict cells), its old cells still occupied."""
+    dec = np.full(SHAPE, D["free"], np.uint8)
+    dec[5:7, 10:13 + k] = D["static"]
+    dec[5:7, 12 + k] = D["moving"]
+    return dec
+
+
+GROWTH = replace(EVIDENCE, growth_kept_share=0.9, growth_more_cells=2, growth_min_cells=4)
+
+
+def test_a_cluster_that_only_grows_adds_no_motion_evidence() -> None:
+    fence = [_fence_coming_into_view(k) for k in range(10)]
+    # the centroid drifts as the parked car's above (0.25 m a frame): the velocity passes
+    # from frame 3, and each frame has 2 conflict cells: evidence in frames 3, 4, 5
+    assert _moving_from(fence, EVIDENCE) == 5
+    # growth: from frame 3 on, the footprint of 3 associations ago (frame k - 3: cols
+    # 10..9+k, 2k cells) lies wholly in the cluster (kept 1 >= 0.9), which holds 6 cells
+    # more (>= 2): no frame adds evidence, never moving
+    assert _moving_from(fence, GROWTH) is None
+    # a block that moves leaves its old cells: frame k - 3's cols 7+k..9+k are outside
+    # cols 10+k..12+k (kept 0): the rule leaves it as it was
+    blocks = [_conflicting_block(k) for k in range(8)]
+    assert _moving_from(blocks, GROWTH) == 4
+    # ... and so does a fence that grows by less than growth_more_cells: 2 cells a frame
+    # over 3 frames are 6 cells, fewer than 7
+    assert _moving_from(fence, replace(GROWTH, growth_more_cells=7)) == 5
+    # ... or is smaller than growth_min_cells (a person's few cells): the fence holds
+    # 2 (k + 3) cells, 12 at frame 3, 14 at frame 4, 16 at frame 5. A floor of 17 leaves
+    # frames 3, 4, 5 evidence (moving at 5, as without the rule); a floor of 15 only
+    # frames 3 and 4 (the fence is growth from frame 5 on): two frames, never moving
+    assert _moving_from(fence, replace(GROWTH, growth_min_cells=17)) == 5
+    assert _moving_from(fence, replace(GROWTH, growth_min_cells=15)) is None
+    # ... or keeps less than growth_kept_share of its old cells (the frame-0 cells, cols
+    # 10..12, cleared from frame 3 on: the old footprint's 6 cells, none kept)
+    cleared = [f.copy() for f in fence]
+    for f in cleared[3:]:
+        f[5:7, 10:13] = D["unknown"]
+    assert _moving_from(cleared, EVIDENCE) == _moving_from(cleared, GROWTH) == 5
+
+
 def test_checkpoint_keeps_the_evidence_and_the_past_footprints() -> None:
     frames = [_car_ahead(k) for k in range(10)]
     a, b = Run(EVIDENCE), Run(EVIDENCE)

@@ -84,7 +84,12 @@ def _params(rng: np.random.Generator) -> TrackingParams:
         ego_clearance_m=float(rng.choice([0.0, 0.0, 3.0, 8.0])),
         centroid_sigma_per_m=float(rng.choice([0.0, 0.0, 0.01, 0.05])),
         evidence_expires=bool(rng.random() < 0.5),
-        facade_max_speed_m_per_s=float(rng.choice([0.0, 0.0, 0.5, 2.0])))
+        facade_max_speed_m_per_s=float(rng.choice([0.0, 0.0, 0.5, 2.0])),
+        growth_kept_share=float(rng.choice([0.0, 0.0, 0.5, 0.9, 1.0])),
+        growth_more_cells=int(rng.choice([0, 1, 2, 5])),
+        growth_min_cells=int(rng.choice([0, 0, 4, 8])),
+        growth_reach_cells=int(rng.choice([0, 0, 1, 2])),
+        growth_early=bool(rng.random() < 0.5))
 
 
 def _assert_same_state(new: TrackerState, old: ref.TrackerState) -> None:
@@ -96,7 +101,9 @@ def _assert_same_state(new: TrackerState, old: ref.TrackerState) -> None:
         assert x.tobytes() == y.tobytes(), key
 
 
-@pytest.mark.parametrize("seed", range(12))
+# 24 drives: the growth rule changes the evidence in 11 of them, with every reach and with
+# growth_early (seed 20: reach 1 and early together)
+@pytest.mark.parametrize("seed", range(24))
 def test_compiled_tracker_equals_the_per_track_reference(seed: int) -> None:
     rng = np.random.default_rng(seed)
     params = _params(rng)
