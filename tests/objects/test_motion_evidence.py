@@ -197,12 +197,49 @@ def test_a_cluster_that_only_grows_adds_no_motion_evidence() -> None:
     # frames 3 and 4 (the fence is growth from frame 5 on): two frames, never moving
     assert _moving_from(fence, replace(GROWTH, growth_min_cells=17)) == 5
     assert _moving_from(fence, replace(GROWTH, growth_min_cells=15)) is None
-    # ... or keeps less than growth_kept_share of its old cells (the frame-0 cells, cols
-    # 10..12, cleared from frame 3 on: the old footprint's 6 cells, none kept)
+    # ... or keeps less than growth_kept_share of its old cells (cols 10..12 cleared from
+    # frame 3 on: frame 0's footprint, those 6 cells, none kept at frame 3; frame 1's 8
+    # cells, 2 kept at frame 4; frame 2's 10, 4 kept at frame 5)
     cleared = [f.copy() for f in fence]
     for f in cleared[3:]:
         f[5:7, 10:13] = D["unknown"]
     assert _moving_from(cleared, EVIDENCE) == _moving_from(cleared, GROWTH) == 5
+
+
+def _flickering_fence(k: int) -> np.ndarray:
+    """The fence above with its returns a row lower in every odd frame (rows 5-6, 6-7, ...):
+    a 16-layer scanner's returns flicker between neighbouring cells."""
+    dec = np.full(SHAPE, D["free"], np.uint8)
+    r = 5 + k % 2
+    dec[r:r + 2, 10:13 + k] = D["static"]
+    dec[r:r + 2, 12 + k] = D["moving"]
+    return dec
+
+
+def test_growth_within_a_reach_and_from_the_second_association() -> None:
+    fence = [_flickering_fence(k) for k in range(12)]
+    # frames k and k - 3 are a row apart: of the old footprint only the shared row is held
+    # (a half < 0.9), so the rule leaves it as without it (moving at 5, as the fence above)
+    assert _moving_from(fence, EVIDENCE) == _moving_from(fence, GROWTH) == 5
+    # within one cell every old cell has a cluster cell beside it (kept 1): growth, never moving
+    assert _moving_from(fence, replace(GROWTH, growth_reach_cells=1)) is None
+    # a stretch that arrives at once: 2 x 3 cells, then 4 columns more a frame, the new 8
+    # cells decided moving; at frame 1, 8 of 14 (>= 0.5, >= 4): an arrival, all the evidence
+    # at once, moving when confirmed at frame 2 — before the track has 3 footprints behind
+    # it, so the rule cannot see it; with growth_early frame 1 is compared with frame 0
+    # (6 cells, all held, 8 more) and frame 2 with frame 0 (22 cells): no evidence, never
+    def arriving(k: int) -> np.ndarray:
+        dec = np.full(SHAPE, D["free"], np.uint8)
+        n = 3 + 4 * k
+        dec[5:7, 10:10 + n] = D["static"]
+        if k > 0:
+            dec[5:7, 6 + n:10 + n] = D["moving"]
+        return dec
+    stretch = [arriving(k) for k in range(8)]
+    arrival = replace(EVIDENCE, arrival_share=0.5, arrival_min_cells=4)
+    grow = replace(GROWTH, arrival_share=0.5, arrival_min_cells=4)
+    assert _moving_from(stretch, arrival) == _moving_from(stretch, grow) == 2
+    assert _moving_from(stretch, replace(grow, growth_early=True)) is None
 
 
 def test_checkpoint_keeps_the_evidence_and_the_past_footprints() -> None:
