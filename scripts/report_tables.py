@@ -27,7 +27,8 @@
         --config configs/ablation/no_split.toml --config configs/ablation/no_lead.toml \\
         --config configs/ablation/no_support.toml --config configs/ablation/no_facade_speed.toml \\
         --config configs/ablation/no_small_conflict.toml \\
-        --config configs/ablation/rehit_recent_returns.toml --config configs/hdl64.toml
+        --config configs/ablation/rehit_recent_returns.toml --config configs/hdl64.toml \\
+        --config configs/ablation/no_growth.toml
     .venv/bin/python scripts/report_tables.py --work W
 
 Figures are means ± sample sd over the test seeds of the per-drive scores (as the study's
