@@ -52,6 +52,8 @@ POINT_BYTES = 16
 LIDAR_FRAME = "velodyne"
 #: the name of evperc's world frame of a KITTI sequence (the first scan's lidar frame)
 WORLD_FRAME = "kitti_lidar0"
+#: layers of the KITTI odometry scanner (a Velodyne HDL-64E)
+KITTI_LAYERS = 64
 _BIN_NAME = re.compile(r"^(\d+)\.bin$")
 
 
@@ -240,6 +242,11 @@ class KittiLog:
     def gnss_antenna_frame(self) -> str:
         return LIDAR_FRAME
 
+    def sensor_layers(self) -> tuple[int, str]:
+        """KITTI's odometry scans are a Velodyne HDL-64E's: 64 layers (its .bin files hold no
+        laser index; :meth:`LogReader.sensor_layers`)."""
+        return KITTI_LAYERS, "a KITTI folder: a Velodyne HDL-64E"
+
     def info(self) -> dict[str, Any]:
         """Summary for ``evperc info``, with the keys of :meth:`LogReader.info`; the
         "topics" are the folder's files."""
@@ -256,6 +263,7 @@ class KittiLog:
             topics.append({"topic": "labels/", "schema": "SemanticKITTI .label (uint32)",
                            "encoding": "kitti", "messages": labels})
         start, end = int(self.stamps_ns[0]), int(self.stamps_ns[-1])
+        layers = self.sensor_layers()
         return {"path": str(self.path), "kind": "kitti", "indexed": True, "complete": True,
                 "stopped": None, "start_ns": start, "end_ns": end,
                 "duration_s": (end - start) / 1e9, "topics": topics,
@@ -266,5 +274,6 @@ class KittiLog:
                 "lidar_frame": LIDAR_FRAME,
                 "mean_points_per_scan": float(np.mean(counts)),
                 "points_sample_scans": sample,
+                "lidar_layers": {"count": layers[0], "from": layers[1]},
                 "first_scan": int(self.numbers[0]), "last_scan": int(self.numbers[-1]),
                 "labels": labels}

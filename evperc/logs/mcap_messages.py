@@ -23,6 +23,7 @@ import numpy as np
 from evperc.logs.mcap_source import json_bytes
 from evperc.logs.pointcloud import (
     foxglove_fields,
+    layer_count,
     planar_points_indexed,
     ros_fields,
     xyz_indexed_from_packed,
@@ -134,6 +135,15 @@ def ros_pointcloud2(msg: Any, log_time_ns: int) -> ScanRecord:
                       points, planar=False, source_count=count, source_index=index)
 
 
+def ros_pointcloud2_layers(msg: Any) -> tuple[int, str] | None:
+    """The scanner's layers as a PointCloud2 shows them (:func:`layer_count`)."""
+    return layer_count(_bytes(get(msg, "data", b"")), ros_fields(get(msg, "fields", [])),
+                       point_step=int(get(msg, "point_step", 0)),
+                       width=int(get(msg, "width", 0)), height=int(get(msg, "height", 1)),
+                       row_step=int(get(msg, "row_step", 0)),
+                       big_endian=bool(get(msg, "is_bigendian", False)))
+
+
 def ros_laserscan(msg: Any, log_time_ns: int) -> ScanRecord:
     header = get(msg, "header")
     ranges = np.asarray(get(msg, "ranges", []), dtype=np.float64)
@@ -155,6 +165,16 @@ def foxglove_pointcloud(msg: Any, log_time_ns: int) -> ScanRecord:
     return ScanRecord(stamp_of(get(msg, "timestamp"), log_time_ns), str(get(msg, "frame_id", "")),
                       points, planar=False, T_frame_sensor=_pose_matrix(get(msg, "pose")),
                       source_count=count, source_index=index)
+
+
+def foxglove_pointcloud_layers(msg: Any) -> tuple[int, str] | None:
+    """The scanner's layers as a foxglove PointCloud shows them (a laser index field only:
+    the message has no rows)."""
+    data = _bytes(get(msg, "data", b""))
+    stride = int(get(msg, "point_stride", 0))
+    n = (len(data) if not isinstance(data, np.ndarray) else data.size) // stride if stride else 0
+    return layer_count(data, foxglove_fields(get(msg, "fields", [])), point_step=stride,
+                       width=n)
 
 
 def foxglove_laserscan(msg: Any, log_time_ns: int) -> ScanRecord:
@@ -246,6 +266,14 @@ LIDAR_ADAPTERS: dict[str, Callable[[Any, int], ScanRecord]] = {
     "foxglove.PointCloud": foxglove_pointcloud,
     "foxglove.LaserScan": foxglove_laserscan,
 }
+#: the scanner's layers from one lidar message (:func:`evperc.logs.pointcloud.layer_count`);
+#: a 2-D LaserScan has one
+LAYER_ADAPTERS: dict[str, Callable[[Any], tuple[int, str] | None]] = {
+    "sensor_msgs/msg/PointCloud2": ros_pointcloud2_layers,
+    "sensor_msgs/msg/LaserScan": lambda msg: (1, "a 2-D scan"),
+    "foxglove.PointCloud": foxglove_pointcloud_layers,
+    "foxglove.LaserScan": lambda msg: (1, "a 2-D scan"),
+}
 POSE_ADAPTERS: dict[str, Callable[[Any, int], PoseRecord]] = {
     "nav_msgs/msg/Odometry": ros_odometry,
     "geometry_msgs/msg/PoseStamped": ros_pose_stamped,
@@ -271,7 +299,7 @@ def _add_ros1_names(table: dict[str, Any]) -> None:
             table.setdefault(name.replace("/msg/", "/"), adapter)
 
 
-for _table in (LIDAR_ADAPTERS, POSE_ADAPTERS, TF_ADAPTERS, GNSS_ADAPTERS):
+for _table in (LIDAR_ADAPTERS, LAYER_ADAPTERS, POSE_ADAPTERS, TF_ADAPTERS, GNSS_ADAPTERS):
     _add_ros1_names(_table)
 #: ROS 1's tf (before tf2) on /tf: the same fields as tf2_msgs/TFMessage
 TF_ADAPTERS["tf/tfMessage"] = TF_ADAPTERS["tf/msg/tfMessage"] = ros_tf

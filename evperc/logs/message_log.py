@@ -49,6 +49,7 @@ import numpy as np
 from evperc.errors import LogError, TopicError
 from evperc.logs.mcap_messages import (
     GNSS_ADAPTERS,
+    LAYER_ADAPTERS,
     LIDAR_ADAPTERS,
     POSE_ADAPTERS,
     TF_ADAPTERS,
@@ -70,6 +71,8 @@ log = logging.getLogger(__name__)
 WAIT_SLACK_NS = 1_000_000_000
 #: scans decoded by ``info()`` to estimate the mean points per scan
 INFO_SAMPLE_SCANS = 20
+#: lidar messages :meth:`LogReader.sensor_layers` looks at (past undecodable ones)
+LAYERS_SAMPLE_SCANS = 3
 #: a long log's GNSS fixes are read in this many spans of log time (:meth:`LogReader.gnss_spans`)
 GNSS_SPANS = 16
 #: ... of this many seconds each, spread evenly from the log's first message to its last
@@ -371,6 +374,29 @@ class LogReader:
             self._count("undecodable")
             return None
 
+    def sensor_layers(self) -> tuple[int, str] | None:
+        """The lidar's number of layers and how it was read, from the first lidar message
+        that shows it (of the first :data:`LAYERS_SAMPLE_SCANS`): its laser index field
+        (``ring``), an organised cloud's rows, or a 2-D scan's one; None if none shows it or
+        none decodes (the run says why, not this)."""
+        try:
+            lidar = self.lidar_topic
+        except TopicError:
+            return None
+        adapter = LAYER_ADAPTERS.get(self.source.topics[lidar].schema)
+        if adapter is None:
+            return None
+        for n, raw in enumerate(self.source.iter_raw([lidar])):
+            if n >= LAYERS_SAMPLE_SCANS:
+                break
+            try:
+                layers = adapter(self.source.decode(raw))
+            except Exception:  # an undecodable message: the run counts and reports it
+                continue
+            if layers is not None:
+                return layers
+        return None
+
     def _count(self, reason: str, n: int = 1) -> None:
         if n:
             self.stats[reason] = self.stats.get(reason, 0) + n
@@ -540,6 +566,9 @@ class LogReader:
             out["lidar_frame"] = frame
             out["mean_points_per_scan"] = float(np.mean(counts)) if counts else None
             out["points_sample_scans"] = len(counts)
+        layers = self.sensor_layers()
+        out["lidar_layers"] = None if layers is None else {"count": layers[0],
+                                                            "from": layers[1]}
         return out
 
 

@@ -85,6 +85,39 @@ def xyz_indexed_from_packed(data: bytes | bytearray | memoryview | np.ndarray,
     return out[:kept], np.flatnonzero(finite.ravel()), out.shape[0]
 
 
+#: per-point laser index fields of spinning-lidar drivers (velodyne_pointcloud, ouster-ros,
+#: HesaiLidar, rslidar: ``ring``; some converters: ``laser_id``)
+RING_FIELDS = ("ring", "laser_id")
+
+
+def layer_count(data: bytes | bytearray | memoryview | np.ndarray,
+                fields: Mapping[str, tuple[int, str]], point_step: int, width: int,
+                height: int = 1, row_step: int | None = None,
+                big_endian: bool = False) -> tuple[int, str] | None:
+    """The scanner's number of layers (beams stacked in elevation) as one cloud shows it, and
+    how it was read: ``(max ring + 1, "ring field")`` when the points carry a laser index
+    (:data:`RING_FIELDS`), else ``(height, "organised rows")`` for an organised cloud (a
+    driver's rows are its rings), else None (an unorganised cloud without a laser index says
+    nothing certain about its layers)."""
+    name = next((n for n in RING_FIELDS if n in fields), None)
+    if name is not None and point_step > 0 and width > 0 and height > 0:
+        offset, code = fields[name]
+        dtype = np.dtype((">" if big_endian else "<") + code)
+        raw = _byte_view(data)
+        packed_row = width * point_step
+        row_step = max(row_step or packed_row, packed_row)
+        n_rows = min(height, (raw.size + row_step - packed_row) // row_step)
+        if 0 <= offset <= point_step - dtype.itemsize and n_rows > 0:
+            ring = np.ndarray((n_rows, width), dtype=dtype, buffer=raw, offset=offset,
+                              strides=(row_step, point_step))
+            top = ring.max()
+            if np.isfinite(top) and 0 <= top < 1024:  # a laser index, not another quantity
+                return int(top) + 1, f"{name} field"
+    if height > 1:
+        return int(height), "organised rows"
+    return None
+
+
 def _byte_view(data: bytes | bytearray | memoryview | np.ndarray) -> np.ndarray:
     """The buffer as a flat uint8 array, without a copy."""
     if isinstance(data, np.ndarray):

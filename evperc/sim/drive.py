@@ -135,8 +135,8 @@ def simulate(req: SimRequest) -> dict[str, Any]:
                        profile.min_range_m, profile.max_range_m)
             counts.append(int(np.isfinite(hits.range_m).sum()))
         else:
-            pts, intensity = hits.points()
-            drive.points(ns, pts, intensity)
+            pts, intensity, ring = hits.points()
+            drive.points(ns, pts, intensity, ring)
             counts.append(len(pts))
         truth.add(_truth_frame(k, ns, lx, ly, eyaw[k], hits, movers, static, seen, region,
                                size_m, res))

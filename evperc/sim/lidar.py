@@ -84,8 +84,9 @@ class Hits:
     azimuths: np.ndarray
     elevations: np.ndarray
 
-    def points(self) -> tuple[np.ndarray, np.ndarray]:
-        """Returns as ``(N, 3)`` float32 sensor-frame points and ``(N,)`` float32 intensity,
+    def points(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Returns as ``(N, 3)`` float32 sensor-frame points, ``(N,)`` float32 intensity and
+        ``(N,)`` uint16 layer index (0 = the lowest elevation: the ``ring`` a driver writes),
         in row-major (layer, azimuth) order."""
         ok = np.isfinite(self.range_m)
         e = np.broadcast_to(self.elevations[:, None], ok.shape)[ok]
@@ -94,7 +95,8 @@ class Hits:
         pts = np.column_stack([r * np.cos(e) * np.cos(a), r * np.cos(e) * np.sin(a),
                                r * np.sin(e)]).astype(np.float32)
         intensity = np.where(self.label[ok] == GROUND, 0.1, 0.2 + 0.1 * self.label[ok])
-        return pts, intensity.astype(np.float32)
+        ring = np.broadcast_to(np.argsort(np.argsort(self.elevations))[:, None], ok.shape)[ok]
+        return pts, intensity.astype(np.float32), ring.astype(np.uint16)
 
 
 def solid_intervals(sx: float, sy: float, az: np.ndarray, solids: Solids

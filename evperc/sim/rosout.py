@@ -16,6 +16,11 @@ import numpy as np
 from mcap_ros2.writer import Writer
 
 _SEP = "=" * 80 + "\n"
+#: a simulated lidar point as written: little-endian float32 x, y, z, intensity, uint16 ring,
+#: padded to 20 bytes (4-byte aligned, as drivers pad theirs)
+POINT_DTYPE = np.dtype({"names": ["x", "y", "z", "intensity", "ring"],
+                        "formats": ["<f4", "<f4", "<f4", "<f4", "<u2"],
+                        "offsets": [0, 4, 8, 12, 16], "itemsize": 20})
 
 _DEFS = {
     "builtin_interfaces/Time": "int32 sec\nuint32 nanosec\n",
@@ -142,16 +147,23 @@ class DriveWriter:
         self._write_queued(ns)
         self._w.write_message(topic, self._schema(name), msg, log_time=ns, publish_time=ns)
 
-    def points(self, ns: int, xyz: np.ndarray, intensity: np.ndarray,
+    def points(self, ns: int, xyz: np.ndarray, intensity: np.ndarray, ring: np.ndarray,
                topic: str = "/lidar/points", frame_id: str = "lidar") -> None:
-        """PointCloud2 of float32 x, y, z, intensity (16-byte points)."""
-        data = np.column_stack([xyz, intensity]).astype("<f4")
-        fields = [{"name": n, "offset": 4 * i, "datatype": 7, "count": 1}
-                  for i, n in enumerate(("x", "y", "z", "intensity"))]
+        """PointCloud2 of float32 x, y, z, intensity and uint16 ring (each point's layer, as
+        a Velodyne or Ouster driver writes it), 20-byte points (2 bytes of padding)."""
+        data = np.zeros(len(xyz), POINT_DTYPE)
+        for i, n in enumerate("xyz"):
+            data[n] = xyz[:, i]
+        data["intensity"] = intensity
+        data["ring"] = ring
+        fields = [{"name": n, "offset": POINT_DTYPE.fields[n][1],
+                   "datatype": 4 if n == "ring" else 7, "count": 1}
+                  for n in ("x", "y", "z", "intensity", "ring")]
+        step = POINT_DTYPE.itemsize
         self._write_scan(topic, "sensor_msgs/PointCloud2", {
             "header": {"stamp": stamp(ns), "frame_id": frame_id}, "height": 1,
-            "width": len(data), "fields": fields, "is_bigendian": False, "point_step": 16,
-            "row_step": 16 * len(data), "data": data.tobytes(), "is_dense": True}, ns)
+            "width": len(data), "fields": fields, "is_bigendian": False, "point_step": step,
+            "row_step": step * len(data), "data": data.tobytes(), "is_dense": True}, ns)
 
     def scan(self, ns: int, angle_min: float, angle_increment: float, ranges: np.ndarray,
              range_min: float, range_max: float, topic: str = "/scan",

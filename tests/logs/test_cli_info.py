@@ -64,3 +64,40 @@ def test_info_missing_file(tmp_path):
     result = CliRunner().invoke(cli, ["info", str(tmp_path / "none.mcap")])
     assert result.exit_code == 2
     assert result.output == f"evperc: error: {tmp_path / 'none.mcap'}: log file not found\n"
+
+
+def test_info_gives_the_lidars_layers_from_its_ring_field(tmp_path):
+    # padded32: a Velodyne driver's layout; the test writer numbers the rings 0..15
+    path = _log(tmp_path, layout="padded32")
+    result = CliRunner().invoke(cli, ["info", str(path)])
+    assert result.exit_code == 0, result.output
+    assert ("lidar layers: 16 (ring field); --preset vlp16 is tuned for such scanners"
+            in result.output.splitlines())
+    info = json.loads(CliRunner().invoke(cli, ["info", "--json", str(path)]).output)
+    assert info["lidar_layers"] == {"count": 16, "from": "ring field"}
+
+
+def test_info_says_nothing_of_layers_a_cloud_does_not_show(tmp_path):
+    path = _log(tmp_path)  # x y z intensity, unorganised: no laser index
+    info = json.loads(CliRunner().invoke(cli, ["info", "--json", str(path)]).output)
+    assert info["lidar_layers"] is None
+    assert "lidar layers" not in CliRunner().invoke(cli, ["info", str(path)]).output
+
+
+def test_run_names_the_preset_tuned_for_a_16_layer_lidar(tmp_path, caplog):
+    from evperc.cli import preset_for_layers, suggest_preset
+
+    sixteen = _log(tmp_path, layout="padded32")
+    plain = write_ros2_mcap(tmp_path / "plain.mcap", clouds=[(S0, np.ones((40, 3)), "v")],
+                            odometry=[(S0, transform())])
+    with caplog.at_level("INFO", logger="evperc"):
+        suggest_preset([plain], None, None)
+        suggest_preset([sixteen], "vlp16", None)
+        assert not [r for r in caplog.records if "--preset" in r.getMessage()]
+        suggest_preset([sixteen, plain], None, None)
+    hints = [r.getMessage() for r in caplog.records if "--preset" in r.getMessage()]
+    assert hints == [f"{sixteen}: a 16-layer lidar (ring field); --preset vlp16 is tuned for "
+                     "such scanners (docs/evaluation.md § Where evperc stands)"]
+    # the ranges of evperc/cli.py's LAYER_PRESETS: measured presets only
+    assert [preset_for_layers(n) for n in (1, 4, 11, 12, 16, 24, 32, 48, 64, 128, 129)] == [
+        None, None, None, "vlp16", "vlp16", "vlp16", None, "hdl64", "hdl64", "hdl64", None]

@@ -318,3 +318,9 @@ def test_db3_without_message_definitions_uses_the_bundled_types(drive, tmp_path)
         assert sa.stamp_ns == sb.stamp_ns
         np.testing.assert_array_equal(sa.points, sb.points)
         np.testing.assert_array_equal(sa.T_world_sensor, sb.T_world_sensor)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_kind_of_log_gives_the_lidars_layers(drive: dict[str, Path], kind: str) -> None:
+    # the simulated ibeo4's 4 layers, written as each point's ring by `evperc simulate`
+    assert open_log(drive[kind]).sensor_layers() == (4, "ring field")

@@ -10,6 +10,7 @@ import pytest
 from evperc.logs.pointcloud import (
     MissingFieldsError,
     foxglove_fields,
+    layer_count,
     planar_points,
     ros_fields,
     xyz_from_packed,
@@ -191,3 +192,46 @@ def test_field_outside_the_point_is_an_error():
     with pytest.raises(ValueError, match="does not fit"):
         xyz_from_packed(bytes(64), {"x": (0, "f4"), "y": (4, "f4"), "z": (14, "f4")}, 16,
                         width=4)
+
+
+# --- the scanner's layers (evperc/logs/pointcloud.py: layer_count) -----------------------
+
+def test_layers_from_a_ring_field_set_by_hand():
+    """Three 32-byte Velodyne-style points (ring uint16 at byte 20) with rings 0, 15, 3:
+    16 layers; the same bytes big-endian read as such."""
+    table = _ros_table([("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("ring", 20, 4)])
+    for order in ("<", ">"):
+        buf = bytearray(96)
+        for i, ring in enumerate((0, 15, 3)):
+            struct.pack_into(order + "H", buf, 32 * i + 20, ring)
+        assert layer_count(bytes(buf), table, 32, width=3, big_endian=order == ">") == (
+            16, "ring field")
+
+
+def test_layers_from_the_test_writers_velodyne_layout():
+    # tests/mcap_writers.py's padded32 layout numbers its points' rings 0..15 in turn
+    data, step, fields = packed_cloud(np.zeros((40, 3)), "padded32")
+    assert layer_count(data, _ros_table(fields), step, width=40) == (16, "ring field")
+
+
+def test_layers_of_an_organised_cloud_without_ring_are_its_rows():
+    table = _ros_table([("x", 0, 7), ("y", 4, 7), ("z", 8, 7)])
+    data = np.zeros((32, 64, 4), np.float32).tobytes()
+    assert layer_count(data, table, 16, width=64, height=32) == (32, "organised rows")
+
+
+def test_no_layers_from_an_unorganised_cloud_without_ring():
+    data, step, fields = packed_cloud(POINTS, "xyzi16")
+    assert layer_count(data, _ros_table(fields), step, width=len(POINTS)) is None
+
+
+def test_a_laser_id_field_and_a_ring_that_is_no_laser_index():
+    table = _ros_table([("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("laser_id", 12, 2)])
+    buf = bytearray(32)
+    buf[12], buf[28] = 3, 1  # uint8 laser ids 3 and 1: 4 layers
+    assert layer_count(bytes(buf), table, 16, width=2) == (4, "laser_id field")
+    # a float "ring" of 1e6 is no laser index: nothing certain (unorganised cloud)
+    table = _ros_table([("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("ring", 12, 7)])
+    buf = bytearray(16)
+    struct.pack_into("<f", buf, 12, 1e6)
+    assert layer_count(bytes(buf), table, 16, width=1) is None

@@ -36,7 +36,7 @@ def test_box_in_front_is_hit_on_its_front_face() -> None:
     for layer in range(4):  # z at 8 m is 0.5 ± 0.17: every layer is within [0, 1.5]
         np.testing.assert_allclose(hits.horizontal_m[layer, on_face], expected, rtol=1e-9)
         assert (hits.label[layer, on_face] == STOPPED).all()
-    pts, _ = hits.points()
+    pts, _, _ = hits.points()
     front = np.abs(pts[:, 1]) < 0.99
     near = pts[front & (pts[:, 0] < 20)]
     np.testing.assert_allclose(near[:, 0], 8.0, atol=1e-4)
@@ -80,7 +80,7 @@ def test_box_cells_are_its_class_and_hits_land_in_them() -> None:
     np.testing.assert_array_equal(classes == STOPPED, inside)
     assert inside.sum() == 8 * 4
     np.testing.assert_array_equal(ids == 1, inside)
-    pts, _ = hits.points()
+    pts, _, _ = hits.points()
     on_box = pts[(pts[:, 0] < 12.5) & (np.abs(pts[:, 1]) <= 1.0)]
     row, col = win.index_of(on_box[:, 0], on_box[:, 1])
     assert len(on_box) > 0 and (classes[row, col] == STOPPED).all()
