@@ -55,7 +55,7 @@ def test_each_points_ring_is_its_layer_by_elevation(drive: Path) -> None:
     own geometry: each ring's elevations (atan2(z, horizontal range)) lie within 0.01° of
     one value, and those values rise with the ring — ibeo4's four layers 0.8° apart."""
     raw = np.dtype({"names": ["x", "y", "z", "ring"], "formats": ["<f4", "<f4", "<f4", "<u2"],
-                    "offsets": [0, 4, 8, 16], "itemsize": 20})
+                    "offsets": [0, 4, 8, 12], "itemsize": 16})
     for _, msg in decoded(drive / "drive.mcap", "/lidar/points")[:3]:
         p = np.frombuffer(bytes(msg.data), raw)
         elevation = np.degrees(np.arctan2(p["z"], np.hypot(p["x"], p["y"])))
@@ -78,10 +78,10 @@ def test_mcap_decodes_with_mcap_ros2(drive: Path) -> None:
     clouds = decoded(drive / "drive.mcap", "/lidar/points")
     assert len(clouds) == 20
     for log_time, msg in clouds:
-        assert msg.header.frame_id == "lidar" and msg.point_step == 20
+        assert msg.header.frame_id == "lidar" and msg.point_step == 16
         assert [(f.name, f.offset, f.datatype) for f in msg.fields] == [
-            ("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 12, 7), ("ring", 16, 4)]
-        assert len(bytes(msg.data)) == 20 * msg.width * msg.height
+            ("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("ring", 12, 4), ("intensity", 14, 2)]
+        assert len(bytes(msg.data)) == 16 * msg.width * msg.height
         assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == log_time
         assert 500 <= msg.width <= 800   # ibeo4: 800 beams, most return in a street
     stamps = np.array([t for t, _ in clouds])
@@ -201,6 +201,6 @@ def test_point_counts_per_profile(tmp_path: Path, profile: str, topic: str, low:
             assert (r[np.isfinite(r)] <= m.range_max).all()
         else:
             n = m.width
-            z = np.frombuffer(bytes(m.data), "<f4").reshape(-1, 5)[:, 2]  # 20-byte points
+            z = np.frombuffer(bytes(m.data), "<f4").reshape(-1, 4)[:, 2]
             assert (np.abs(z + mount_m) < 0.1).mean() > 0.3   # ground returns, mount_m below
         assert low <= n <= high
