@@ -16,7 +16,7 @@ from typing import Any
 import click
 
 from evperc import __version__
-from evperc.config import PRESETS
+from evperc.config import PRESETS, layers_hint, preset_for_layers
 from evperc.errors import EvpercError, OutputError, UsageError
 
 log = logging.getLogger("evperc")
@@ -29,11 +29,6 @@ PRESET_HELP = ("Shipped config applied under --config: kurdej2013 = the paper's 
 
 #: the log kinds whose sensor is known: the sensor, and the preset measured better for it than
 #: the defaults
-#: (fewest, most layers, preset): the shipped preset tuned for a lidar of so many layers
-#: (16: configs/vlp16.toml; 64 and denser: configs/hdl64.toml); none for fewer than 12 (the
-#: defaults were tuned on 4) nor for 25-47 (no preset measured on such a scanner)
-LAYER_PRESETS = ((12, 24, "vlp16"), (48, 128, "hdl64"))
-
 
 def _setup_logging(verbose: int, quiet: int) -> None:
     """evperc's own messages from INFO (each -v one level more, each -q one less); other
@@ -116,44 +111,20 @@ def _run_map(run: Any) -> tuple[Path | None, Path | None]:
     return found[0], found[1]
 
 
-def preset_for_layers(layers: int) -> str | None:
-    """The shipped preset tuned for a lidar of ``layers`` layers (:data:`LAYER_PRESETS`)."""
-    return next((p for lo, hi, p in LAYER_PRESETS if lo <= layers <= hi), None)
-
-
-def suggest_preset(log_paths: list[Path], preset: str | None, config_path: Path | None,
-                   lidar_topic: str | None = None) -> None:
-    """With neither --preset nor --config, name the preset tuned for the logs' lidar when its
-    layers are known (:data:`LAYER_PRESETS`): a KITTI folder is an HDL-64E's (``hdl64``,
-    measured better than the defaults on real scans, docs/evaluation.md § Real data); a
-    message log's first lidar messages give the count by their laser index field
-    (``ring``) or an organised cloud's rows (:meth:`evperc.logs.message_log.LogReader.
-    sensor_layers`). One line per preset. A hint only: the defaults stay the defaults. A log
-    that cannot be opened is skipped here (the run reports it)."""
+def suggest_preset(log_paths: list[Path], preset: str | None, config_path: Path | None) -> None:
+    """`evperc batch` with neither --preset nor --config: name the preset measured better
+    than the defaults for KITTI folders (their kind says the sensor: an HDL-64E; docs/
+    evaluation.md § Real data), one line for all of them. A hint only: the defaults stay the
+    defaults. (`evperc run` says it of any log whose layers it reads: :func:`evperc.runner.
+    run`'s ``hint_preset``.)"""
     if preset is not None or config_path is not None:
         return
-    from evperc.logs.factory import log_kind, open_log
+    from evperc.logs.factory import log_kind
 
-    of_preset: dict[str, list[tuple[Path, int, str]]] = {}
-    for path in log_paths:
-        try:
-            reader = open_log(path, lidar_topic=lidar_topic, strict=False)
-            layers = reader.sensor_layers()
-        except (EvpercError, OSError):
-            continue
-        better = None if layers is None else preset_for_layers(layers[0])
-        if better is not None:
-            of_preset.setdefault(better, []).append((path, *layers))
-    for better, found in of_preset.items():
-        path, count, source = found[0]
-        kitti = all(log_kind(p) == "kitti" for p, _, _ in found)
-        sensor = ("a KITTI folder, an HDL-64E's 64 layers" if kitti
-                  else f"a {count}-layer lidar ({source})")
-        where = str(path) if len(found) == 1 else f"{len(found)} logs ({path}, …)"
-        why = ("is measured better than the defaults for such a scanner (docs/evaluation.md "
-               "§ Real data)" if kitti else "is tuned for such scanners (docs/evaluation.md "
-               "§ Where evperc stands)")
-        log.info("%s: %s; --preset %s %s", where, sensor, better, why)
+    kitti = [path for path in log_paths if log_kind(path) == "kitti"]
+    if kitti:
+        where = str(kitti[0]) if len(kitti) == 1 else f"{len(kitti)} logs ({kitti[0]}, …)"
+        log.info("%s: %s", where, layers_hint(None, kitti=True))
 
 
 def check_map_options(map_path: Path | None, roads_path: Path | None, no_map: bool) -> None:
@@ -237,7 +208,6 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
                              "or --resume DIR")
         check_map_options(map_path, roads_path, no_map)
         config = load_config(config_path, preset=preset)
-        suggest_preset([log_path], preset, config_path, lidar_topic)
         out_dir = out_dir or Path("evperc-out") / log_path.stem
         request = RunRequest(log_path=log_path, out_dir=out_dir, config=config,
                              map_path=map_path, roads_path=roads_path, overwrite=overwrite,
@@ -250,7 +220,9 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
 
         on_frame = LiveRenderer(render_dir, request)
     try:
-        summary = run(request, resume=resume_dir is not None, on_frame=on_frame)
+        summary = run(request, resume=resume_dir is not None, on_frame=on_frame,
+                      hint_preset=resume_dir is None and preset is None
+                      and config_path is None)
     except KeyboardInterrupt:
         if (out_dir / "manifest.json").is_file():
             click.echo(f"evperc: interrupted; the frames written so far are kept, continue "

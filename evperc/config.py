@@ -32,6 +32,13 @@ PRESET_DIR = Path(__file__).with_name("presets")
 
 #: shipped presets (``evperc run --preset NAME``), each ``PRESET_DIR/NAME.toml``
 PRESETS = ("kurdej2013", "hdl64", "ibeo4", "vlp16")
+#: (fewest, most layers, preset): the shipped preset tuned for a lidar of so many layers
+#: (16: configs/vlp16.toml; 64 and denser: configs/hdl64.toml); none for fewer than 12 (the
+#: defaults were tuned on 4) nor for 25-47 (no preset was measured on such a scanner)
+LAYER_PRESETS = ((12, 24, "vlp16"), (48, 128, "hdl64"))
+#: the sensor a KITTI folder's scans come from, and the preset measured better than the
+#: defaults on such scans (docs/evaluation.md § Real data)
+KITTI_SENSOR = ("a KITTI folder, an HDL-64E's 64 layers", "hdl64")
 
 #: Tables whose keys are free (a user may add classes); values must be numbers.
 OPEN_TABLES = {"map.road_width_m"}
@@ -174,6 +181,25 @@ def default_config() -> dict[str, Any]:
     """The defaults as a nested dict (a fresh copy)."""
     with DEFAULT_PATH.open("rb") as f:
         return tomllib.load(f)
+
+
+def preset_for_layers(layers: int) -> str | None:
+    """The shipped preset tuned for a lidar of ``layers`` layers (:data:`LAYER_PRESETS`)."""
+    return next((p for lo, hi, p in LAYER_PRESETS if lo <= layers <= hi), None)
+
+
+def layers_hint(layers: tuple[int, str] | None, kitti: bool = False) -> str | None:
+    """What a run without --preset or --config says of its lidar, given its layers and how
+    they were read (``LogReader.sensor_layers()``): the preset tuned for it, or None."""
+    if kitti:
+        sensor, better = KITTI_SENSOR
+        return (f"{sensor}; --preset {better} is measured better than the defaults for such "
+                "a scanner (docs/evaluation.md § Real data)")
+    better = None if layers is None else preset_for_layers(layers[0])
+    if better is None:
+        return None
+    return (f"a {layers[0]}-layer lidar ({layers[1]}); --preset {better} is tuned for such "
+            "scanners (docs/evaluation.md § Where evperc stands)")
 
 
 def preset_path(name: str) -> Path:

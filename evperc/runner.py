@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from evperc.config import layers_hint
 from evperc.errors import GeoreferenceError, OutputError, PoseError
 from evperc.fusion.fused import StoredOutputs, count_codes, focal_sets, fused_step, vacuous_flags
 from evperc.fusion.gate import GateState, gate_step
@@ -28,6 +29,7 @@ from evperc.geo.prior import CONTEXT_BUILDING, PriorRasteriser
 from evperc.geo.window import Window
 from evperc.gil_kept import warm_up_gil_kept
 from evperc.logs.factory import open_log
+from evperc.logs.kitti import KittiLog
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
 from evperc.objects.backfill import Backfill, HeldFrame, backfill_frames, candidates
@@ -541,6 +543,18 @@ class Pipeline:
             log.warning("%s", message)
         return self.pose_fit
 
+    def hint_preset(self) -> str | None:
+        """Log (and return) the one line naming the preset tuned for the log's lidar
+        (:func:`evperc.config.layers_hint`): its layers as the log's reader reads them (a
+        KITTI folder's HDL-64E, a message log's ``ring`` field or organised rows); nothing
+        when they are unknown or no preset is tuned for them. The reader is the run's own, so
+        what opening the log logs is said once."""
+        layers = getattr(self.reader, "sensor_layers", lambda: None)()
+        hint = layers_hint(layers, kitti=isinstance(self.reader, KittiLog))
+        if hint is not None:
+            log.info("%s: %s", self.request.log_path, hint)
+        return hint
+
     def warm_up_inputs(self) -> bool:
         """Read and prepare the first scan of the requested span, and drop it: the one-off
         costs of the first frame (opening the log's index, building the message decoders,
@@ -826,12 +840,15 @@ def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:
 
 def run(request: RunRequest, resume: bool = False,
         on_frame: Callable[[dict[str, Any]], None] | None = None,
-        progress: bool | None = None, reuse_map: bool = False) -> dict[str, Any]:
+        progress: bool | None = None, reuse_map: bool = False,
+        hint_preset: bool = False) -> dict[str, Any]:
     """Run the whole pipeline (or continue an interrupted run); returns the summary written
     into the manifest. ``on_frame`` sees every frame's arrays (e.g. to render as it goes);
     ``progress``: show the per-frame bar (``None``: only on a terminal); ``reuse_map``: take
     the map read by the previous run in this process if it is the same
-    (:func:`evperc.geo.maps.load_map_cached`; ``evperc batch`` workers)."""
+    (:func:`evperc.geo.maps.load_map_cached`; ``evperc batch`` workers); ``hint_preset``:
+    name the preset tuned for the log's lidar, if its layers are known
+    (:meth:`Pipeline.hint_preset`; `evperc run` without --preset or --config)."""
     started = time.perf_counter()
     keep_freed_memory()
     out_dir = request.out_dir
@@ -849,6 +866,8 @@ def run(request: RunRequest, resume: bool = False,
         if done:
             state = FusionState.load(checkpoint_path(out_dir, done))
     else:
+        if hint_preset:
+            pipeline.hint_preset()
         pipeline.check_poses()  # may stop the run before its output exists
         writer = RunWriter(out_dir, request.config, pipeline.meta(), overwrite=request.overwrite)
 

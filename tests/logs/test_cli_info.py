@@ -8,6 +8,7 @@ import numpy as np
 from click.testing import CliRunner
 
 from evperc.cli import cli
+from evperc.config import preset_for_layers
 from tests.logs.reference import S0
 from tests.mcap_writers import transform, write_ros2_mcap
 
@@ -84,20 +85,43 @@ def test_info_says_nothing_of_layers_a_cloud_does_not_show(tmp_path):
     assert "lidar layers" not in CliRunner().invoke(cli, ["info", str(path)]).output
 
 
-def test_run_names_the_preset_tuned_for_a_16_layer_lidar(tmp_path, caplog):
-    from evperc.cli import preset_for_layers, suggest_preset
+def _no_gnss_log(path, layout):
+    """3 scans 1 m apart, odometry, no GNSS fix (a run with --no-map needs no geo-reference)."""
+    return write_ros2_mcap(path, layout=layout,
+                           clouds=[(S0 + i * 100 * MS, np.ones((40, 3)) * (i + 1), "v")
+                                   for i in range(3)],
+                           odometry=[(S0 + i * 50 * MS, transform(x=i)) for i in range(6)],
+                           tf_static=[("base_link", "v", np.eye(4))])
 
-    sixteen = _log(tmp_path, layout="padded32")
-    plain = write_ros2_mcap(tmp_path / "plain.mcap", clouds=[(S0, np.ones((40, 3)), "v")],
-                            odometry=[(S0, transform())])
-    with caplog.at_level("INFO", logger="evperc"):
-        suggest_preset([plain], None, None)
-        suggest_preset([sixteen], "vlp16", None)
-        assert not [r for r in caplog.records if "--preset" in r.getMessage()]
-        suggest_preset([sixteen, plain], None, None)
-    hints = [r.getMessage() for r in caplog.records if "--preset" in r.getMessage()]
-    assert hints == [f"{sixteen}: a 16-layer lidar (ring field); --preset vlp16 is tuned for "
-                     "such scanners (docs/evaluation.md § Where evperc stands)"]
-    # the ranges of evperc/cli.py's LAYER_PRESETS: measured presets only
+
+def test_run_names_the_preset_tuned_for_a_16_layer_lidar(tmp_path):
+    sixteen = _no_gnss_log(tmp_path / "sixteen.mcap", "padded32")
+    hint = (f"{sixteen}: a 16-layer lidar (ring field); --preset vlp16 is tuned for such "
+            "scanners (docs/evaluation.md § Where evperc stands)")
+    unknown = _no_gnss_log(tmp_path / "unknown.mcap", "xyzi16")  # no laser index
+    runs = {name: CliRunner().invoke(cli, ["run", str(log), "--no-map", "--out",
+                                           str(tmp_path / name), *extra])
+            for name, log, extra in (("plain", sixteen, []),
+                                     ("preset", sixteen, ["--preset", "vlp16"]),
+                                     ("unknown", unknown, []))}
+    for result in runs.values():
+        assert result.exit_code == 0, result.output
+    assert runs["plain"].output.count(hint) == 1
+    assert "--preset" not in runs["preset"].output
+    assert "--preset" not in runs["unknown"].output
+
+
+def test_the_hint_reads_the_runs_own_log_so_a_damaged_log_is_reported_once(tmp_path):
+    # the layers come from the run's reader: opening the log (and its warning) happens once
+    full = _no_gnss_log(tmp_path / "full.mcap", "padded32").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(full[:len(full) * 2 // 3])
+    result = CliRunner().invoke(cli, ["run", str(cut), "--no-map", "--out",
+                                      str(tmp_path / "c")])
+    assert result.output.count("log is truncated or damaged") == 1, result.output
+
+
+def test_which_preset_is_tuned_for_how_many_layers():
+    # the ranges of evperc/config.py's LAYER_PRESETS: measured presets only
     assert [preset_for_layers(n) for n in (1, 4, 11, 12, 16, 24, 32, 48, 64, 128, 129)] == [
         None, None, None, "vlp16", "vlp16", "vlp16", None, "hdl64", "hdl64", "hdl64", None]
