@@ -27,9 +27,6 @@ PRESET_HELP = ("Shipped config applied under --config: kurdej2013 = the paper's 
                "HDL-64E: configs/hdl64.toml); ibeo4 = for 4-layer scanners (configs/ibeo4.toml); "
                "vlp16 = for 16-layer scanners (configs/vlp16.toml).")
 
-#: the log kinds whose sensor is known: the sensor, and the preset measured better for it than
-#: the defaults
-
 def _setup_logging(verbose: int, quiet: int) -> None:
     """evperc's own messages from INFO (each -v one level more, each -q one less); other
     libraries' from WARNING, and their debug lines only from -vv on."""

@@ -549,8 +549,7 @@ class Pipeline:
         KITTI folder's HDL-64E, a message log's ``ring`` field or organised rows); nothing
         when they are unknown or no preset is tuned for them. The reader is the run's own, so
         what opening the log logs is said once."""
-        layers = getattr(self.reader, "sensor_layers", lambda: None)()
-        hint = layers_hint(layers, kitti=isinstance(self.reader, KittiLog))
+        hint = layers_hint(self.reader.sensor_layers(), kitti=isinstance(self.reader, KittiLog))
         if hint is not None:
             log.info("%s: %s", self.request.log_path, hint)
         return hint

@@ -156,10 +156,16 @@ def ros_laserscan(msg: Any, log_time_ns: int) -> ScanRecord:
                       points, planar=True, source_count=count, source_index=index)
 
 
-def foxglove_pointcloud(msg: Any, log_time_ns: int) -> ScanRecord:
+def _foxglove_packed(msg: Any) -> tuple[bytes | np.ndarray, int, int]:
+    """``(data, point_stride, points)`` of a foxglove PointCloud (one row of points)."""
     data = _bytes(get(msg, "data", b""))
     stride = int(get(msg, "point_stride", 0))
     n = (len(data) if not isinstance(data, np.ndarray) else data.size) // stride if stride else 0
+    return data, stride, n
+
+
+def foxglove_pointcloud(msg: Any, log_time_ns: int) -> ScanRecord:
+    data, stride, n = _foxglove_packed(msg)
     points, index, count = xyz_indexed_from_packed(
         data, foxglove_fields(get(msg, "fields", [])), point_step=stride, width=n)
     return ScanRecord(stamp_of(get(msg, "timestamp"), log_time_ns), str(get(msg, "frame_id", "")),
@@ -170,9 +176,7 @@ def foxglove_pointcloud(msg: Any, log_time_ns: int) -> ScanRecord:
 def foxglove_pointcloud_layers(msg: Any) -> tuple[int, str] | None:
     """The scanner's layers as a foxglove PointCloud shows them (a laser index field only:
     the message has no rows)."""
-    data = _bytes(get(msg, "data", b""))
-    stride = int(get(msg, "point_stride", 0))
-    n = (len(data) if not isinstance(data, np.ndarray) else data.size) // stride if stride else 0
+    data, stride, n = _foxglove_packed(msg)
     return layer_count(data, foxglove_fields(get(msg, "fields", [])), point_step=stride,
                        width=n)
 

@@ -67,9 +67,7 @@ def xyz_indexed_from_packed(data: bytes | bytearray | memoryview | np.ndarray,
     if height <= 0 or width <= 0 or point_step <= 0:
         return np.empty((0, 3), np.float32), None, 0
     raw = _byte_view(data)
-    packed_row = width * point_step
-    row_step = max(row_step or packed_row, packed_row)
-    n_rows = min(height, (raw.size + row_step - packed_row) // row_step)  # complete rows only
+    n_rows, row_step = _complete_rows(raw, point_step, width, height, row_step)
     if n_rows <= 0:
         return np.empty((0, 3), np.float32), None, 0
     x, y, z = (_column(raw, fields[name][0], dtype, (n_rows, width), (row_step, point_step))
@@ -104,18 +102,23 @@ def layer_count(data: bytes | bytearray | memoryview | np.ndarray,
         offset, code = fields[name]
         dtype = np.dtype((">" if big_endian else "<") + code)
         raw = _byte_view(data)
-        packed_row = width * point_step
-        row_step = max(row_step or packed_row, packed_row)
-        n_rows = min(height, (raw.size + row_step - packed_row) // row_step)
+        n_rows, row_step = _complete_rows(raw, point_step, width, height, row_step)
         if 0 <= offset <= point_step - dtype.itemsize and n_rows > 0:
-            ring = np.ndarray((n_rows, width), dtype=dtype, buffer=raw, offset=offset,
-                              strides=(row_step, point_step))
-            top = ring.max()
+            top = _column(raw, offset, dtype, (n_rows, width), (row_step, point_step)).max()
             if np.isfinite(top) and 0 <= top < 1024:  # a laser index, not another quantity
                 return int(top) + 1, f"{name} field"
     if height > 1:
         return int(height), "organised rows"
     return None
+
+
+def _complete_rows(raw: np.ndarray, point_step: int, width: int, height: int,
+                   row_step: int | None) -> tuple[int, int]:
+    """``(rows, row_step)``: the complete rows of ``height`` a buffer of ``raw.size`` bytes
+    holds (a row padded to ``row_step`` bytes, at least ``width · point_step``)."""
+    packed_row = width * point_step
+    row_step = max(row_step or packed_row, packed_row)
+    return min(height, (raw.size + row_step - packed_row) // row_step), row_step
 
 
 def _byte_view(data: bytes | bytearray | memoryview | np.ndarray) -> np.ndarray:

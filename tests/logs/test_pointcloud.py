@@ -235,3 +235,24 @@ def test_a_laser_id_field_and_a_ring_that_is_no_laser_index():
     buf = bytearray(16)
     struct.pack_into("<f", buf, 12, 1e6)
     assert layer_count(bytes(buf), table, 16, width=1) is None
+
+
+def test_layers_of_foxglove_and_ros_messages_as_decoded():
+    """The message adapters (evperc/logs/mcap_messages.py) on decoded messages as dicts: a
+    foxglove PointCloud with a uint16 ring (foxglove's UINT16 = 3) at byte 12, rings 0..31;
+    a PointCloud2 organised in 8 rows; a LaserScan."""
+    from evperc.logs.mcap_messages import LAYER_ADAPTERS
+
+    buf = bytearray(16 * 4)
+    for i, ring in enumerate((5, 31, 0, 7)):
+        struct.pack_into("<H", buf, 16 * i + 12, ring)
+    fox = {"data": bytes(buf), "point_stride": 16,
+           "fields": [{"name": n, "offset": o, "type": t}
+                      for n, o, t in (("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("ring", 12, 3))]}
+    assert LAYER_ADAPTERS["foxglove.PointCloud"](fox) == (32, "ring field")
+    ros = {"data": bytes(16 * 8 * 3), "point_step": 16, "width": 3, "height": 8,
+           "row_step": 48, "is_bigendian": False,
+           "fields": [{"name": n, "offset": o, "datatype": 7, "count": 1}
+                      for n, o in (("x", 0), ("y", 4), ("z", 8))]}
+    assert LAYER_ADAPTERS["sensor_msgs/PointCloud2"](ros) == (8, "organised rows")
+    assert LAYER_ADAPTERS["sensor_msgs/msg/LaserScan"]({}) == (1, "a 2-D scan")
