@@ -9,14 +9,13 @@ the first scan's lidar frame (the sequence's poses and ``Tr``, as evperc's KITTI
 places them), then
 
     speed      the least-squares slope of the centroid against the scan times, |(vx, vy)|
-               in m/s (horizontal; a person's or a car's centroid moves with its visible
-               part too, so a standing person shows a few cm/s of noise)
+               in m/s (horizontal; the centroid of the points seen, so it also moves with
+               the part of the object the scan sees)
     net        the straight-line distance from the first scan's centroid to the last's, m
     range      the mean horizontal range of its points from the lidar, m
 
 An instance seen in fewer than ``--min-scans`` scans (3) has no speed. evperc's tracker calls
-nothing slower than ``objects.min_speed_mps`` (0.5 m/s) moving, and a centroid must leave its
-cell (0.5 m) to show motion in the grid at all.
+nothing slower than ``objects.moving_speed_m_per_s`` (0.5 m/s) moving.
 
     python scripts/kitti_mover_motion.py ../shared/data/semantickitti/07 [--json F]
 """
