@@ -31,9 +31,10 @@ code writes it (no reassociation, FMA contraction or reciprocal estimates:
 :data:`evperc.fusion.codegen.FASTMATH`), so a cell's bits do not depend on its lane, its
 neighbours, the code path or the vector width; results equal the numpy twin (float64) to
 float32 round-off (~1e-6), not bit for bit. The kernels are compiled once and
-cached (``cache=True``, ~10 s each on first use, ~19 s for the lean ones with their road
-body); the default options run a *lean* variant without the operations that are
-identities for them (:func:`_kernel`). ``threads`` shares a frame's rows among threads
+cached (``cache=True``; on first use 11–14 s each, 17–20 s for the lean ones with their
+road body, on a 2-vCPU Xeon: docs/performance.md § "The kernels' compile time"); the
+default options run a *lean* variant without the operations that are identities for them
+(:func:`_kernel`). ``threads`` shares a frame's rows among threads
 (the kernels release the GIL); the bytes written do not depend on it.
 
 Reachable focal sets (:func:`reachable_focal_sets`): all 31 non-empty subsets with

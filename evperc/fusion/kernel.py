@@ -38,6 +38,14 @@ _P12 = np.float32(4096)
 _P13 = np.float32(8192)
 _P14 = np.float32(16384)
 _P15 = np.float32(32768)
+
+
+
+@numba.njit(cache=True)
+def _sel(c, a, b):  # pragma: no cover - compiled; inlined as a select
+    return a if c else b
+
+
 BLOCK = 256
 STRIDE = 272
 SUB = 16
@@ -72,9 +80,9 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
         chunk = r // band_rows
         if chunk % bands != band:
             continue
-        buf_row = r + off_r
-        buf_row = buf_row - rows if buf_row >= rows else buf_row
-        rb = buf_row * cols
+        buf_row_1 = r + off_r
+        buf_row_2 = _sel(buf_row_1 >= rows, buf_row_1 - rows, buf_row_1)
+        rb = buf_row_2 * cols
         lo = min(max(-dc_, 0), cols)
         hi = max(min(cols - dc_, cols), lo)
         if r + dr < 0 or r + dr >= rows:
@@ -88,22 +96,22 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
             l0 = 0
             l1 = n
             if may_skip:
-                for t in range(n):
-                    act[t] = 1  # cells entering the window are vacuous
-                for seg in range(2):
-                    a0 = s0 if seg == 0 else max(s0, wrap)
-                    a1 = min(s1, wrap) if seg == 0 else s1
-                    w = a1 - a0
+                for t_1 in range(n):
+                    act[t_1] = 1  # cells entering the window are vacuous
+                for seg_1 in range(2):
+                    a0 = _sel(seg_1 == 0, s0, max(s0, wrap))
+                    a1_1 = _sel(seg_1 == 0, min(s1, wrap), s1)
+                    w = a1_1 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_1 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for t in range(w):
-                            act[np.uint64(lb) + np.uint64(t)] = fl[sc + np.uint64(t)]
-                for t in range(n):
-                    act[t] = act[t] & np.uint8((fr[wb + np.uint64(t)] == _0) & (oc[wb + np.uint64(t)] == _0))
+                        for t_2 in range(w):
+                            act[np.uint64(lb) + np.uint64(t_2)] = fl[sc + np.uint64(t_2)]
+                for t_3 in range(n):
+                    act[t_3] = act[t_3] & np.uint8((fr[wb + np.uint64(t_3)] == _0) & (oc[wb + np.uint64(t_3)] == _0))
                 idle = 0
-                for t in range(n):
-                    idle += np.int32(act[t])
+                for t_4 in range(n):
+                    idle += np.int32(act[t_4])
                 if idle == n:  # the whole block stays vacuous
                     l0 = l1 = n
                 while l0 < n and act[l0] == 1:
@@ -116,753 +124,753 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
             if l1 <= l0:
                 l0 = l1 = n
             if l0 > 0:
-                for seg in range(2):
-                    a0 = j0 + 0 if seg == 0 else max(j0 + 0, wrap)
-                    a1 = min(min(s0, j0 + l0), wrap) if seg == 0 else min(s0, j0 + l0)
-                    w = a1 - a0
+                for seg_2 in range(2):
+                    a0 = _sel(seg_2 == 0, j0 + 0, max(j0 + 0, wrap))
+                    a1_2 = _sel(seg_2 == 0, min(min(s0, j0 + l0), wrap), min(s0, j0 + l0))
+                    w = a1_2 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_2 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
-                for seg in range(2):
-                    a0 = max(s1, j0 + 0) if seg == 0 else max(max(s1, j0 + 0), wrap)
-                    a1 = min(j0 + l0, wrap) if seg == 0 else j0 + l0
-                    w = a1 - a0
+                        for a_1 in range(31):
+                            for t_5 in range(w):
+                                st[np.uint64(a_1), sc + np.uint64(t_5)] = _0
+                        for t_6 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_6)] = _1
+                        for t_7 in range(w):
+                            zt[sc + np.uint64(t_7)] = _0
+                        for t_8 in range(w):
+                            fl[sc + np.uint64(t_8)] = np.uint8(1)
+                        for t_9 in range(w):
+                            fc[sc + np.uint64(t_9)] = _OMEGA_BIT
+                for seg_3 in range(2):
+                    a0 = _sel(seg_3 == 0, max(s1, j0 + 0), max(max(s1, j0 + 0), wrap))
+                    a1_3 = _sel(seg_3 == 0, min(j0 + l0, wrap), j0 + l0)
+                    w = a1_3 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_3 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                        for a_2 in range(31):
+                            for t_10 in range(w):
+                                st[np.uint64(a_2), sc + np.uint64(t_10)] = _0
+                        for t_11 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_11)] = _1
+                        for t_12 in range(w):
+                            zt[sc + np.uint64(t_12)] = _0
+                        for t_13 in range(w):
+                            fl[sc + np.uint64(t_13)] = np.uint8(1)
+                        for t_14 in range(w):
+                            fc[sc + np.uint64(t_14)] = _OMEGA_BIT
                 ws = wb + np.uint64(0)
-                for k in range(5):
-                    for t in range(l0 - 0):
-                        bp[np.uint64(k), ws + np.uint64(t)] = _INV5
-                for k in range(3):
-                    for t in range(l0 - 0):
-                        cf[np.uint64(k), ws + np.uint64(t)] = _0
-                for t in range(l0 - 0):
-                    dc[ws + np.uint64(t)] = vac_code
+                for k_1 in range(5):
+                    for t_15 in range(l0 - 0):
+                        bp[np.uint64(k_1), ws + np.uint64(t_15)] = _INV5
+                for k_2 in range(3):
+                    for t_16 in range(l0 - 0):
+                        cf[np.uint64(k_2), ws + np.uint64(t_16)] = _0
+                for t_17 in range(l0 - 0):
+                    dc[ws + np.uint64(t_17)] = vac_code
             if l1 < n:
-                for seg in range(2):
-                    a0 = j0 + l1 if seg == 0 else max(j0 + l1, wrap)
-                    a1 = min(min(s0, j0 + n), wrap) if seg == 0 else min(s0, j0 + n)
-                    w = a1 - a0
+                for seg_4 in range(2):
+                    a0 = _sel(seg_4 == 0, j0 + l1, max(j0 + l1, wrap))
+                    a1_4 = _sel(seg_4 == 0, min(min(s0, j0 + n), wrap), min(s0, j0 + n))
+                    w = a1_4 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_4 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
-                for seg in range(2):
-                    a0 = max(s1, j0 + l1) if seg == 0 else max(max(s1, j0 + l1), wrap)
-                    a1 = min(j0 + n, wrap) if seg == 0 else j0 + n
-                    w = a1 - a0
+                        for a_3 in range(31):
+                            for t_18 in range(w):
+                                st[np.uint64(a_3), sc + np.uint64(t_18)] = _0
+                        for t_19 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_19)] = _1
+                        for t_20 in range(w):
+                            zt[sc + np.uint64(t_20)] = _0
+                        for t_21 in range(w):
+                            fl[sc + np.uint64(t_21)] = np.uint8(1)
+                        for t_22 in range(w):
+                            fc[sc + np.uint64(t_22)] = _OMEGA_BIT
+                for seg_5 in range(2):
+                    a0 = _sel(seg_5 == 0, max(s1, j0 + l1), max(max(s1, j0 + l1), wrap))
+                    a1_5 = _sel(seg_5 == 0, min(j0 + n, wrap), j0 + n)
+                    w = a1_5 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_5 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                        for a_4 in range(31):
+                            for t_23 in range(w):
+                                st[np.uint64(a_4), sc + np.uint64(t_23)] = _0
+                        for t_24 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_24)] = _1
+                        for t_25 in range(w):
+                            zt[sc + np.uint64(t_25)] = _0
+                        for t_26 in range(w):
+                            fl[sc + np.uint64(t_26)] = np.uint8(1)
+                        for t_27 in range(w):
+                            fc[sc + np.uint64(t_27)] = _OMEGA_BIT
                 ws = wb + np.uint64(l1)
-                for k in range(5):
-                    for t in range(n - l1):
-                        bp[np.uint64(k), ws + np.uint64(t)] = _INV5
-                for k in range(3):
-                    for t in range(n - l1):
-                        cf[np.uint64(k), ws + np.uint64(t)] = _0
-                for t in range(n - l1):
-                    dc[ws + np.uint64(t)] = vac_code
+                for k_3 in range(5):
+                    for t_28 in range(n - l1):
+                        bp[np.uint64(k_3), ws + np.uint64(t_28)] = _INV5
+                for k_4 in range(3):
+                    for t_29 in range(n - l1):
+                        cf[np.uint64(k_4), ws + np.uint64(t_29)] = _0
+                for t_30 in range(n - l1):
+                    dc[ws + np.uint64(t_30)] = vac_code
             if l1 <= l0:
                 continue
             old_mask = np.uint32(0)
-            for seg in range(2):
-                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                w = a1 - a0
+            for seg_6 in range(2):
+                a0 = _sel(seg_6 == 0, j0 + l0, max(j0 + l0, wrap))
+                a1_6 = _sel(seg_6 == 0, min(j0 + l1, wrap), j0 + l1)
+                w = a1_6 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_6 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        old_mask |= fc[sc + np.uint64(t)]
+                    for t_31 in range(w):
+                        old_mask |= fc[sc + np.uint64(t_31)]
             entering = s0 > j0 + l0 or s1 < j0 + l1
             if entering:  # some lanes entered the window: vacuous
-                for a in range(31):
-                    for t in range(l1 - l0):
-                        buf[np.uint64((a) * STRIDE + l0) + np.uint64(t)] = _0
-                for t in range(l1 - l0):
-                    buf[np.uint64((31) * STRIDE + l0) + np.uint64(t)] = _1
-                for t in range(l1 - l0):
-                    buf[np.uint64((32) * STRIDE + l0) + np.uint64(t)] = _0
-            for a in range(32):
-                if (old_mask >> np.uint32(a)) & _ONE:
-                    for seg in range(2):
-                        a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
-                        a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
-                        w = a1 - a0
+                for a_5 in range(31):
+                    for t_32 in range(l1 - l0):
+                        buf[np.uint64(a_5 * STRIDE + l0) + np.uint64(t_32)] = _0
+                for t_33 in range(l1 - l0):
+                    buf[np.uint64(31 * STRIDE + l0) + np.uint64(t_33)] = _1
+                for t_34 in range(l1 - l0):
+                    buf[np.uint64(32 * STRIDE + l0) + np.uint64(t_34)] = _0
+            for a_6 in range(32):
+                if (old_mask >> np.uint32(a_6)) & _ONE:
+                    for seg_7 in range(2):
+                        a0 = _sel(seg_7 == 0, max(s0, j0 + l0), max(max(s0, j0 + l0), wrap))
+                        a1_7 = _sel(seg_7 == 0, min(min(s1, j0 + l1), wrap), min(s1, j0 + l1))
+                        w = a1_7 - a0
                         if w > 0:
-                            sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                            sc = np.uint64(rb + a0 + _sel(seg_7 == 0, off_c, off_c - cols))
                             lb = a0 - j0
-                            for t in range(w):
-                                buf[np.uint64((a) * STRIDE + lb) + np.uint64(t)] = st[np.uint64(a), sc + np.uint64(t)]
-                elif not entering and (dirty >> np.uint32(a)) & _ONE:
-                    for t in range(BLOCK):
-                        buf[np.uint64((a) * STRIDE + 0) + np.uint64(t)] = _0
-                    dirty &= ~(_ONE << np.uint32(a))
+                            for t_35 in range(w):
+                                buf[np.uint64(a_6 * STRIDE + lb) + np.uint64(t_35)] = st[np.uint64(a_6), sc + np.uint64(t_35)]
+                elif not entering and (dirty >> np.uint32(a_6)) & _ONE:
+                    for t_36 in range(BLOCK):
+                        buf[np.uint64(a_6 * STRIDE + 0) + np.uint64(t_36)] = _0
+                    dirty &= ~(_ONE << np.uint32(a_6))
             dirty |= old_mask
-            for seg in range(2):
-                a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
-                a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
-                w = a1 - a0
+            for seg_8 in range(2):
+                a0 = _sel(seg_8 == 0, max(s0, j0 + l0), max(max(s0, j0 + l0), wrap))
+                a1_8 = _sel(seg_8 == 0, min(min(s1, j0 + l1), wrap), min(s1, j0 + l1))
+                w = a1_8 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_8 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)] = zt[sc + np.uint64(t)]
+                    for t_37 in range(w):
+                        buf[np.uint64(32 * STRIDE + lb) + np.uint64(t_37)] = zt[sc + np.uint64(t_37)]
             wl = wb + np.uint64(l0)
-            for t in range(l1 - l0):
-                buf[np.uint64((33) * STRIDE + l0) + np.uint64(t)] = fr[wl + np.uint64(t)]
-            for t in range(l1 - l0):
-                buf[np.uint64((34) * STRIDE + l0) + np.uint64(t)] = oc[wl + np.uint64(t)]
-            for t in range(l1 - l0):
-                buf[np.uint64((35) * STRIDE + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
-            for t in range(l1 - l0):
-                buf[np.uint64((36) * STRIDE + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
-            for t in range(l1 - l0):
-                buf[np.uint64((37) * STRIDE + l0) + np.uint64(t)] = np.float32(gate_f[wl + np.uint64(t)])
+            for t_38 in range(l1 - l0):
+                buf[np.uint64(33 * STRIDE + l0) + np.uint64(t_38)] = fr[wl + np.uint64(t_38)]
+            for t_39 in range(l1 - l0):
+                buf[np.uint64(34 * STRIDE + l0) + np.uint64(t_39)] = oc[wl + np.uint64(t_39)]
+            for t_40 in range(l1 - l0):
+                buf[np.uint64(35 * STRIDE + l0) + np.uint64(t_40)] = np.float32(lbl[wl + np.uint64(t_40)])
+            for t_41 in range(l1 - l0):
+                buf[np.uint64(36 * STRIDE + l0) + np.uint64(t_41)] = np.float32(obs_f[wl + np.uint64(t_41)])
+            for t_42 in range(l1 - l0):
+                buf[np.uint64(37 * STRIDE + l0) + np.uint64(t_42)] = np.float32(gate_f[wl + np.uint64(t_42)])
             for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):
                 sbase = np.uint64(sub * SUB)
                 for l in range(SUB):
-                    m0 = buf[sbase + np.uint64(0 + l)]
-                    m1 = buf[sbase + np.uint64(272 + l)]
-                    m2 = buf[sbase + np.uint64(544 + l)]
-                    m3 = buf[sbase + np.uint64(816 + l)]
-                    m4 = buf[sbase + np.uint64(1088 + l)]
-                    m5 = buf[sbase + np.uint64(1360 + l)]
-                    m6 = buf[sbase + np.uint64(1632 + l)]
-                    m7 = buf[sbase + np.uint64(1904 + l)]
-                    m8 = buf[sbase + np.uint64(2176 + l)]
-                    m9 = buf[sbase + np.uint64(2448 + l)]
-                    m10 = buf[sbase + np.uint64(2720 + l)]
-                    m11 = buf[sbase + np.uint64(2992 + l)]
-                    m12 = buf[sbase + np.uint64(3264 + l)]
-                    m13 = buf[sbase + np.uint64(3536 + l)]
-                    m14 = buf[sbase + np.uint64(3808 + l)]
-                    m15 = buf[sbase + np.uint64(4080 + l)]
-                    m16 = buf[sbase + np.uint64(4352 + l)]
-                    m17 = buf[sbase + np.uint64(4624 + l)]
-                    m18 = buf[sbase + np.uint64(4896 + l)]
-                    m19 = buf[sbase + np.uint64(5168 + l)]
-                    m20 = buf[sbase + np.uint64(5440 + l)]
-                    m21 = buf[sbase + np.uint64(5712 + l)]
-                    m22 = buf[sbase + np.uint64(5984 + l)]
-                    m23 = buf[sbase + np.uint64(6256 + l)]
-                    m24 = buf[sbase + np.uint64(6528 + l)]
-                    m25 = buf[sbase + np.uint64(6800 + l)]
-                    m26 = buf[sbase + np.uint64(7072 + l)]
-                    m27 = buf[sbase + np.uint64(7344 + l)]
-                    m28 = buf[sbase + np.uint64(7616 + l)]
-                    m29 = buf[sbase + np.uint64(7888 + l)]
-                    m30 = buf[sbase + np.uint64(8160 + l)]
-                    m31 = buf[sbase + np.uint64(8432 + l)]
-                    z = buf[sbase + np.uint64(8704 + l)]
+                    m0_1 = buf[sbase + np.uint64(0 + l)]
+                    m1_1 = buf[sbase + np.uint64(272 + l)]
+                    m2_1 = buf[sbase + np.uint64(544 + l)]
+                    m3_1 = buf[sbase + np.uint64(816 + l)]
+                    m4_1 = buf[sbase + np.uint64(1088 + l)]
+                    m5_1 = buf[sbase + np.uint64(1360 + l)]
+                    m6_1 = buf[sbase + np.uint64(1632 + l)]
+                    m7_1 = buf[sbase + np.uint64(1904 + l)]
+                    m8_1 = buf[sbase + np.uint64(2176 + l)]
+                    m9_1 = buf[sbase + np.uint64(2448 + l)]
+                    m10_1 = buf[sbase + np.uint64(2720 + l)]
+                    m11_1 = buf[sbase + np.uint64(2992 + l)]
+                    m12_1 = buf[sbase + np.uint64(3264 + l)]
+                    m13_1 = buf[sbase + np.uint64(3536 + l)]
+                    m14_1 = buf[sbase + np.uint64(3808 + l)]
+                    m15_1 = buf[sbase + np.uint64(4080 + l)]
+                    m16_1 = buf[sbase + np.uint64(4352 + l)]
+                    m17_1 = buf[sbase + np.uint64(4624 + l)]
+                    m18_1 = buf[sbase + np.uint64(4896 + l)]
+                    m19_1 = buf[sbase + np.uint64(5168 + l)]
+                    m20_1 = buf[sbase + np.uint64(5440 + l)]
+                    m21_1 = buf[sbase + np.uint64(5712 + l)]
+                    m22_1 = buf[sbase + np.uint64(5984 + l)]
+                    m23_1 = buf[sbase + np.uint64(6256 + l)]
+                    m24_1 = buf[sbase + np.uint64(6528 + l)]
+                    m25_1 = buf[sbase + np.uint64(6800 + l)]
+                    m26_1 = buf[sbase + np.uint64(7072 + l)]
+                    m27_1 = buf[sbase + np.uint64(7344 + l)]
+                    m28_1 = buf[sbase + np.uint64(7616 + l)]
+                    m29_1 = buf[sbase + np.uint64(7888 + l)]
+                    m30_1 = buf[sbase + np.uint64(8160 + l)]
+                    m31_1 = buf[sbase + np.uint64(8432 + l)]
+                    z_1 = buf[sbase + np.uint64(8704 + l)]
                     f = buf[sbase + np.uint64(8976 + l)]
                     o = buf[sbase + np.uint64(9248 + l)]
                     u = _1 - f - o
                     lab = buf[sbase + np.uint64(9520 + l)]
                     ob = buf[sbase + np.uint64(9792 + l)]
                     gt = buf[sbase + np.uint64(10064 + l)]
-                    obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
+                    obs = _sel(derive_obs, (f > _0) | (o > _0), ob != _0)
                     is_b = lab == _2
                     is_r = lab == _1
                     is_o = lab == _0
-                    beta = beta_b if is_b else (beta_r if is_r else (beta_o if is_o else _0))
-                    beta = beta if (obs | everywhere) else _0
-                    e = beta * f if is_b else _0
-                    kept = _1 - e
-                    total = kept <= tol
-                    beta = _0 if total else beta
-                    e = _0 if total else e
-                    kept = _1 if total else kept
-                    inv_kept = _1 / kept
-                    bb = beta if is_b else _0
-                    br = beta if is_r else _0
-                    bo = beta if is_o else _0
-                    t = a_f * m0
-                    m1 += t
-                    m0 -= t
-                    t = a_f * m2
-                    m3 += t
-                    m2 -= t
-                    t = a_f * m4
-                    m5 += t
-                    m4 -= t
-                    t = a_f * m6
-                    m7 += t
-                    m6 -= t
-                    t = a_f * m8
-                    m9 += t
-                    m8 -= t
-                    t = a_f * m10
-                    m11 += t
-                    m10 -= t
-                    t = a_f * m12
-                    m13 += t
-                    m12 -= t
-                    t = a_f * m14
-                    m15 += t
-                    m14 -= t
-                    t = a_f * m16
-                    m17 += t
-                    m16 -= t
-                    t = a_f * m18
-                    m19 += t
-                    m18 -= t
-                    t = a_f * m20
-                    m21 += t
-                    m20 -= t
-                    t = a_f * m22
-                    m23 += t
-                    m22 -= t
-                    t = a_f * m24
-                    m25 += t
-                    m24 -= t
-                    t = a_f * m26
-                    m27 += t
-                    m26 -= t
-                    t = a_f * m28
-                    m29 += t
-                    m28 -= t
-                    t = a_f * m30
-                    m31 += t
-                    m30 -= t
-                    t = a_i * m0
-                    m2 += t
-                    m0 -= t
-                    t = a_i * m1
-                    m3 += t
-                    m1 -= t
-                    t = a_i * m4
-                    m6 += t
-                    m4 -= t
-                    t = a_i * m5
-                    m7 += t
-                    m5 -= t
-                    t = a_i * m8
-                    m10 += t
-                    m8 -= t
-                    t = a_i * m9
-                    m11 += t
-                    m9 -= t
-                    t = a_i * m12
-                    m14 += t
-                    m12 -= t
-                    t = a_i * m13
-                    m15 += t
-                    m13 -= t
-                    t = a_i * m16
-                    m18 += t
-                    m16 -= t
-                    t = a_i * m17
-                    m19 += t
-                    m17 -= t
-                    t = a_i * m20
-                    m22 += t
-                    m20 -= t
-                    t = a_i * m21
-                    m23 += t
-                    m21 -= t
-                    t = a_i * m24
-                    m26 += t
-                    m24 -= t
-                    t = a_i * m25
-                    m27 += t
-                    m25 -= t
-                    t = a_i * m28
-                    m30 += t
-                    m28 -= t
-                    t = a_i * m29
-                    m31 += t
-                    m29 -= t
-                    t = a_u * m0
-                    m4 += t
-                    m0 -= t
-                    t = a_u * m1
-                    m5 += t
-                    m1 -= t
-                    t = a_u * m2
-                    m6 += t
-                    m2 -= t
-                    t = a_u * m3
-                    m7 += t
-                    m3 -= t
-                    t = a_u * m8
-                    m12 += t
-                    m8 -= t
-                    t = a_u * m9
-                    m13 += t
-                    m9 -= t
-                    t = a_u * m10
-                    m14 += t
-                    m10 -= t
-                    t = a_u * m11
-                    m15 += t
-                    m11 -= t
-                    t = a_u * m16
-                    m20 += t
-                    m16 -= t
-                    t = a_u * m17
-                    m21 += t
-                    m17 -= t
-                    t = a_u * m18
-                    m22 += t
-                    m18 -= t
-                    t = a_u * m19
-                    m23 += t
-                    m19 -= t
-                    t = a_u * m24
-                    m28 += t
-                    m24 -= t
-                    t = a_u * m25
-                    m29 += t
-                    m25 -= t
-                    t = a_u * m26
-                    m30 += t
-                    m26 -= t
-                    t = a_u * m27
-                    m31 += t
-                    m27 -= t
-                    t = a_s * m0
-                    m8 += t
-                    m0 -= t
-                    t = a_s * m1
-                    m9 += t
-                    m1 -= t
-                    t = a_s * m2
-                    m10 += t
-                    m2 -= t
-                    t = a_s * m3
-                    m11 += t
-                    m3 -= t
-                    t = a_s * m4
-                    m12 += t
-                    m4 -= t
-                    t = a_s * m5
-                    m13 += t
-                    m5 -= t
-                    t = a_s * m6
-                    m14 += t
-                    m6 -= t
-                    t = a_s * m7
-                    m15 += t
-                    m7 -= t
-                    t = a_s * m16
-                    m24 += t
-                    m16 -= t
-                    t = a_s * m17
-                    m25 += t
-                    m17 -= t
-                    t = a_s * m18
-                    m26 += t
-                    m18 -= t
-                    t = a_s * m19
-                    m27 += t
-                    m19 -= t
-                    t = a_s * m20
-                    m28 += t
-                    m20 -= t
-                    t = a_s * m21
-                    m29 += t
-                    m21 -= t
-                    t = a_s * m22
-                    m30 += t
-                    m22 -= t
-                    t = a_s * m23
-                    m31 += t
-                    m23 -= t
-                    t = a_m * m0
-                    m16 += t
-                    m0 -= t
-                    t = a_m * m1
-                    m17 += t
-                    m1 -= t
-                    t = a_m * m2
-                    m18 += t
-                    m2 -= t
-                    t = a_m * m3
-                    m19 += t
-                    m3 -= t
-                    t = a_m * m4
-                    m20 += t
-                    m4 -= t
-                    t = a_m * m5
-                    m21 += t
-                    m5 -= t
-                    t = a_m * m6
-                    m22 += t
-                    m6 -= t
-                    t = a_m * m7
-                    m23 += t
-                    m7 -= t
-                    t = a_m * m8
-                    m24 += t
-                    m8 -= t
-                    t = a_m * m9
-                    m25 += t
-                    m9 -= t
-                    t = a_m * m10
-                    m26 += t
-                    m10 -= t
-                    t = a_m * m11
-                    m27 += t
-                    m11 -= t
-                    t = a_m * m12
-                    m28 += t
-                    m12 -= t
-                    t = a_m * m13
-                    m29 += t
-                    m13 -= t
-                    t = a_m * m14
-                    m30 += t
-                    m14 -= t
-                    t = a_m * m15
-                    m31 += t
-                    m15 -= t
-                    rest = _1 - m31
-                    m0 *= keep_c
-                    m1 *= keep_c
-                    m2 *= keep_c
-                    m3 *= keep_c
-                    m4 *= keep_c
-                    m5 *= keep_c
-                    m6 *= keep_c
-                    m7 *= keep_c
-                    m8 *= keep_c
-                    m9 *= keep_c
-                    m10 *= keep_c
-                    m11 *= keep_c
-                    m12 *= keep_c
-                    m13 *= keep_c
-                    m14 *= keep_c
-                    m15 *= keep_c
-                    m16 *= keep_c
-                    m17 *= keep_c
-                    m18 *= keep_c
-                    m19 *= keep_c
-                    m20 *= keep_c
-                    m21 *= keep_c
-                    m22 *= keep_c
-                    m23 *= keep_c
-                    m24 *= keep_c
-                    m25 *= keep_c
-                    m26 *= keep_c
-                    m27 *= keep_c
-                    m28 *= keep_c
-                    m29 *= keep_c
-                    m30 *= keep_c
-                    m31 += a_c * rest
-                    s_f = ((((m1 + m3) + (m5 + m7)) + ((m9 + m11) + (m13 + m15))) + (((m17 + m19) + (m21 + m23)) + ((m25 + m27) + (m29 + m31))))
-                    s_nf = ((((m0 + m2) + (m4 + m6)) + ((m8 + m10) + (m12 + m14))) + (((m16 + m18) + (m20 + m22)) + ((m24 + m26) + (m28 + m30))))
-                    dn0 = u * m0 + o * (m0 + m1)
-                    dn1 = u * m1
+                    beta_1 = beta_b if is_b else beta_r if is_r else _sel(is_o, beta_o, _0)
+                    beta_2 = _sel(obs | everywhere, beta_1, _0)
+                    e_1 = _sel(is_b, beta_2 * f, _0)
+                    kept_1 = _1 - e_1
+                    total = kept_1 <= tol
+                    beta_3 = _sel(total, _0, beta_2)
+                    e_2 = _sel(total, _0, e_1)
+                    kept_2 = _sel(total, _1, kept_1)
+                    inv_kept = _1 / kept_2
+                    bb = _sel(is_b, beta_3, _0)
+                    br = _sel(is_r, beta_3, _0)
+                    bo = _sel(is_o, beta_3, _0)
+                    t_43 = a_f * m0_1
+                    m1_2 = m1_1 + t_43
+                    m0_2 = m0_1 - t_43
+                    t_44 = a_f * m2_1
+                    m3_2 = m3_1 + t_44
+                    m2_2 = m2_1 - t_44
+                    t_45 = a_f * m4_1
+                    m5_2 = m5_1 + t_45
+                    m4_2 = m4_1 - t_45
+                    t_46 = a_f * m6_1
+                    m7_2 = m7_1 + t_46
+                    m6_2 = m6_1 - t_46
+                    t_47 = a_f * m8_1
+                    m9_2 = m9_1 + t_47
+                    m8_2 = m8_1 - t_47
+                    t_48 = a_f * m10_1
+                    m11_2 = m11_1 + t_48
+                    m10_2 = m10_1 - t_48
+                    t_49 = a_f * m12_1
+                    m13_2 = m13_1 + t_49
+                    m12_2 = m12_1 - t_49
+                    t_50 = a_f * m14_1
+                    m15_2 = m15_1 + t_50
+                    m14_2 = m14_1 - t_50
+                    t_51 = a_f * m16_1
+                    m17_2 = m17_1 + t_51
+                    m16_2 = m16_1 - t_51
+                    t_52 = a_f * m18_1
+                    m19_2 = m19_1 + t_52
+                    m18_2 = m18_1 - t_52
+                    t_53 = a_f * m20_1
+                    m21_2 = m21_1 + t_53
+                    m20_2 = m20_1 - t_53
+                    t_54 = a_f * m22_1
+                    m23_2 = m23_1 + t_54
+                    m22_2 = m22_1 - t_54
+                    t_55 = a_f * m24_1
+                    m25_2 = m25_1 + t_55
+                    m24_2 = m24_1 - t_55
+                    t_56 = a_f * m26_1
+                    m27_2 = m27_1 + t_56
+                    m26_2 = m26_1 - t_56
+                    t_57 = a_f * m28_1
+                    m29_2 = m29_1 + t_57
+                    m28_2 = m28_1 - t_57
+                    t_58 = a_f * m30_1
+                    m31_2 = m31_1 + t_58
+                    m30_2 = m30_1 - t_58
+                    t_59 = a_i * m0_2
+                    m2_3 = m2_2 + t_59
+                    m0_3 = m0_2 - t_59
+                    t_60 = a_i * m1_2
+                    m3_3 = m3_2 + t_60
+                    m1_3 = m1_2 - t_60
+                    t_61 = a_i * m4_2
+                    m6_3 = m6_2 + t_61
+                    m4_3 = m4_2 - t_61
+                    t_62 = a_i * m5_2
+                    m7_3 = m7_2 + t_62
+                    m5_3 = m5_2 - t_62
+                    t_63 = a_i * m8_2
+                    m10_3 = m10_2 + t_63
+                    m8_3 = m8_2 - t_63
+                    t_64 = a_i * m9_2
+                    m11_3 = m11_2 + t_64
+                    m9_3 = m9_2 - t_64
+                    t_65 = a_i * m12_2
+                    m14_3 = m14_2 + t_65
+                    m12_3 = m12_2 - t_65
+                    t_66 = a_i * m13_2
+                    m15_3 = m15_2 + t_66
+                    m13_3 = m13_2 - t_66
+                    t_67 = a_i * m16_2
+                    m18_3 = m18_2 + t_67
+                    m16_3 = m16_2 - t_67
+                    t_68 = a_i * m17_2
+                    m19_3 = m19_2 + t_68
+                    m17_3 = m17_2 - t_68
+                    t_69 = a_i * m20_2
+                    m22_3 = m22_2 + t_69
+                    m20_3 = m20_2 - t_69
+                    t_70 = a_i * m21_2
+                    m23_3 = m23_2 + t_70
+                    m21_3 = m21_2 - t_70
+                    t_71 = a_i * m24_2
+                    m26_3 = m26_2 + t_71
+                    m24_3 = m24_2 - t_71
+                    t_72 = a_i * m25_2
+                    m27_3 = m27_2 + t_72
+                    m25_3 = m25_2 - t_72
+                    t_73 = a_i * m28_2
+                    m30_3 = m30_2 + t_73
+                    m28_3 = m28_2 - t_73
+                    t_74 = a_i * m29_2
+                    m31_3 = m31_2 + t_74
+                    m29_3 = m29_2 - t_74
+                    t_75 = a_u * m0_3
+                    m4_4 = m4_3 + t_75
+                    m0_4 = m0_3 - t_75
+                    t_76 = a_u * m1_3
+                    m5_4 = m5_3 + t_76
+                    m1_4 = m1_3 - t_76
+                    t_77 = a_u * m2_3
+                    m6_4 = m6_3 + t_77
+                    m2_4 = m2_3 - t_77
+                    t_78 = a_u * m3_3
+                    m7_4 = m7_3 + t_78
+                    m3_4 = m3_3 - t_78
+                    t_79 = a_u * m8_3
+                    m12_4 = m12_3 + t_79
+                    m8_4 = m8_3 - t_79
+                    t_80 = a_u * m9_3
+                    m13_4 = m13_3 + t_80
+                    m9_4 = m9_3 - t_80
+                    t_81 = a_u * m10_3
+                    m14_4 = m14_3 + t_81
+                    m10_4 = m10_3 - t_81
+                    t_82 = a_u * m11_3
+                    m15_4 = m15_3 + t_82
+                    m11_4 = m11_3 - t_82
+                    t_83 = a_u * m16_3
+                    m20_4 = m20_3 + t_83
+                    m16_4 = m16_3 - t_83
+                    t_84 = a_u * m17_3
+                    m21_4 = m21_3 + t_84
+                    m17_4 = m17_3 - t_84
+                    t_85 = a_u * m18_3
+                    m22_4 = m22_3 + t_85
+                    m18_4 = m18_3 - t_85
+                    t_86 = a_u * m19_3
+                    m23_4 = m23_3 + t_86
+                    m19_4 = m19_3 - t_86
+                    t_87 = a_u * m24_3
+                    m28_4 = m28_3 + t_87
+                    m24_4 = m24_3 - t_87
+                    t_88 = a_u * m25_3
+                    m29_4 = m29_3 + t_88
+                    m25_4 = m25_3 - t_88
+                    t_89 = a_u * m26_3
+                    m30_4 = m30_3 + t_89
+                    m26_4 = m26_3 - t_89
+                    t_90 = a_u * m27_3
+                    m31_4 = m31_3 + t_90
+                    m27_4 = m27_3 - t_90
+                    t_91 = a_s * m0_4
+                    m8_5 = m8_4 + t_91
+                    m0_5 = m0_4 - t_91
+                    t_92 = a_s * m1_4
+                    m9_5 = m9_4 + t_92
+                    m1_5 = m1_4 - t_92
+                    t_93 = a_s * m2_4
+                    m10_5 = m10_4 + t_93
+                    m2_5 = m2_4 - t_93
+                    t_94 = a_s * m3_4
+                    m11_5 = m11_4 + t_94
+                    m3_5 = m3_4 - t_94
+                    t_95 = a_s * m4_4
+                    m12_5 = m12_4 + t_95
+                    m4_5 = m4_4 - t_95
+                    t_96 = a_s * m5_4
+                    m13_5 = m13_4 + t_96
+                    m5_5 = m5_4 - t_96
+                    t_97 = a_s * m6_4
+                    m14_5 = m14_4 + t_97
+                    m6_5 = m6_4 - t_97
+                    t_98 = a_s * m7_4
+                    m15_5 = m15_4 + t_98
+                    m7_5 = m7_4 - t_98
+                    t_99 = a_s * m16_4
+                    m24_5 = m24_4 + t_99
+                    m16_5 = m16_4 - t_99
+                    t_100 = a_s * m17_4
+                    m25_5 = m25_4 + t_100
+                    m17_5 = m17_4 - t_100
+                    t_101 = a_s * m18_4
+                    m26_5 = m26_4 + t_101
+                    m18_5 = m18_4 - t_101
+                    t_102 = a_s * m19_4
+                    m27_5 = m27_4 + t_102
+                    m19_5 = m19_4 - t_102
+                    t_103 = a_s * m20_4
+                    m28_5 = m28_4 + t_103
+                    m20_5 = m20_4 - t_103
+                    t_104 = a_s * m21_4
+                    m29_5 = m29_4 + t_104
+                    m21_5 = m21_4 - t_104
+                    t_105 = a_s * m22_4
+                    m30_5 = m30_4 + t_105
+                    m22_5 = m22_4 - t_105
+                    t_106 = a_s * m23_4
+                    m31_5 = m31_4 + t_106
+                    m23_5 = m23_4 - t_106
+                    t_107 = a_m * m0_5
+                    m16_6 = m16_5 + t_107
+                    m0_6 = m0_5 - t_107
+                    t_108 = a_m * m1_5
+                    m17_6 = m17_5 + t_108
+                    m1_6 = m1_5 - t_108
+                    t_109 = a_m * m2_5
+                    m18_6 = m18_5 + t_109
+                    m2_6 = m2_5 - t_109
+                    t_110 = a_m * m3_5
+                    m19_6 = m19_5 + t_110
+                    m3_6 = m3_5 - t_110
+                    t_111 = a_m * m4_5
+                    m20_6 = m20_5 + t_111
+                    m4_6 = m4_5 - t_111
+                    t_112 = a_m * m5_5
+                    m21_6 = m21_5 + t_112
+                    m5_6 = m5_5 - t_112
+                    t_113 = a_m * m6_5
+                    m22_6 = m22_5 + t_113
+                    m6_6 = m6_5 - t_113
+                    t_114 = a_m * m7_5
+                    m23_6 = m23_5 + t_114
+                    m7_6 = m7_5 - t_114
+                    t_115 = a_m * m8_5
+                    m24_6 = m24_5 + t_115
+                    m8_6 = m8_5 - t_115
+                    t_116 = a_m * m9_5
+                    m25_6 = m25_5 + t_116
+                    m9_6 = m9_5 - t_116
+                    t_117 = a_m * m10_5
+                    m26_6 = m26_5 + t_117
+                    m10_6 = m10_5 - t_117
+                    t_118 = a_m * m11_5
+                    m27_6 = m27_5 + t_118
+                    m11_6 = m11_5 - t_118
+                    t_119 = a_m * m12_5
+                    m28_6 = m28_5 + t_119
+                    m12_6 = m12_5 - t_119
+                    t_120 = a_m * m13_5
+                    m29_6 = m29_5 + t_120
+                    m13_6 = m13_5 - t_120
+                    t_121 = a_m * m14_5
+                    m30_6 = m30_5 + t_121
+                    m14_6 = m14_5 - t_121
+                    t_122 = a_m * m15_5
+                    m31_6 = m31_5 + t_122
+                    m15_6 = m15_5 - t_122
+                    rest = _1 - m31_6
+                    m0_7 = m0_6 * keep_c
+                    m1_7 = m1_6 * keep_c
+                    m2_7 = m2_6 * keep_c
+                    m3_7 = m3_6 * keep_c
+                    m4_7 = m4_6 * keep_c
+                    m5_7 = m5_6 * keep_c
+                    m6_7 = m6_6 * keep_c
+                    m7_7 = m7_6 * keep_c
+                    m8_7 = m8_6 * keep_c
+                    m9_7 = m9_6 * keep_c
+                    m10_7 = m10_6 * keep_c
+                    m11_7 = m11_6 * keep_c
+                    m12_7 = m12_6 * keep_c
+                    m13_7 = m13_6 * keep_c
+                    m14_7 = m14_6 * keep_c
+                    m15_7 = m15_6 * keep_c
+                    m16_7 = m16_6 * keep_c
+                    m17_7 = m17_6 * keep_c
+                    m18_7 = m18_6 * keep_c
+                    m19_7 = m19_6 * keep_c
+                    m20_7 = m20_6 * keep_c
+                    m21_7 = m21_6 * keep_c
+                    m22_7 = m22_6 * keep_c
+                    m23_7 = m23_6 * keep_c
+                    m24_7 = m24_6 * keep_c
+                    m25_7 = m25_6 * keep_c
+                    m26_7 = m26_6 * keep_c
+                    m27_7 = m27_6 * keep_c
+                    m28_7 = m28_6 * keep_c
+                    m29_7 = m29_6 * keep_c
+                    m30_7 = m30_6 * keep_c
+                    m31_7 = m31_6 + a_c * rest
+                    s_f = m1_7 + m3_7 + (m5_7 + m7_7) + (m9_7 + m11_7 + (m13_7 + m15_7)) + (m17_7 + m19_7 + (m21_7 + m23_7) + (m25_7 + m27_7 + (m29_7 + m31_7)))
+                    s_nf = m0_7 + m2_7 + (m4_7 + m6_7) + (m8_7 + m10_7 + (m12_7 + m14_7)) + (m16_7 + m18_7 + (m20_7 + m22_7) + (m24_7 + m26_7 + (m28_7 + m30_7)))
+                    dn0 = u * m0_7 + o * (m0_7 + m1_7)
+                    dn1 = u * m1_7
                     d0 = dn0 + f * s_nf
                     d1 = dn1 + f * s_f
-                    kf = _1 if (gate_off | (gt != _0) | (not faded_o)) else _0
-                    d2 = u * m2 + o * (m2 + kf * m3)
-                    d3 = u * m3
-                    d4 = u * m4 + o * (m4 + kf * m5)
-                    d5 = u * m5
-                    d6 = u * m6 + o * (m6 + kf * m7)
-                    d7 = u * m7
-                    d8 = u * m8 + o * (m8 + kf * m9)
-                    d9 = u * m9
-                    d10 = u * m10 + o * (m10 + kf * m11)
-                    d11 = u * m11
-                    d12 = u * m12 + o * (m12 + kf * m13)
-                    d13 = u * m13
-                    d14 = u * m14 + o * (m14 + kf * m15)
-                    d15 = u * m15
-                    d16 = u * m16 + o * (m16 + kf * m17)
-                    d17 = u * m17
-                    d18 = u * m18 + o * (m18 + kf * m19)
-                    d19 = u * m19
-                    d20 = u * m20 + o * (m20 + kf * m21)
-                    d21 = u * m21
-                    d22 = u * m22 + o * (m22 + kf * m23)
-                    d23 = u * m23
-                    d24 = u * m24 + o * (m24 + kf * m25)
-                    d25 = u * m25
-                    d26 = u * m26 + o * (m26 + kf * m27)
-                    d27 = u * m27
-                    d28 = u * m28 + o * (m28 + kf * m29)
-                    d29 = u * m29
-                    d31 = u * m31
-                    d30 = u * m30 + o * (m30 + m31 + (_1 - kf) * ((((m3 + m5) + (m7 + m9)) + ((m11 + m13) + (m15 + m17))) + (((m19 + m21) + (m23 + m25)) + (m27 + m29))))
-                    keep_d = _1 - beta
-                    c0 = (keep_d * d0 + bb * ((((dn0 + dn1) + (d4 + d5)) + ((d8 + d9) + (d12 + d13))) + (((d16 + d17) + (d20 + d21)) + ((d24 + d25) + (d28 + d29)))) + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
-                    c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
-                    c2 = (keep_d * d2 + bb * ((((d2 + d3) + (d6 + d7)) + ((d10 + d11) + (d14 + d15))) + (((d18 + d19) + (d22 + d23)) + ((d26 + d27) + (d30 + d31))))) * inv_kept
-                    c3 = (keep_d * d3) * inv_kept
-                    c4 = (keep_d * d4 + bo * (d4 + d6)) * inv_kept
-                    c5 = (keep_d * d5 + bo * (d5 + d7)) * inv_kept
-                    c6 = (keep_d * d6) * inv_kept
-                    c7 = (keep_d * d7) * inv_kept
-                    c8 = (keep_d * d8 + br * ((d8 + d10) + (d12 + d14)) + bo * (d8 + d10)) * inv_kept
-                    c9 = (keep_d * d9 + br * ((d9 + d11) + (d13 + d15)) + bo * (d9 + d11)) * inv_kept
-                    c10 = (keep_d * d10) * inv_kept
-                    c11 = (keep_d * d11) * inv_kept
-                    c12 = (keep_d * d12 + bo * (d12 + d14)) * inv_kept
-                    c13 = (keep_d * d13 + bo * (d13 + d15)) * inv_kept
-                    c14 = (keep_d * d14) * inv_kept
-                    c15 = (keep_d * d15) * inv_kept
-                    c16 = (keep_d * d16 + br * ((d16 + d18) + (d20 + d22)) + bo * (d16 + d18)) * inv_kept
-                    c17 = (keep_d * d17 + br * ((d17 + d19) + (d21 + d23)) + bo * (d17 + d19)) * inv_kept
-                    c18 = (keep_d * d18) * inv_kept
-                    c19 = (keep_d * d19) * inv_kept
-                    c20 = (keep_d * d20 + bo * (d20 + d22)) * inv_kept
-                    c21 = (keep_d * d21 + bo * (d21 + d23)) * inv_kept
-                    c22 = (keep_d * d22) * inv_kept
-                    c23 = (keep_d * d23) * inv_kept
-                    c24 = (keep_d * d24 + br * ((d24 + d26) + (d28 + d30)) + bo * (d24 + d26)) * inv_kept
-                    c25 = (keep_d * d25 + br * ((d25 + d27) + (d29 + d31)) + bo * (d25 + d27)) * inv_kept
-                    c26 = (keep_d * d26) * inv_kept
-                    c27 = (keep_d * d27) * inv_kept
-                    c28 = (keep_d * d28 + bo * (d28 + d30)) * inv_kept
-                    c29 = (keep_d * d29 + bo * (d29 + d31)) * inv_kept
-                    c30 = (keep_d * d30) * inv_kept
-                    c31 = (keep_d * d31) * inv_kept
+                    kf = _sel(gate_off | (gt != _0) | (not faded_o), _1, _0)
+                    d2 = u * m2_7 + o * (m2_7 + kf * m3_7)
+                    d3 = u * m3_7
+                    d4 = u * m4_7 + o * (m4_7 + kf * m5_7)
+                    d5 = u * m5_7
+                    d6 = u * m6_7 + o * (m6_7 + kf * m7_7)
+                    d7 = u * m7_7
+                    d8 = u * m8_7 + o * (m8_7 + kf * m9_7)
+                    d9 = u * m9_7
+                    d10 = u * m10_7 + o * (m10_7 + kf * m11_7)
+                    d11 = u * m11_7
+                    d12 = u * m12_7 + o * (m12_7 + kf * m13_7)
+                    d13 = u * m13_7
+                    d14 = u * m14_7 + o * (m14_7 + kf * m15_7)
+                    d15 = u * m15_7
+                    d16 = u * m16_7 + o * (m16_7 + kf * m17_7)
+                    d17 = u * m17_7
+                    d18 = u * m18_7 + o * (m18_7 + kf * m19_7)
+                    d19 = u * m19_7
+                    d20 = u * m20_7 + o * (m20_7 + kf * m21_7)
+                    d21 = u * m21_7
+                    d22 = u * m22_7 + o * (m22_7 + kf * m23_7)
+                    d23 = u * m23_7
+                    d24 = u * m24_7 + o * (m24_7 + kf * m25_7)
+                    d25 = u * m25_7
+                    d26 = u * m26_7 + o * (m26_7 + kf * m27_7)
+                    d27 = u * m27_7
+                    d28 = u * m28_7 + o * (m28_7 + kf * m29_7)
+                    d29 = u * m29_7
+                    d31 = u * m31_7
+                    d30 = u * m30_7 + o * (m30_7 + m31_7 + (_1 - kf) * (m3_7 + m5_7 + (m7_7 + m9_7) + (m11_7 + m13_7 + (m15_7 + m17_7)) + (m19_7 + m21_7 + (m23_7 + m25_7) + (m27_7 + m29_7))))
+                    keep_d = _1 - beta_3
+                    c0_1 = (keep_d * d0 + bb * (dn0 + dn1 + (d4 + d5) + (d8 + d9 + (d12 + d13)) + (d16 + d17 + (d20 + d21) + (d24 + d25 + (d28 + d29)))) + br * (d0 + d2 + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
+                    c1_1 = (keep_d * d1 + br * (d1 + d3 + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
+                    c2_1 = (keep_d * d2 + bb * (d2 + d3 + (d6 + d7) + (d10 + d11 + (d14 + d15)) + (d18 + d19 + (d22 + d23) + (d26 + d27 + (d30 + d31))))) * inv_kept
+                    c3_1 = keep_d * d3 * inv_kept
+                    c4_1 = (keep_d * d4 + bo * (d4 + d6)) * inv_kept
+                    c5_1 = (keep_d * d5 + bo * (d5 + d7)) * inv_kept
+                    c6_1 = keep_d * d6 * inv_kept
+                    c7_1 = keep_d * d7 * inv_kept
+                    c8_1 = (keep_d * d8 + br * (d8 + d10 + (d12 + d14)) + bo * (d8 + d10)) * inv_kept
+                    c9_1 = (keep_d * d9 + br * (d9 + d11 + (d13 + d15)) + bo * (d9 + d11)) * inv_kept
+                    c10_1 = keep_d * d10 * inv_kept
+                    c11_1 = keep_d * d11 * inv_kept
+                    c12_1 = (keep_d * d12 + bo * (d12 + d14)) * inv_kept
+                    c13_1 = (keep_d * d13 + bo * (d13 + d15)) * inv_kept
+                    c14_1 = keep_d * d14 * inv_kept
+                    c15_1 = keep_d * d15 * inv_kept
+                    c16_1 = (keep_d * d16 + br * (d16 + d18 + (d20 + d22)) + bo * (d16 + d18)) * inv_kept
+                    c17_1 = (keep_d * d17 + br * (d17 + d19 + (d21 + d23)) + bo * (d17 + d19)) * inv_kept
+                    c18_1 = keep_d * d18 * inv_kept
+                    c19_1 = keep_d * d19 * inv_kept
+                    c20_1 = (keep_d * d20 + bo * (d20 + d22)) * inv_kept
+                    c21_1 = (keep_d * d21 + bo * (d21 + d23)) * inv_kept
+                    c22_1 = keep_d * d22 * inv_kept
+                    c23_1 = keep_d * d23 * inv_kept
+                    c24_1 = (keep_d * d24 + br * (d24 + d26 + (d28 + d30)) + bo * (d24 + d26)) * inv_kept
+                    c25_1 = (keep_d * d25 + br * (d25 + d27 + (d29 + d31)) + bo * (d25 + d27)) * inv_kept
+                    c26_1 = keep_d * d26 * inv_kept
+                    c27_1 = keep_d * d27 * inv_kept
+                    c28_1 = (keep_d * d28 + bo * (d28 + d30)) * inv_kept
+                    c29_1 = (keep_d * d29 + bo * (d29 + d31)) * inv_kept
+                    c30_1 = keep_d * d30 * inv_kept
+                    c31_1 = keep_d * d31 * inv_kept
                     sg_free = f * (_1 - bb) * inv_kept
                     sg_bel_o = (o + u * bb) * inv_kept
-                    pg_bel_o = ((((m2 + m4) + (m6 + m8)) + ((m10 + m12) + (m14 + m16))) + (((m18 + m20) + (m22 + m24)) + ((m26 + m28) + m30)))
-                    fo = m1 * sg_bel_o
+                    pg_bel_o = m2_7 + m4_7 + (m6_7 + m8_7) + (m10_7 + m12_7 + (m14_7 + m16_7)) + (m18_7 + m20_7 + (m22_7 + m24_7) + (m26_7 + m28_7 + m30_7))
+                    fo = m1_7 * sg_bel_o
                     of = pg_bel_o * sg_free
-                    other = c0 - fo - of
-                    other = other if other > _0 else _0
+                    other_1 = c0_1 - fo - of
+                    other_2 = _sel(other_1 > _0, other_1, _0)
                     in_b = is_b & bld_i
-                    fo_m = _0 if in_b else (fo if (gate_off | (gt != _0)) else _0)
-                    fo_c = _0 if (in_b | gate_off | (gt != _0)) else fo
-                    c2 += fo if in_b else _0
-                    c0 = other if residual == 1 else _0
-                    c16 += fo_m
-                    c30 += fo_c if closed_o else _0
-                    c14 += _0 if closed_o else fo_c
-                    c31 += of + (other if residual == 0 else _0)
-                    kept_rule = _1 - other
-                    kept_rule = kept_rule if kept_rule > _TINY else _TINY
-                    scale = (_1 / kept_rule) if residual == 2 else _1
-                    c0 *= scale
-                    c1 *= scale
-                    c2 *= scale
-                    c3 *= scale
-                    c4 *= scale
-                    c5 *= scale
-                    c6 *= scale
-                    c7 *= scale
-                    c8 *= scale
-                    c9 *= scale
-                    c10 *= scale
-                    c11 *= scale
-                    c12 *= scale
-                    c13 *= scale
-                    c14 *= scale
-                    c15 *= scale
-                    c16 *= scale
-                    c17 *= scale
-                    c18 *= scale
-                    c19 *= scale
-                    c20 *= scale
-                    c21 *= scale
-                    c22 *= scale
-                    c23 *= scale
-                    c24 *= scale
-                    c25 *= scale
-                    c26 *= scale
-                    c27 *= scale
-                    c28 *= scale
-                    c29 *= scale
-                    c30 *= scale
-                    c31 *= scale
-                    bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
+                    fo_m = _0 if in_b else _sel(gate_off | (gt != _0), fo, _0)
+                    fo_c = _sel(in_b | gate_off | (gt != _0), _0, fo)
+                    c2_2 = c2_1 + _sel(in_b, fo, _0)
+                    c0_2 = _sel(residual == 1, other_2, _0)
+                    c16_2 = c16_1 + fo_m
+                    c30_2 = c30_1 + _sel(closed_o, fo_c, _0)
+                    c14_2 = c14_1 + _sel(closed_o, _0, fo_c)
+                    c31_2 = c31_1 + (of + _sel(residual == 0, other_2, _0))
+                    kept_rule_1 = _1 - other_2
+                    kept_rule_2 = _sel(kept_rule_1 > _TINY, kept_rule_1, _TINY)
+                    scale = _sel(residual == 2, _1 / kept_rule_2, _1)
+                    c0_3 = c0_2 * scale
+                    c1_2 = c1_1 * scale
+                    c2_3 = c2_2 * scale
+                    c3_2 = c3_1 * scale
+                    c4_2 = c4_1 * scale
+                    c5_2 = c5_1 * scale
+                    c6_2 = c6_1 * scale
+                    c7_2 = c7_1 * scale
+                    c8_2 = c8_1 * scale
+                    c9_2 = c9_1 * scale
+                    c10_2 = c10_1 * scale
+                    c11_2 = c11_1 * scale
+                    c12_2 = c12_1 * scale
+                    c13_2 = c13_1 * scale
+                    c14_3 = c14_2 * scale
+                    c15_2 = c15_1 * scale
+                    c16_3 = c16_2 * scale
+                    c17_2 = c17_1 * scale
+                    c18_2 = c18_1 * scale
+                    c19_2 = c19_1 * scale
+                    c20_2 = c20_1 * scale
+                    c21_2 = c21_1 * scale
+                    c22_2 = c22_1 * scale
+                    c23_2 = c23_1 * scale
+                    c24_2 = c24_1 * scale
+                    c25_2 = c25_1 * scale
+                    c26_2 = c26_1 * scale
+                    c27_2 = c27_1 * scale
+                    c28_2 = c28_1 * scale
+                    c29_2 = c29_1 * scale
+                    c30_3 = c30_2 * scale
+                    c31_3 = c31_2 * scale
+                    bel_o = c2_3 + c4_2 + (c6_2 + c8_2) + (c10_2 + c12_2 + (c14_3 + c16_3)) + (c18_2 + c20_2 + (c22_2 + c24_2) + (c26_2 + c28_2 + c30_3))
                     dynamic = fo_m + of
-                    z_up = z + inc
-                    z_up = z_up if z_up < _1 else _1
-                    z_down = z - dec
-                    z_down = z_down if z_down > _0 else _0
-                    z = z_up if ((bel_o >= gamma_o) & (dynamic <= gamma_c)) else (z_down if dynamic > gamma_c else z)
-                    g = c17 * z
-                    c17 -= g
-                    c1 += g
-                    g = c18 * z
-                    c18 -= g
-                    c2 += g
-                    g = c19 * z
-                    c19 -= g
-                    c3 += g
-                    g = c20 * z
-                    c20 -= g
-                    c4 += g
-                    g = c21 * z
-                    c21 -= g
-                    c5 += g
-                    g = c22 * z
-                    c22 -= g
-                    c6 += g
-                    g = c23 * z
-                    c23 -= g
-                    c7 += g
-                    g = c24 * z
-                    c24 -= g
-                    c8 += g
-                    g = c25 * z
-                    c25 -= g
-                    c9 += g
-                    g = c26 * z
-                    c26 -= g
-                    c10 += g
-                    g = c27 * z
-                    c27 -= g
-                    c11 += g
-                    g = c28 * z
-                    c28 -= g
-                    c12 += g
-                    g = c29 * z
-                    c29 -= g
-                    c13 += g
-                    g = c30 * z
-                    c30 -= g
-                    c14 += g
-                    g = c31 * z
-                    c31 -= g
-                    c15 += g
-                    g = c16 * z
-                    c16 -= g
-                    c8 += g if to_s else _0
-                    c0 += _0 if to_s else g
-                    buf[sbase + np.uint64(0 + l)] = c0
-                    buf[sbase + np.uint64(272 + l)] = c1
-                    buf[sbase + np.uint64(544 + l)] = c2
-                    buf[sbase + np.uint64(816 + l)] = c3
-                    buf[sbase + np.uint64(1088 + l)] = c4
-                    buf[sbase + np.uint64(1360 + l)] = c5
-                    buf[sbase + np.uint64(1632 + l)] = c6
-                    buf[sbase + np.uint64(1904 + l)] = c7
-                    buf[sbase + np.uint64(2176 + l)] = c8
-                    buf[sbase + np.uint64(2448 + l)] = c9
-                    buf[sbase + np.uint64(2720 + l)] = c10
-                    buf[sbase + np.uint64(2992 + l)] = c11
-                    buf[sbase + np.uint64(3264 + l)] = c12
-                    buf[sbase + np.uint64(3536 + l)] = c13
-                    buf[sbase + np.uint64(3808 + l)] = c14
-                    buf[sbase + np.uint64(4080 + l)] = c15
-                    buf[sbase + np.uint64(4352 + l)] = c16
-                    buf[sbase + np.uint64(4624 + l)] = c17
-                    buf[sbase + np.uint64(4896 + l)] = c18
-                    buf[sbase + np.uint64(5168 + l)] = c19
-                    buf[sbase + np.uint64(5440 + l)] = c20
-                    buf[sbase + np.uint64(5712 + l)] = c21
-                    buf[sbase + np.uint64(5984 + l)] = c22
-                    buf[sbase + np.uint64(6256 + l)] = c23
-                    buf[sbase + np.uint64(6528 + l)] = c24
-                    buf[sbase + np.uint64(6800 + l)] = c25
-                    buf[sbase + np.uint64(7072 + l)] = c26
-                    buf[sbase + np.uint64(7344 + l)] = c27
-                    buf[sbase + np.uint64(7616 + l)] = c28
-                    buf[sbase + np.uint64(7888 + l)] = c29
-                    buf[sbase + np.uint64(8160 + l)] = c30
-                    buf[sbase + np.uint64(8432 + l)] = c31
-                    buf[sbase + np.uint64(8704 + l)] = z
-                    norm = (((((c1 + c2) + (c3 + c4)) + ((c5 + c6) + (c7 + c8))) + (((c9 + c10) + (c11 + c12)) + ((c13 + c14) + (c15 + c16)))) + ((((c17 + c18) + (c19 + c20)) + ((c21 + c22) + (c23 + c24))) + (((c25 + c26) + (c27 + c28)) + ((c29 + c30) + c31))))
-                    inv_norm = (_1 / norm) if norm > tol else _0
-                    w1 = c1
-                    w2 = c2
-                    w3 = c3 * _INV2
-                    w4 = c4
-                    w5 = c5 * _INV2
-                    w6 = c6 * _INV2
-                    w7 = c7 * _INV3
-                    w8 = c8
-                    w9 = c9 * _INV2
-                    w10 = c10 * _INV2
-                    w11 = c11 * _INV3
-                    w12 = c12 * _INV2
-                    w13 = c13 * _INV3
-                    w14 = c14 * _INV3
-                    w15 = c15 * _INV4
-                    w16 = c16
-                    w17 = c17 * _INV2
-                    w18 = c18 * _INV2
-                    w19 = c19 * _INV3
-                    w20 = c20 * _INV2
-                    w21 = c21 * _INV3
-                    w22 = c22 * _INV3
-                    w23 = c23 * _INV4
-                    w24 = c24 * _INV2
-                    w25 = c25 * _INV3
-                    w26 = c26 * _INV3
-                    w27 = c27 * _INV4
-                    w28 = c28 * _INV3
-                    w29 = c29 * _INV4
-                    w30 = c30 * _INV4
-                    w31 = c31 * _INV5
+                    z_up_1 = z_1 + inc
+                    z_up_2 = _sel(z_up_1 < _1, z_up_1, _1)
+                    z_down_1 = z_1 - dec
+                    z_down_2 = _sel(z_down_1 > _0, z_down_1, _0)
+                    z_2 = z_up_2 if (bel_o >= gamma_o) & (dynamic <= gamma_c) else _sel(dynamic > gamma_c, z_down_2, z_1)
+                    g_1 = c17_2 * z_2
+                    c17_3 = c17_2 - g_1
+                    c1_3 = c1_2 + g_1
+                    g_2 = c18_2 * z_2
+                    c18_3 = c18_2 - g_2
+                    c2_4 = c2_3 + g_2
+                    g_3 = c19_2 * z_2
+                    c19_3 = c19_2 - g_3
+                    c3_3 = c3_2 + g_3
+                    g_4 = c20_2 * z_2
+                    c20_3 = c20_2 - g_4
+                    c4_3 = c4_2 + g_4
+                    g_5 = c21_2 * z_2
+                    c21_3 = c21_2 - g_5
+                    c5_3 = c5_2 + g_5
+                    g_6 = c22_2 * z_2
+                    c22_3 = c22_2 - g_6
+                    c6_3 = c6_2 + g_6
+                    g_7 = c23_2 * z_2
+                    c23_3 = c23_2 - g_7
+                    c7_3 = c7_2 + g_7
+                    g_8 = c24_2 * z_2
+                    c24_3 = c24_2 - g_8
+                    c8_3 = c8_2 + g_8
+                    g_9 = c25_2 * z_2
+                    c25_3 = c25_2 - g_9
+                    c9_3 = c9_2 + g_9
+                    g_10 = c26_2 * z_2
+                    c26_3 = c26_2 - g_10
+                    c10_3 = c10_2 + g_10
+                    g_11 = c27_2 * z_2
+                    c27_3 = c27_2 - g_11
+                    c11_3 = c11_2 + g_11
+                    g_12 = c28_2 * z_2
+                    c28_3 = c28_2 - g_12
+                    c12_3 = c12_2 + g_12
+                    g_13 = c29_2 * z_2
+                    c29_3 = c29_2 - g_13
+                    c13_3 = c13_2 + g_13
+                    g_14 = c30_3 * z_2
+                    c30_4 = c30_3 - g_14
+                    c14_4 = c14_3 + g_14
+                    g_15 = c31_3 * z_2
+                    c31_4 = c31_3 - g_15
+                    c15_3 = c15_2 + g_15
+                    g_16 = c16_3 * z_2
+                    c16_4 = c16_3 - g_16
+                    c8_4 = c8_3 + _sel(to_s, g_16, _0)
+                    c0_4 = c0_3 + _sel(to_s, _0, g_16)
+                    buf[sbase + np.uint64(0 + l)] = c0_4
+                    buf[sbase + np.uint64(272 + l)] = c1_3
+                    buf[sbase + np.uint64(544 + l)] = c2_4
+                    buf[sbase + np.uint64(816 + l)] = c3_3
+                    buf[sbase + np.uint64(1088 + l)] = c4_3
+                    buf[sbase + np.uint64(1360 + l)] = c5_3
+                    buf[sbase + np.uint64(1632 + l)] = c6_3
+                    buf[sbase + np.uint64(1904 + l)] = c7_3
+                    buf[sbase + np.uint64(2176 + l)] = c8_4
+                    buf[sbase + np.uint64(2448 + l)] = c9_3
+                    buf[sbase + np.uint64(2720 + l)] = c10_3
+                    buf[sbase + np.uint64(2992 + l)] = c11_3
+                    buf[sbase + np.uint64(3264 + l)] = c12_3
+                    buf[sbase + np.uint64(3536 + l)] = c13_3
+                    buf[sbase + np.uint64(3808 + l)] = c14_4
+                    buf[sbase + np.uint64(4080 + l)] = c15_3
+                    buf[sbase + np.uint64(4352 + l)] = c16_4
+                    buf[sbase + np.uint64(4624 + l)] = c17_3
+                    buf[sbase + np.uint64(4896 + l)] = c18_3
+                    buf[sbase + np.uint64(5168 + l)] = c19_3
+                    buf[sbase + np.uint64(5440 + l)] = c20_3
+                    buf[sbase + np.uint64(5712 + l)] = c21_3
+                    buf[sbase + np.uint64(5984 + l)] = c22_3
+                    buf[sbase + np.uint64(6256 + l)] = c23_3
+                    buf[sbase + np.uint64(6528 + l)] = c24_3
+                    buf[sbase + np.uint64(6800 + l)] = c25_3
+                    buf[sbase + np.uint64(7072 + l)] = c26_3
+                    buf[sbase + np.uint64(7344 + l)] = c27_3
+                    buf[sbase + np.uint64(7616 + l)] = c28_3
+                    buf[sbase + np.uint64(7888 + l)] = c29_3
+                    buf[sbase + np.uint64(8160 + l)] = c30_4
+                    buf[sbase + np.uint64(8432 + l)] = c31_4
+                    buf[sbase + np.uint64(8704 + l)] = z_2
+                    norm = c1_3 + c2_4 + (c3_3 + c4_3) + (c5_3 + c6_3 + (c7_3 + c8_4)) + (c9_3 + c10_3 + (c11_3 + c12_3) + (c13_3 + c14_4 + (c15_3 + c16_4))) + (c17_3 + c18_3 + (c19_3 + c20_3) + (c21_3 + c22_3 + (c23_3 + c24_3)) + (c25_3 + c26_3 + (c27_3 + c28_3) + (c29_3 + c30_4 + c31_4)))
+                    inv_norm = _sel(norm > tol, _1 / norm, _0)
+                    w1 = c1_3
+                    w2 = c2_4
+                    w3 = c3_3 * _INV2
+                    w4 = c4_3
+                    w5 = c5_3 * _INV2
+                    w6 = c6_3 * _INV2
+                    w7 = c7_3 * _INV3
+                    w8 = c8_4
+                    w9 = c9_3 * _INV2
+                    w10 = c10_3 * _INV2
+                    w11 = c11_3 * _INV3
+                    w12 = c12_3 * _INV2
+                    w13 = c13_3 * _INV3
+                    w14 = c14_4 * _INV3
+                    w15 = c15_3 * _INV4
+                    w16 = c16_4
+                    w17 = c17_3 * _INV2
+                    w18 = c18_3 * _INV2
+                    w19 = c19_3 * _INV3
+                    w20 = c20_3 * _INV2
+                    w21 = c21_3 * _INV3
+                    w22 = c22_3 * _INV3
+                    w23 = c23_3 * _INV4
+                    w24 = c24_3 * _INV2
+                    w25 = c25_3 * _INV3
+                    w26 = c26_3 * _INV3
+                    w27 = c27_3 * _INV4
+                    w28 = c28_3 * _INV3
+                    w29 = c29_3 * _INV4
+                    w30 = c30_4 * _INV4
+                    w31 = c31_4 * _INV5
                     p_f = ((((w1 + w3) + (w5 + w7)) + ((w9 + w11) + (w13 + w15))) + (((w17 + w19) + (w21 + w23)) + ((w25 + w27) + (w29 + w31)))) * inv_norm
                     p_i = ((((w2 + w3) + (w6 + w7)) + ((w10 + w11) + (w14 + w15))) + (((w18 + w19) + (w22 + w23)) + ((w26 + w27) + (w30 + w31)))) * inv_norm
                     p_u = ((((w4 + w5) + (w6 + w7)) + ((w12 + w13) + (w14 + w15))) + (((w20 + w21) + (w22 + w23)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
                     p_s = ((((w8 + w9) + (w10 + w11)) + ((w12 + w13) + (w14 + w15))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
                     p_m = ((((w16 + w17) + (w18 + w19)) + ((w20 + w21) + (w22 + w23))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
                     static = p_i + p_u + p_s
-                    code = c_free
-                    best = p_f
-                    code = c_moving if p_m > best else code
-                    best = p_m if p_m > best else best
-                    is_static = static > best
-                    code = c_static if is_static else code
-                    best = static if is_static else best
-                    fine_code = c_infra
-                    fine_best = p_i
-                    fine_code = c_unmapped if p_u > fine_best else fine_code
-                    fine_best = p_u if p_u > fine_best else fine_best
-                    fine_code = c_stopped if p_s > fine_best else fine_code
-                    fine_best = p_s if p_s > fine_best else fine_best
-                    least = p_i if p_i < p_u else p_u
-                    least = least if least < p_s else p_s
-                    fine_second = static - fine_best - least
-                    fine_ok = (fine_best >= _HALF) & (fine_best >= _HALF * static) & (fine_best - fine_second > _TIE)
-                    code = fine_code if (is_static & fine_ok) else code
-                    code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code
+                    code_1 = c_free
+                    best_1 = p_f
+                    code_2 = _sel(p_m > best_1, c_moving, code_1)
+                    best_2 = _sel(p_m > best_1, p_m, best_1)
+                    is_static = static > best_2
+                    code_3 = _sel(is_static, c_static, code_2)
+                    best_3 = _sel(is_static, static, best_2)
+                    fine_code_1 = c_infra
+                    fine_best_1 = p_i
+                    fine_code_2 = _sel(p_u > fine_best_1, c_unmapped, fine_code_1)
+                    fine_best_2 = _sel(p_u > fine_best_1, p_u, fine_best_1)
+                    fine_code_3 = _sel(p_s > fine_best_2, c_stopped, fine_code_2)
+                    fine_best_3 = _sel(p_s > fine_best_2, p_s, fine_best_2)
+                    least_1 = _sel(p_i < p_u, p_i, p_u)
+                    least_2 = _sel(least_1 < p_s, least_1, p_s)
+                    fine_second = static - fine_best_3 - least_2
+                    fine_ok = (fine_best_3 >= _HALF) & (fine_best_3 >= _HALF * static) & (fine_best_3 - fine_second > _TIE)
+                    code_4 = _sel(is_static & fine_ok, fine_code_3, code_3)
+                    code_5 = _sel((best_3 < min_betp) | (c31_4 > max_ign), c_unknown, code_4)
                     buf[sbase + np.uint64(8976 + l)] = p_f
                     buf[sbase + np.uint64(9248 + l)] = p_i
                     buf[sbase + np.uint64(9520 + l)] = p_u
@@ -870,60 +878,60 @@ def step_float(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, labe
                     buf[sbase + np.uint64(10064 + l)] = p_m
                     buf[sbase + np.uint64(10336 + l)] = fo
                     buf[sbase + np.uint64(10608 + l)] = of
-                    buf[sbase + np.uint64(10880 + l)] = other
-                    buf[sbase + np.uint64(11152 + l)] = code
-                    focal_lo = (((((_P0 if c0 != _0 else _0) + (_P1 if c1 != _0 else _0)) + ((_P2 if c2 != _0 else _0) + (_P3 if c3 != _0 else _0))) + (((_P4 if c4 != _0 else _0) + (_P5 if c5 != _0 else _0)) + ((_P6 if c6 != _0 else _0) + (_P7 if c7 != _0 else _0)))) + ((((_P8 if c8 != _0 else _0) + (_P9 if c9 != _0 else _0)) + ((_P10 if c10 != _0 else _0) + (_P11 if c11 != _0 else _0))) + (((_P12 if c12 != _0 else _0) + (_P13 if c13 != _0 else _0)) + ((_P14 if c14 != _0 else _0) + (_P15 if c15 != _0 else _0)))))
-                    focal_hi = (((((_P0 if c16 != _0 else _0) + (_P1 if c17 != _0 else _0)) + ((_P2 if c18 != _0 else _0) + (_P3 if c19 != _0 else _0))) + (((_P4 if c20 != _0 else _0) + (_P5 if c21 != _0 else _0)) + ((_P6 if c22 != _0 else _0) + (_P7 if c23 != _0 else _0)))) + ((((_P8 if c24 != _0 else _0) + (_P9 if c25 != _0 else _0)) + ((_P10 if c26 != _0 else _0) + (_P11 if c27 != _0 else _0))) + (((_P12 if c28 != _0 else _0) + (_P13 if c29 != _0 else _0)) + ((_P14 if c30 != _0 else _0) + (_P15 if c31 != _0 else _0)))))
+                    buf[sbase + np.uint64(10880 + l)] = other_2
+                    buf[sbase + np.uint64(11152 + l)] = code_5
+                    focal_lo = _sel(c0_4 != _0, _P0, _0) + _sel(c1_3 != _0, _P1, _0) + (_sel(c2_4 != _0, _P2, _0) + _sel(c3_3 != _0, _P3, _0)) + (_sel(c4_3 != _0, _P4, _0) + _sel(c5_3 != _0, _P5, _0) + (_sel(c6_3 != _0, _P6, _0) + _sel(c7_3 != _0, _P7, _0))) + (_sel(c8_4 != _0, _P8, _0) + _sel(c9_3 != _0, _P9, _0) + (_sel(c10_3 != _0, _P10, _0) + _sel(c11_3 != _0, _P11, _0)) + (_sel(c12_3 != _0, _P12, _0) + _sel(c13_3 != _0, _P13, _0) + (_sel(c14_4 != _0, _P14, _0) + _sel(c15_3 != _0, _P15, _0))))
+                    focal_hi = _sel(c16_4 != _0, _P0, _0) + _sel(c17_3 != _0, _P1, _0) + (_sel(c18_3 != _0, _P2, _0) + _sel(c19_3 != _0, _P3, _0)) + (_sel(c20_3 != _0, _P4, _0) + _sel(c21_3 != _0, _P5, _0) + (_sel(c22_3 != _0, _P6, _0) + _sel(c23_3 != _0, _P7, _0))) + (_sel(c24_3 != _0, _P8, _0) + _sel(c25_3 != _0, _P9, _0) + (_sel(c26_3 != _0, _P10, _0) + _sel(c27_3 != _0, _P11, _0)) + (_sel(c28_3 != _0, _P12, _0) + _sel(c29_3 != _0, _P13, _0) + (_sel(c30_4 != _0, _P14, _0) + _sel(c31_4 != _0, _P15, _0))))
                     buf[sbase + np.uint64(11696 + l)] = focal_lo
                     buf[sbase + np.uint64(11968 + l)] = focal_hi
-                    buf[sbase + np.uint64(11424 + l)] = _1 if ((focal_lo == _0) & (focal_hi == _P15) & (c31 == _1) & (z == _0)) else _0
+                    buf[sbase + np.uint64(11424 + l)] = _sel((focal_lo == _0) & (focal_hi == _P15) & (c31_4 == _1) & (z_2 == _0), _1, _0)
             new_mask = np.uint32(0)
-            for seg in range(2):
-                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                w = a1 - a0
+            for seg_9 in range(2):
+                a0 = _sel(seg_9 == 0, j0 + l0, max(j0 + l0, wrap))
+                a1_9 = _sel(seg_9 == 0, min(j0 + l1, wrap), j0 + l1)
+                w = a1_9 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_9 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        v = np.uint32(buf[np.uint64((43) * STRIDE + lb) + np.uint64(t)])
-                        v |= np.uint32(buf[np.uint64((44) * STRIDE + lb) + np.uint64(t)]) << np.uint32(16)
-                        fc[sc + np.uint64(t)] = v
-                        new_mask |= v
+                    for t_123 in range(w):
+                        v_1 = np.uint32(buf[np.uint64(43 * STRIDE + lb) + np.uint64(t_123)])
+                        v_2 = v_1 | np.uint32(buf[np.uint64(44 * STRIDE + lb) + np.uint64(t_123)]) << np.uint32(16)
+                        fc[sc + np.uint64(t_123)] = v_2
+                        new_mask |= v_2
             write_mask = old_mask | new_mask
             # planes the body may have left non-zero in some lane of the buffer (all when it ran
             # past l1, on lanes whose stale inputs are not known)
-            dirty |= new_mask if l1 % SUB == 0 else _ALL_PLANES
-            for a in range(32):
-                if (write_mask >> np.uint32(a)) & _ONE:
-                    for seg in range(2):
-                        a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                        a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                        w = a1 - a0
+            dirty |= _sel(l1 % SUB == 0, new_mask, _ALL_PLANES)
+            for a_7 in range(32):
+                if (write_mask >> np.uint32(a_7)) & _ONE:
+                    for seg_10 in range(2):
+                        a0 = _sel(seg_10 == 0, j0 + l0, max(j0 + l0, wrap))
+                        a1_10 = _sel(seg_10 == 0, min(j0 + l1, wrap), j0 + l1)
+                        w = a1_10 - a0
                         if w > 0:
-                            sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                            sc = np.uint64(rb + a0 + _sel(seg_10 == 0, off_c, off_c - cols))
                             lb = a0 - j0
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = buf[np.uint64((0 + a) * STRIDE + lb) + np.uint64(t)]
-            for seg in range(2):
-                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                w = a1 - a0
+                            for t_124 in range(w):
+                                st[np.uint64(a_7), sc + np.uint64(t_124)] = buf[np.uint64((0 + a_7) * STRIDE + lb) + np.uint64(t_124)]
+            for seg_11 in range(2):
+                a0 = _sel(seg_11 == 0, j0 + l0, max(j0 + l0, wrap))
+                a1_11 = _sel(seg_11 == 0, min(j0 + l1, wrap), j0 + l1)
+                w = a1_11 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_11 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        zt[sc + np.uint64(t)] = buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)]
-                    for t in range(w):
-                        fl[sc + np.uint64(t)] = np.uint8(buf[np.uint64((42) * STRIDE + lb) + np.uint64(t)])
-            for k in range(5):
-                for t in range(l1 - l0):
-                    bp[np.uint64(k), wl + np.uint64(t)] = buf[np.uint64((33 + k) * STRIDE + l0) + np.uint64(t)]
-            for k in range(3):
-                for t in range(l1 - l0):
-                    cf[np.uint64(k), wl + np.uint64(t)] = buf[np.uint64((38 + k) * STRIDE + l0) + np.uint64(t)]
-            for t in range(l1 - l0):
-                dc[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * STRIDE + l0) + np.uint64(t)])
+                    for t_125 in range(w):
+                        zt[sc + np.uint64(t_125)] = buf[np.uint64(32 * STRIDE + lb) + np.uint64(t_125)]
+                    for t_126 in range(w):
+                        fl[sc + np.uint64(t_126)] = np.uint8(buf[np.uint64(42 * STRIDE + lb) + np.uint64(t_126)])
+            for k_5 in range(5):
+                for t_127 in range(l1 - l0):
+                    bp[np.uint64(k_5), wl + np.uint64(t_127)] = buf[np.uint64((33 + k_5) * STRIDE + l0) + np.uint64(t_127)]
+            for k_6 in range(3):
+                for t_128 in range(l1 - l0):
+                    cf[np.uint64(k_6), wl + np.uint64(t_128)] = buf[np.uint64((38 + k_6) * STRIDE + l0) + np.uint64(t_128)]
+            for t_129 in range(l1 - l0):
+                dc[wl + np.uint64(t_129)] = np.uint8(buf[np.uint64(41 * STRIDE + l0) + np.uint64(t_129)])
 
 
 @numba.njit(cache=True, nogil=True, fastmath={'ninf', 'nnan'}, error_model="numpy")
@@ -958,9 +966,9 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
             continue
         if r == chunk * band_rows:  # a chunk's runs start at its room
             pos = np.uint64(32 * cols * r)
-        buf_row = r + off_r
-        buf_row = buf_row - rows if buf_row >= rows else buf_row
-        rb = buf_row * cols
+        buf_row_1 = r + off_r
+        buf_row_2 = _sel(buf_row_1 >= rows, buf_row_1 - rows, buf_row_1)
+        rb = buf_row_2 * cols
         lo = min(max(-dc_, 0), cols)
         hi = max(min(cols - dc_, cols), lo)
         if r + dr < 0 or r + dr >= rows:
@@ -974,22 +982,22 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
             l0 = 0
             l1 = n
             if may_skip:
-                for t in range(n):
-                    act[t] = 1  # cells entering the window are vacuous
-                for seg in range(2):
-                    a0 = s0 if seg == 0 else max(s0, wrap)
-                    a1 = min(s1, wrap) if seg == 0 else s1
-                    w = a1 - a0
+                for t_1 in range(n):
+                    act[t_1] = 1  # cells entering the window are vacuous
+                for seg_1 in range(2):
+                    a0 = _sel(seg_1 == 0, s0, max(s0, wrap))
+                    a1_1 = _sel(seg_1 == 0, min(s1, wrap), s1)
+                    w = a1_1 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_1 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for t in range(w):
-                            act[np.uint64(lb) + np.uint64(t)] = fl[sc + np.uint64(t)]
-                for t in range(n):
-                    act[t] = act[t] & np.uint8((fr[wb + np.uint64(t)] == _0) & (oc[wb + np.uint64(t)] == _0))
+                        for t_2 in range(w):
+                            act[np.uint64(lb) + np.uint64(t_2)] = fl[sc + np.uint64(t_2)]
+                for t_3 in range(n):
+                    act[t_3] = act[t_3] & np.uint8((fr[wb + np.uint64(t_3)] == _0) & (oc[wb + np.uint64(t_3)] == _0))
                 idle = 0
-                for t in range(n):
-                    idle += np.int32(act[t])
+                for t_4 in range(n):
+                    idle += np.int32(act[t_4])
                 if idle == n:  # the whole block stays vacuous
                     l0 = l1 = n
                 while l0 < n and act[l0] == 1:
@@ -1002,762 +1010,762 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
             if l1 <= l0:
                 l0 = l1 = n
             if l0 > 0:
-                for seg in range(2):
-                    a0 = j0 + 0 if seg == 0 else max(j0 + 0, wrap)
-                    a1 = min(min(s0, j0 + l0), wrap) if seg == 0 else min(s0, j0 + l0)
-                    w = a1 - a0
+                for seg_2 in range(2):
+                    a0 = _sel(seg_2 == 0, j0 + 0, max(j0 + 0, wrap))
+                    a1_2 = _sel(seg_2 == 0, min(min(s0, j0 + l0), wrap), min(s0, j0 + l0))
+                    w = a1_2 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_2 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
-                for seg in range(2):
-                    a0 = max(s1, j0 + 0) if seg == 0 else max(max(s1, j0 + 0), wrap)
-                    a1 = min(j0 + l0, wrap) if seg == 0 else j0 + l0
-                    w = a1 - a0
+                        for a_1 in range(31):
+                            for t_5 in range(w):
+                                st[np.uint64(a_1), sc + np.uint64(t_5)] = _0
+                        for t_6 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_6)] = _1
+                        for t_7 in range(w):
+                            zt[sc + np.uint64(t_7)] = _0
+                        for t_8 in range(w):
+                            fl[sc + np.uint64(t_8)] = np.uint8(1)
+                        for t_9 in range(w):
+                            fc[sc + np.uint64(t_9)] = _OMEGA_BIT
+                for seg_3 in range(2):
+                    a0 = _sel(seg_3 == 0, max(s1, j0 + 0), max(max(s1, j0 + 0), wrap))
+                    a1_3 = _sel(seg_3 == 0, min(j0 + l0, wrap), j0 + l0)
+                    w = a1_3 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_3 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                        for a_2 in range(31):
+                            for t_10 in range(w):
+                                st[np.uint64(a_2), sc + np.uint64(t_10)] = _0
+                        for t_11 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_11)] = _1
+                        for t_12 in range(w):
+                            zt[sc + np.uint64(t_12)] = _0
+                        for t_13 in range(w):
+                            fl[sc + np.uint64(t_13)] = np.uint8(1)
+                        for t_14 in range(w):
+                            fc[sc + np.uint64(t_14)] = _OMEGA_BIT
                 ws = wb + np.uint64(0)
-                for k in range(5):
-                    for t in range(l0 - 0):
-                        qb[np.uint64(k), ws + np.uint64(t)] = np.uint8(51)
-                for k in range(3):
-                    for t in range(l0 - 0):
-                        qc[np.uint64(k), ws + np.uint64(t)] = np.uint8(0)
-                for t in range(l0 - 0):
-                    qz[ws + np.uint64(t)] = np.uint8(0)
-                for t in range(l0 - 0):
-                    qd[ws + np.uint64(t)] = vac_code
+                for k_1 in range(5):
+                    for t_15 in range(l0 - 0):
+                        qb[np.uint64(k_1), ws + np.uint64(t_15)] = np.uint8(51)
+                for k_2 in range(3):
+                    for t_16 in range(l0 - 0):
+                        qc[np.uint64(k_2), ws + np.uint64(t_16)] = np.uint8(0)
+                for t_17 in range(l0 - 0):
+                    qz[ws + np.uint64(t_17)] = np.uint8(0)
+                for t_18 in range(l0 - 0):
+                    qd[ws + np.uint64(t_18)] = vac_code
             if l1 < n:
-                for seg in range(2):
-                    a0 = j0 + l1 if seg == 0 else max(j0 + l1, wrap)
-                    a1 = min(min(s0, j0 + n), wrap) if seg == 0 else min(s0, j0 + n)
-                    w = a1 - a0
+                for seg_4 in range(2):
+                    a0 = _sel(seg_4 == 0, j0 + l1, max(j0 + l1, wrap))
+                    a1_4 = _sel(seg_4 == 0, min(min(s0, j0 + n), wrap), min(s0, j0 + n))
+                    w = a1_4 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_4 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
-                for seg in range(2):
-                    a0 = max(s1, j0 + l1) if seg == 0 else max(max(s1, j0 + l1), wrap)
-                    a1 = min(j0 + n, wrap) if seg == 0 else j0 + n
-                    w = a1 - a0
+                        for a_3 in range(31):
+                            for t_19 in range(w):
+                                st[np.uint64(a_3), sc + np.uint64(t_19)] = _0
+                        for t_20 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_20)] = _1
+                        for t_21 in range(w):
+                            zt[sc + np.uint64(t_21)] = _0
+                        for t_22 in range(w):
+                            fl[sc + np.uint64(t_22)] = np.uint8(1)
+                        for t_23 in range(w):
+                            fc[sc + np.uint64(t_23)] = _OMEGA_BIT
+                for seg_5 in range(2):
+                    a0 = _sel(seg_5 == 0, max(s1, j0 + l1), max(max(s1, j0 + l1), wrap))
+                    a1_5 = _sel(seg_5 == 0, min(j0 + n, wrap), j0 + n)
+                    w = a1_5 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_5 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                        for a_4 in range(31):
+                            for t_24 in range(w):
+                                st[np.uint64(a_4), sc + np.uint64(t_24)] = _0
+                        for t_25 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_25)] = _1
+                        for t_26 in range(w):
+                            zt[sc + np.uint64(t_26)] = _0
+                        for t_27 in range(w):
+                            fl[sc + np.uint64(t_27)] = np.uint8(1)
+                        for t_28 in range(w):
+                            fc[sc + np.uint64(t_28)] = _OMEGA_BIT
                 ws = wb + np.uint64(l1)
-                for k in range(5):
-                    for t in range(n - l1):
-                        qb[np.uint64(k), ws + np.uint64(t)] = np.uint8(51)
-                for k in range(3):
-                    for t in range(n - l1):
-                        qc[np.uint64(k), ws + np.uint64(t)] = np.uint8(0)
-                for t in range(n - l1):
-                    qz[ws + np.uint64(t)] = np.uint8(0)
-                for t in range(n - l1):
-                    qd[ws + np.uint64(t)] = vac_code
+                for k_3 in range(5):
+                    for t_29 in range(n - l1):
+                        qb[np.uint64(k_3), ws + np.uint64(t_29)] = np.uint8(51)
+                for k_4 in range(3):
+                    for t_30 in range(n - l1):
+                        qc[np.uint64(k_4), ws + np.uint64(t_30)] = np.uint8(0)
+                for t_31 in range(n - l1):
+                    qz[ws + np.uint64(t_31)] = np.uint8(0)
+                for t_32 in range(n - l1):
+                    qd[ws + np.uint64(t_32)] = vac_code
             if l1 <= l0:
-                for q0 in range(0, n, TILE):
-                    qt[tile + np.uint64(q0 // TILE)] = _OMEGA_BIT
-                for t in range(n):
-                    qr[pos + np.uint64(t)] = np.uint8(255)
+                for q0_1 in range(0, n, TILE):
+                    qt[tile + np.uint64(q0_1 // TILE)] = _OMEGA_BIT
+                for t_33 in range(n):
+                    qr[pos + np.uint64(t_33)] = np.uint8(255)
                 pos += np.uint64(n)
                 continue
             old_mask = np.uint32(0)
-            for seg in range(2):
-                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                w = a1 - a0
+            for seg_6 in range(2):
+                a0 = _sel(seg_6 == 0, j0 + l0, max(j0 + l0, wrap))
+                a1_6 = _sel(seg_6 == 0, min(j0 + l1, wrap), j0 + l1)
+                w = a1_6 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_6 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        old_mask |= fc[sc + np.uint64(t)]
+                    for t_34 in range(w):
+                        old_mask |= fc[sc + np.uint64(t_34)]
             entering = s0 > j0 + l0 or s1 < j0 + l1
             if entering:  # some lanes entered the window: vacuous
-                for a in range(31):
-                    for t in range(l1 - l0):
-                        buf[np.uint64((a) * STRIDE + l0) + np.uint64(t)] = _0
-                for t in range(l1 - l0):
-                    buf[np.uint64((31) * STRIDE + l0) + np.uint64(t)] = _1
-                for t in range(l1 - l0):
-                    buf[np.uint64((32) * STRIDE + l0) + np.uint64(t)] = _0
-            for a in range(32):
-                if (old_mask >> np.uint32(a)) & _ONE:
-                    for seg in range(2):
-                        a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
-                        a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
-                        w = a1 - a0
+                for a_5 in range(31):
+                    for t_35 in range(l1 - l0):
+                        buf[np.uint64(a_5 * STRIDE + l0) + np.uint64(t_35)] = _0
+                for t_36 in range(l1 - l0):
+                    buf[np.uint64(31 * STRIDE + l0) + np.uint64(t_36)] = _1
+                for t_37 in range(l1 - l0):
+                    buf[np.uint64(32 * STRIDE + l0) + np.uint64(t_37)] = _0
+            for a_6 in range(32):
+                if (old_mask >> np.uint32(a_6)) & _ONE:
+                    for seg_7 in range(2):
+                        a0 = _sel(seg_7 == 0, max(s0, j0 + l0), max(max(s0, j0 + l0), wrap))
+                        a1_7 = _sel(seg_7 == 0, min(min(s1, j0 + l1), wrap), min(s1, j0 + l1))
+                        w = a1_7 - a0
                         if w > 0:
-                            sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                            sc = np.uint64(rb + a0 + _sel(seg_7 == 0, off_c, off_c - cols))
                             lb = a0 - j0
-                            for t in range(w):
-                                buf[np.uint64((a) * STRIDE + lb) + np.uint64(t)] = st[np.uint64(a), sc + np.uint64(t)]
-                elif not entering and (dirty >> np.uint32(a)) & _ONE:
-                    for t in range(BLOCK):
-                        buf[np.uint64((a) * STRIDE + 0) + np.uint64(t)] = _0
-                    dirty &= ~(_ONE << np.uint32(a))
+                            for t_38 in range(w):
+                                buf[np.uint64(a_6 * STRIDE + lb) + np.uint64(t_38)] = st[np.uint64(a_6), sc + np.uint64(t_38)]
+                elif not entering and (dirty >> np.uint32(a_6)) & _ONE:
+                    for t_39 in range(BLOCK):
+                        buf[np.uint64(a_6 * STRIDE + 0) + np.uint64(t_39)] = _0
+                    dirty &= ~(_ONE << np.uint32(a_6))
             dirty |= old_mask
-            for seg in range(2):
-                a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
-                a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
-                w = a1 - a0
+            for seg_8 in range(2):
+                a0 = _sel(seg_8 == 0, max(s0, j0 + l0), max(max(s0, j0 + l0), wrap))
+                a1_8 = _sel(seg_8 == 0, min(min(s1, j0 + l1), wrap), min(s1, j0 + l1))
+                w = a1_8 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_8 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)] = zt[sc + np.uint64(t)]
+                    for t_40 in range(w):
+                        buf[np.uint64(32 * STRIDE + lb) + np.uint64(t_40)] = zt[sc + np.uint64(t_40)]
             wl = wb + np.uint64(l0)
-            for t in range(l1 - l0):
-                buf[np.uint64((33) * STRIDE + l0) + np.uint64(t)] = fr[wl + np.uint64(t)]
-            for t in range(l1 - l0):
-                buf[np.uint64((34) * STRIDE + l0) + np.uint64(t)] = oc[wl + np.uint64(t)]
-            for t in range(l1 - l0):
-                buf[np.uint64((35) * STRIDE + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
-            for t in range(l1 - l0):
-                buf[np.uint64((36) * STRIDE + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
-            for t in range(l1 - l0):
-                buf[np.uint64((37) * STRIDE + l0) + np.uint64(t)] = np.float32(gate_f[wl + np.uint64(t)])
+            for t_41 in range(l1 - l0):
+                buf[np.uint64(33 * STRIDE + l0) + np.uint64(t_41)] = fr[wl + np.uint64(t_41)]
+            for t_42 in range(l1 - l0):
+                buf[np.uint64(34 * STRIDE + l0) + np.uint64(t_42)] = oc[wl + np.uint64(t_42)]
+            for t_43 in range(l1 - l0):
+                buf[np.uint64(35 * STRIDE + l0) + np.uint64(t_43)] = np.float32(lbl[wl + np.uint64(t_43)])
+            for t_44 in range(l1 - l0):
+                buf[np.uint64(36 * STRIDE + l0) + np.uint64(t_44)] = np.float32(obs_f[wl + np.uint64(t_44)])
+            for t_45 in range(l1 - l0):
+                buf[np.uint64(37 * STRIDE + l0) + np.uint64(t_45)] = np.float32(gate_f[wl + np.uint64(t_45)])
             for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):
                 sbase = np.uint64(sub * SUB)
                 for l in range(SUB):
-                    m0 = buf[sbase + np.uint64(0 + l)]
-                    m1 = buf[sbase + np.uint64(272 + l)]
-                    m2 = buf[sbase + np.uint64(544 + l)]
-                    m3 = buf[sbase + np.uint64(816 + l)]
-                    m4 = buf[sbase + np.uint64(1088 + l)]
-                    m5 = buf[sbase + np.uint64(1360 + l)]
-                    m6 = buf[sbase + np.uint64(1632 + l)]
-                    m7 = buf[sbase + np.uint64(1904 + l)]
-                    m8 = buf[sbase + np.uint64(2176 + l)]
-                    m9 = buf[sbase + np.uint64(2448 + l)]
-                    m10 = buf[sbase + np.uint64(2720 + l)]
-                    m11 = buf[sbase + np.uint64(2992 + l)]
-                    m12 = buf[sbase + np.uint64(3264 + l)]
-                    m13 = buf[sbase + np.uint64(3536 + l)]
-                    m14 = buf[sbase + np.uint64(3808 + l)]
-                    m15 = buf[sbase + np.uint64(4080 + l)]
-                    m16 = buf[sbase + np.uint64(4352 + l)]
-                    m17 = buf[sbase + np.uint64(4624 + l)]
-                    m18 = buf[sbase + np.uint64(4896 + l)]
-                    m19 = buf[sbase + np.uint64(5168 + l)]
-                    m20 = buf[sbase + np.uint64(5440 + l)]
-                    m21 = buf[sbase + np.uint64(5712 + l)]
-                    m22 = buf[sbase + np.uint64(5984 + l)]
-                    m23 = buf[sbase + np.uint64(6256 + l)]
-                    m24 = buf[sbase + np.uint64(6528 + l)]
-                    m25 = buf[sbase + np.uint64(6800 + l)]
-                    m26 = buf[sbase + np.uint64(7072 + l)]
-                    m27 = buf[sbase + np.uint64(7344 + l)]
-                    m28 = buf[sbase + np.uint64(7616 + l)]
-                    m29 = buf[sbase + np.uint64(7888 + l)]
-                    m30 = buf[sbase + np.uint64(8160 + l)]
-                    m31 = buf[sbase + np.uint64(8432 + l)]
-                    z = buf[sbase + np.uint64(8704 + l)]
+                    m0_1 = buf[sbase + np.uint64(0 + l)]
+                    m1_1 = buf[sbase + np.uint64(272 + l)]
+                    m2_1 = buf[sbase + np.uint64(544 + l)]
+                    m3_1 = buf[sbase + np.uint64(816 + l)]
+                    m4_1 = buf[sbase + np.uint64(1088 + l)]
+                    m5_1 = buf[sbase + np.uint64(1360 + l)]
+                    m6_1 = buf[sbase + np.uint64(1632 + l)]
+                    m7_1 = buf[sbase + np.uint64(1904 + l)]
+                    m8_1 = buf[sbase + np.uint64(2176 + l)]
+                    m9_1 = buf[sbase + np.uint64(2448 + l)]
+                    m10_1 = buf[sbase + np.uint64(2720 + l)]
+                    m11_1 = buf[sbase + np.uint64(2992 + l)]
+                    m12_1 = buf[sbase + np.uint64(3264 + l)]
+                    m13_1 = buf[sbase + np.uint64(3536 + l)]
+                    m14_1 = buf[sbase + np.uint64(3808 + l)]
+                    m15_1 = buf[sbase + np.uint64(4080 + l)]
+                    m16_1 = buf[sbase + np.uint64(4352 + l)]
+                    m17_1 = buf[sbase + np.uint64(4624 + l)]
+                    m18_1 = buf[sbase + np.uint64(4896 + l)]
+                    m19_1 = buf[sbase + np.uint64(5168 + l)]
+                    m20_1 = buf[sbase + np.uint64(5440 + l)]
+                    m21_1 = buf[sbase + np.uint64(5712 + l)]
+                    m22_1 = buf[sbase + np.uint64(5984 + l)]
+                    m23_1 = buf[sbase + np.uint64(6256 + l)]
+                    m24_1 = buf[sbase + np.uint64(6528 + l)]
+                    m25_1 = buf[sbase + np.uint64(6800 + l)]
+                    m26_1 = buf[sbase + np.uint64(7072 + l)]
+                    m27_1 = buf[sbase + np.uint64(7344 + l)]
+                    m28_1 = buf[sbase + np.uint64(7616 + l)]
+                    m29_1 = buf[sbase + np.uint64(7888 + l)]
+                    m30_1 = buf[sbase + np.uint64(8160 + l)]
+                    m31_1 = buf[sbase + np.uint64(8432 + l)]
+                    z_1 = buf[sbase + np.uint64(8704 + l)]
                     f = buf[sbase + np.uint64(8976 + l)]
                     o = buf[sbase + np.uint64(9248 + l)]
                     u = _1 - f - o
                     lab = buf[sbase + np.uint64(9520 + l)]
                     ob = buf[sbase + np.uint64(9792 + l)]
                     gt = buf[sbase + np.uint64(10064 + l)]
-                    obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
+                    obs = _sel(derive_obs, (f > _0) | (o > _0), ob != _0)
                     is_b = lab == _2
                     is_r = lab == _1
                     is_o = lab == _0
-                    beta = beta_b if is_b else (beta_r if is_r else (beta_o if is_o else _0))
-                    beta = beta if (obs | everywhere) else _0
-                    e = beta * f if is_b else _0
-                    kept = _1 - e
-                    total = kept <= tol
-                    beta = _0 if total else beta
-                    e = _0 if total else e
-                    kept = _1 if total else kept
-                    inv_kept = _1 / kept
-                    bb = beta if is_b else _0
-                    br = beta if is_r else _0
-                    bo = beta if is_o else _0
-                    t = a_f * m0
-                    m1 += t
-                    m0 -= t
-                    t = a_f * m2
-                    m3 += t
-                    m2 -= t
-                    t = a_f * m4
-                    m5 += t
-                    m4 -= t
-                    t = a_f * m6
-                    m7 += t
-                    m6 -= t
-                    t = a_f * m8
-                    m9 += t
-                    m8 -= t
-                    t = a_f * m10
-                    m11 += t
-                    m10 -= t
-                    t = a_f * m12
-                    m13 += t
-                    m12 -= t
-                    t = a_f * m14
-                    m15 += t
-                    m14 -= t
-                    t = a_f * m16
-                    m17 += t
-                    m16 -= t
-                    t = a_f * m18
-                    m19 += t
-                    m18 -= t
-                    t = a_f * m20
-                    m21 += t
-                    m20 -= t
-                    t = a_f * m22
-                    m23 += t
-                    m22 -= t
-                    t = a_f * m24
-                    m25 += t
-                    m24 -= t
-                    t = a_f * m26
-                    m27 += t
-                    m26 -= t
-                    t = a_f * m28
-                    m29 += t
-                    m28 -= t
-                    t = a_f * m30
-                    m31 += t
-                    m30 -= t
-                    t = a_i * m0
-                    m2 += t
-                    m0 -= t
-                    t = a_i * m1
-                    m3 += t
-                    m1 -= t
-                    t = a_i * m4
-                    m6 += t
-                    m4 -= t
-                    t = a_i * m5
-                    m7 += t
-                    m5 -= t
-                    t = a_i * m8
-                    m10 += t
-                    m8 -= t
-                    t = a_i * m9
-                    m11 += t
-                    m9 -= t
-                    t = a_i * m12
-                    m14 += t
-                    m12 -= t
-                    t = a_i * m13
-                    m15 += t
-                    m13 -= t
-                    t = a_i * m16
-                    m18 += t
-                    m16 -= t
-                    t = a_i * m17
-                    m19 += t
-                    m17 -= t
-                    t = a_i * m20
-                    m22 += t
-                    m20 -= t
-                    t = a_i * m21
-                    m23 += t
-                    m21 -= t
-                    t = a_i * m24
-                    m26 += t
-                    m24 -= t
-                    t = a_i * m25
-                    m27 += t
-                    m25 -= t
-                    t = a_i * m28
-                    m30 += t
-                    m28 -= t
-                    t = a_i * m29
-                    m31 += t
-                    m29 -= t
-                    t = a_u * m0
-                    m4 += t
-                    m0 -= t
-                    t = a_u * m1
-                    m5 += t
-                    m1 -= t
-                    t = a_u * m2
-                    m6 += t
-                    m2 -= t
-                    t = a_u * m3
-                    m7 += t
-                    m3 -= t
-                    t = a_u * m8
-                    m12 += t
-                    m8 -= t
-                    t = a_u * m9
-                    m13 += t
-                    m9 -= t
-                    t = a_u * m10
-                    m14 += t
-                    m10 -= t
-                    t = a_u * m11
-                    m15 += t
-                    m11 -= t
-                    t = a_u * m16
-                    m20 += t
-                    m16 -= t
-                    t = a_u * m17
-                    m21 += t
-                    m17 -= t
-                    t = a_u * m18
-                    m22 += t
-                    m18 -= t
-                    t = a_u * m19
-                    m23 += t
-                    m19 -= t
-                    t = a_u * m24
-                    m28 += t
-                    m24 -= t
-                    t = a_u * m25
-                    m29 += t
-                    m25 -= t
-                    t = a_u * m26
-                    m30 += t
-                    m26 -= t
-                    t = a_u * m27
-                    m31 += t
-                    m27 -= t
-                    t = a_s * m0
-                    m8 += t
-                    m0 -= t
-                    t = a_s * m1
-                    m9 += t
-                    m1 -= t
-                    t = a_s * m2
-                    m10 += t
-                    m2 -= t
-                    t = a_s * m3
-                    m11 += t
-                    m3 -= t
-                    t = a_s * m4
-                    m12 += t
-                    m4 -= t
-                    t = a_s * m5
-                    m13 += t
-                    m5 -= t
-                    t = a_s * m6
-                    m14 += t
-                    m6 -= t
-                    t = a_s * m7
-                    m15 += t
-                    m7 -= t
-                    t = a_s * m16
-                    m24 += t
-                    m16 -= t
-                    t = a_s * m17
-                    m25 += t
-                    m17 -= t
-                    t = a_s * m18
-                    m26 += t
-                    m18 -= t
-                    t = a_s * m19
-                    m27 += t
-                    m19 -= t
-                    t = a_s * m20
-                    m28 += t
-                    m20 -= t
-                    t = a_s * m21
-                    m29 += t
-                    m21 -= t
-                    t = a_s * m22
-                    m30 += t
-                    m22 -= t
-                    t = a_s * m23
-                    m31 += t
-                    m23 -= t
-                    t = a_m * m0
-                    m16 += t
-                    m0 -= t
-                    t = a_m * m1
-                    m17 += t
-                    m1 -= t
-                    t = a_m * m2
-                    m18 += t
-                    m2 -= t
-                    t = a_m * m3
-                    m19 += t
-                    m3 -= t
-                    t = a_m * m4
-                    m20 += t
-                    m4 -= t
-                    t = a_m * m5
-                    m21 += t
-                    m5 -= t
-                    t = a_m * m6
-                    m22 += t
-                    m6 -= t
-                    t = a_m * m7
-                    m23 += t
-                    m7 -= t
-                    t = a_m * m8
-                    m24 += t
-                    m8 -= t
-                    t = a_m * m9
-                    m25 += t
-                    m9 -= t
-                    t = a_m * m10
-                    m26 += t
-                    m10 -= t
-                    t = a_m * m11
-                    m27 += t
-                    m11 -= t
-                    t = a_m * m12
-                    m28 += t
-                    m12 -= t
-                    t = a_m * m13
-                    m29 += t
-                    m13 -= t
-                    t = a_m * m14
-                    m30 += t
-                    m14 -= t
-                    t = a_m * m15
-                    m31 += t
-                    m15 -= t
-                    rest = _1 - m31
-                    m0 *= keep_c
-                    m1 *= keep_c
-                    m2 *= keep_c
-                    m3 *= keep_c
-                    m4 *= keep_c
-                    m5 *= keep_c
-                    m6 *= keep_c
-                    m7 *= keep_c
-                    m8 *= keep_c
-                    m9 *= keep_c
-                    m10 *= keep_c
-                    m11 *= keep_c
-                    m12 *= keep_c
-                    m13 *= keep_c
-                    m14 *= keep_c
-                    m15 *= keep_c
-                    m16 *= keep_c
-                    m17 *= keep_c
-                    m18 *= keep_c
-                    m19 *= keep_c
-                    m20 *= keep_c
-                    m21 *= keep_c
-                    m22 *= keep_c
-                    m23 *= keep_c
-                    m24 *= keep_c
-                    m25 *= keep_c
-                    m26 *= keep_c
-                    m27 *= keep_c
-                    m28 *= keep_c
-                    m29 *= keep_c
-                    m30 *= keep_c
-                    m31 += a_c * rest
-                    s_f = ((((m1 + m3) + (m5 + m7)) + ((m9 + m11) + (m13 + m15))) + (((m17 + m19) + (m21 + m23)) + ((m25 + m27) + (m29 + m31))))
-                    s_nf = ((((m0 + m2) + (m4 + m6)) + ((m8 + m10) + (m12 + m14))) + (((m16 + m18) + (m20 + m22)) + ((m24 + m26) + (m28 + m30))))
-                    dn0 = u * m0 + o * (m0 + m1)
-                    dn1 = u * m1
+                    beta_1 = beta_b if is_b else beta_r if is_r else _sel(is_o, beta_o, _0)
+                    beta_2 = _sel(obs | everywhere, beta_1, _0)
+                    e_1 = _sel(is_b, beta_2 * f, _0)
+                    kept_1 = _1 - e_1
+                    total = kept_1 <= tol
+                    beta_3 = _sel(total, _0, beta_2)
+                    e_2 = _sel(total, _0, e_1)
+                    kept_2 = _sel(total, _1, kept_1)
+                    inv_kept = _1 / kept_2
+                    bb = _sel(is_b, beta_3, _0)
+                    br = _sel(is_r, beta_3, _0)
+                    bo = _sel(is_o, beta_3, _0)
+                    t_46 = a_f * m0_1
+                    m1_2 = m1_1 + t_46
+                    m0_2 = m0_1 - t_46
+                    t_47 = a_f * m2_1
+                    m3_2 = m3_1 + t_47
+                    m2_2 = m2_1 - t_47
+                    t_48 = a_f * m4_1
+                    m5_2 = m5_1 + t_48
+                    m4_2 = m4_1 - t_48
+                    t_49 = a_f * m6_1
+                    m7_2 = m7_1 + t_49
+                    m6_2 = m6_1 - t_49
+                    t_50 = a_f * m8_1
+                    m9_2 = m9_1 + t_50
+                    m8_2 = m8_1 - t_50
+                    t_51 = a_f * m10_1
+                    m11_2 = m11_1 + t_51
+                    m10_2 = m10_1 - t_51
+                    t_52 = a_f * m12_1
+                    m13_2 = m13_1 + t_52
+                    m12_2 = m12_1 - t_52
+                    t_53 = a_f * m14_1
+                    m15_2 = m15_1 + t_53
+                    m14_2 = m14_1 - t_53
+                    t_54 = a_f * m16_1
+                    m17_2 = m17_1 + t_54
+                    m16_2 = m16_1 - t_54
+                    t_55 = a_f * m18_1
+                    m19_2 = m19_1 + t_55
+                    m18_2 = m18_1 - t_55
+                    t_56 = a_f * m20_1
+                    m21_2 = m21_1 + t_56
+                    m20_2 = m20_1 - t_56
+                    t_57 = a_f * m22_1
+                    m23_2 = m23_1 + t_57
+                    m22_2 = m22_1 - t_57
+                    t_58 = a_f * m24_1
+                    m25_2 = m25_1 + t_58
+                    m24_2 = m24_1 - t_58
+                    t_59 = a_f * m26_1
+                    m27_2 = m27_1 + t_59
+                    m26_2 = m26_1 - t_59
+                    t_60 = a_f * m28_1
+                    m29_2 = m29_1 + t_60
+                    m28_2 = m28_1 - t_60
+                    t_61 = a_f * m30_1
+                    m31_2 = m31_1 + t_61
+                    m30_2 = m30_1 - t_61
+                    t_62 = a_i * m0_2
+                    m2_3 = m2_2 + t_62
+                    m0_3 = m0_2 - t_62
+                    t_63 = a_i * m1_2
+                    m3_3 = m3_2 + t_63
+                    m1_3 = m1_2 - t_63
+                    t_64 = a_i * m4_2
+                    m6_3 = m6_2 + t_64
+                    m4_3 = m4_2 - t_64
+                    t_65 = a_i * m5_2
+                    m7_3 = m7_2 + t_65
+                    m5_3 = m5_2 - t_65
+                    t_66 = a_i * m8_2
+                    m10_3 = m10_2 + t_66
+                    m8_3 = m8_2 - t_66
+                    t_67 = a_i * m9_2
+                    m11_3 = m11_2 + t_67
+                    m9_3 = m9_2 - t_67
+                    t_68 = a_i * m12_2
+                    m14_3 = m14_2 + t_68
+                    m12_3 = m12_2 - t_68
+                    t_69 = a_i * m13_2
+                    m15_3 = m15_2 + t_69
+                    m13_3 = m13_2 - t_69
+                    t_70 = a_i * m16_2
+                    m18_3 = m18_2 + t_70
+                    m16_3 = m16_2 - t_70
+                    t_71 = a_i * m17_2
+                    m19_3 = m19_2 + t_71
+                    m17_3 = m17_2 - t_71
+                    t_72 = a_i * m20_2
+                    m22_3 = m22_2 + t_72
+                    m20_3 = m20_2 - t_72
+                    t_73 = a_i * m21_2
+                    m23_3 = m23_2 + t_73
+                    m21_3 = m21_2 - t_73
+                    t_74 = a_i * m24_2
+                    m26_3 = m26_2 + t_74
+                    m24_3 = m24_2 - t_74
+                    t_75 = a_i * m25_2
+                    m27_3 = m27_2 + t_75
+                    m25_3 = m25_2 - t_75
+                    t_76 = a_i * m28_2
+                    m30_3 = m30_2 + t_76
+                    m28_3 = m28_2 - t_76
+                    t_77 = a_i * m29_2
+                    m31_3 = m31_2 + t_77
+                    m29_3 = m29_2 - t_77
+                    t_78 = a_u * m0_3
+                    m4_4 = m4_3 + t_78
+                    m0_4 = m0_3 - t_78
+                    t_79 = a_u * m1_3
+                    m5_4 = m5_3 + t_79
+                    m1_4 = m1_3 - t_79
+                    t_80 = a_u * m2_3
+                    m6_4 = m6_3 + t_80
+                    m2_4 = m2_3 - t_80
+                    t_81 = a_u * m3_3
+                    m7_4 = m7_3 + t_81
+                    m3_4 = m3_3 - t_81
+                    t_82 = a_u * m8_3
+                    m12_4 = m12_3 + t_82
+                    m8_4 = m8_3 - t_82
+                    t_83 = a_u * m9_3
+                    m13_4 = m13_3 + t_83
+                    m9_4 = m9_3 - t_83
+                    t_84 = a_u * m10_3
+                    m14_4 = m14_3 + t_84
+                    m10_4 = m10_3 - t_84
+                    t_85 = a_u * m11_3
+                    m15_4 = m15_3 + t_85
+                    m11_4 = m11_3 - t_85
+                    t_86 = a_u * m16_3
+                    m20_4 = m20_3 + t_86
+                    m16_4 = m16_3 - t_86
+                    t_87 = a_u * m17_3
+                    m21_4 = m21_3 + t_87
+                    m17_4 = m17_3 - t_87
+                    t_88 = a_u * m18_3
+                    m22_4 = m22_3 + t_88
+                    m18_4 = m18_3 - t_88
+                    t_89 = a_u * m19_3
+                    m23_4 = m23_3 + t_89
+                    m19_4 = m19_3 - t_89
+                    t_90 = a_u * m24_3
+                    m28_4 = m28_3 + t_90
+                    m24_4 = m24_3 - t_90
+                    t_91 = a_u * m25_3
+                    m29_4 = m29_3 + t_91
+                    m25_4 = m25_3 - t_91
+                    t_92 = a_u * m26_3
+                    m30_4 = m30_3 + t_92
+                    m26_4 = m26_3 - t_92
+                    t_93 = a_u * m27_3
+                    m31_4 = m31_3 + t_93
+                    m27_4 = m27_3 - t_93
+                    t_94 = a_s * m0_4
+                    m8_5 = m8_4 + t_94
+                    m0_5 = m0_4 - t_94
+                    t_95 = a_s * m1_4
+                    m9_5 = m9_4 + t_95
+                    m1_5 = m1_4 - t_95
+                    t_96 = a_s * m2_4
+                    m10_5 = m10_4 + t_96
+                    m2_5 = m2_4 - t_96
+                    t_97 = a_s * m3_4
+                    m11_5 = m11_4 + t_97
+                    m3_5 = m3_4 - t_97
+                    t_98 = a_s * m4_4
+                    m12_5 = m12_4 + t_98
+                    m4_5 = m4_4 - t_98
+                    t_99 = a_s * m5_4
+                    m13_5 = m13_4 + t_99
+                    m5_5 = m5_4 - t_99
+                    t_100 = a_s * m6_4
+                    m14_5 = m14_4 + t_100
+                    m6_5 = m6_4 - t_100
+                    t_101 = a_s * m7_4
+                    m15_5 = m15_4 + t_101
+                    m7_5 = m7_4 - t_101
+                    t_102 = a_s * m16_4
+                    m24_5 = m24_4 + t_102
+                    m16_5 = m16_4 - t_102
+                    t_103 = a_s * m17_4
+                    m25_5 = m25_4 + t_103
+                    m17_5 = m17_4 - t_103
+                    t_104 = a_s * m18_4
+                    m26_5 = m26_4 + t_104
+                    m18_5 = m18_4 - t_104
+                    t_105 = a_s * m19_4
+                    m27_5 = m27_4 + t_105
+                    m19_5 = m19_4 - t_105
+                    t_106 = a_s * m20_4
+                    m28_5 = m28_4 + t_106
+                    m20_5 = m20_4 - t_106
+                    t_107 = a_s * m21_4
+                    m29_5 = m29_4 + t_107
+                    m21_5 = m21_4 - t_107
+                    t_108 = a_s * m22_4
+                    m30_5 = m30_4 + t_108
+                    m22_5 = m22_4 - t_108
+                    t_109 = a_s * m23_4
+                    m31_5 = m31_4 + t_109
+                    m23_5 = m23_4 - t_109
+                    t_110 = a_m * m0_5
+                    m16_6 = m16_5 + t_110
+                    m0_6 = m0_5 - t_110
+                    t_111 = a_m * m1_5
+                    m17_6 = m17_5 + t_111
+                    m1_6 = m1_5 - t_111
+                    t_112 = a_m * m2_5
+                    m18_6 = m18_5 + t_112
+                    m2_6 = m2_5 - t_112
+                    t_113 = a_m * m3_5
+                    m19_6 = m19_5 + t_113
+                    m3_6 = m3_5 - t_113
+                    t_114 = a_m * m4_5
+                    m20_6 = m20_5 + t_114
+                    m4_6 = m4_5 - t_114
+                    t_115 = a_m * m5_5
+                    m21_6 = m21_5 + t_115
+                    m5_6 = m5_5 - t_115
+                    t_116 = a_m * m6_5
+                    m22_6 = m22_5 + t_116
+                    m6_6 = m6_5 - t_116
+                    t_117 = a_m * m7_5
+                    m23_6 = m23_5 + t_117
+                    m7_6 = m7_5 - t_117
+                    t_118 = a_m * m8_5
+                    m24_6 = m24_5 + t_118
+                    m8_6 = m8_5 - t_118
+                    t_119 = a_m * m9_5
+                    m25_6 = m25_5 + t_119
+                    m9_6 = m9_5 - t_119
+                    t_120 = a_m * m10_5
+                    m26_6 = m26_5 + t_120
+                    m10_6 = m10_5 - t_120
+                    t_121 = a_m * m11_5
+                    m27_6 = m27_5 + t_121
+                    m11_6 = m11_5 - t_121
+                    t_122 = a_m * m12_5
+                    m28_6 = m28_5 + t_122
+                    m12_6 = m12_5 - t_122
+                    t_123 = a_m * m13_5
+                    m29_6 = m29_5 + t_123
+                    m13_6 = m13_5 - t_123
+                    t_124 = a_m * m14_5
+                    m30_6 = m30_5 + t_124
+                    m14_6 = m14_5 - t_124
+                    t_125 = a_m * m15_5
+                    m31_6 = m31_5 + t_125
+                    m15_6 = m15_5 - t_125
+                    rest = _1 - m31_6
+                    m0_7 = m0_6 * keep_c
+                    m1_7 = m1_6 * keep_c
+                    m2_7 = m2_6 * keep_c
+                    m3_7 = m3_6 * keep_c
+                    m4_7 = m4_6 * keep_c
+                    m5_7 = m5_6 * keep_c
+                    m6_7 = m6_6 * keep_c
+                    m7_7 = m7_6 * keep_c
+                    m8_7 = m8_6 * keep_c
+                    m9_7 = m9_6 * keep_c
+                    m10_7 = m10_6 * keep_c
+                    m11_7 = m11_6 * keep_c
+                    m12_7 = m12_6 * keep_c
+                    m13_7 = m13_6 * keep_c
+                    m14_7 = m14_6 * keep_c
+                    m15_7 = m15_6 * keep_c
+                    m16_7 = m16_6 * keep_c
+                    m17_7 = m17_6 * keep_c
+                    m18_7 = m18_6 * keep_c
+                    m19_7 = m19_6 * keep_c
+                    m20_7 = m20_6 * keep_c
+                    m21_7 = m21_6 * keep_c
+                    m22_7 = m22_6 * keep_c
+                    m23_7 = m23_6 * keep_c
+                    m24_7 = m24_6 * keep_c
+                    m25_7 = m25_6 * keep_c
+                    m26_7 = m26_6 * keep_c
+                    m27_7 = m27_6 * keep_c
+                    m28_7 = m28_6 * keep_c
+                    m29_7 = m29_6 * keep_c
+                    m30_7 = m30_6 * keep_c
+                    m31_7 = m31_6 + a_c * rest
+                    s_f = m1_7 + m3_7 + (m5_7 + m7_7) + (m9_7 + m11_7 + (m13_7 + m15_7)) + (m17_7 + m19_7 + (m21_7 + m23_7) + (m25_7 + m27_7 + (m29_7 + m31_7)))
+                    s_nf = m0_7 + m2_7 + (m4_7 + m6_7) + (m8_7 + m10_7 + (m12_7 + m14_7)) + (m16_7 + m18_7 + (m20_7 + m22_7) + (m24_7 + m26_7 + (m28_7 + m30_7)))
+                    dn0 = u * m0_7 + o * (m0_7 + m1_7)
+                    dn1 = u * m1_7
                     d0 = dn0 + f * s_nf
                     d1 = dn1 + f * s_f
-                    kf = _1 if (gate_off | (gt != _0) | (not faded_o)) else _0
-                    d2 = u * m2 + o * (m2 + kf * m3)
-                    d3 = u * m3
-                    d4 = u * m4 + o * (m4 + kf * m5)
-                    d5 = u * m5
-                    d6 = u * m6 + o * (m6 + kf * m7)
-                    d7 = u * m7
-                    d8 = u * m8 + o * (m8 + kf * m9)
-                    d9 = u * m9
-                    d10 = u * m10 + o * (m10 + kf * m11)
-                    d11 = u * m11
-                    d12 = u * m12 + o * (m12 + kf * m13)
-                    d13 = u * m13
-                    d14 = u * m14 + o * (m14 + kf * m15)
-                    d15 = u * m15
-                    d16 = u * m16 + o * (m16 + kf * m17)
-                    d17 = u * m17
-                    d18 = u * m18 + o * (m18 + kf * m19)
-                    d19 = u * m19
-                    d20 = u * m20 + o * (m20 + kf * m21)
-                    d21 = u * m21
-                    d22 = u * m22 + o * (m22 + kf * m23)
-                    d23 = u * m23
-                    d24 = u * m24 + o * (m24 + kf * m25)
-                    d25 = u * m25
-                    d26 = u * m26 + o * (m26 + kf * m27)
-                    d27 = u * m27
-                    d28 = u * m28 + o * (m28 + kf * m29)
-                    d29 = u * m29
-                    d31 = u * m31
-                    d30 = u * m30 + o * (m30 + m31 + (_1 - kf) * ((((m3 + m5) + (m7 + m9)) + ((m11 + m13) + (m15 + m17))) + (((m19 + m21) + (m23 + m25)) + (m27 + m29))))
-                    keep_d = _1 - beta
-                    c0 = (keep_d * d0 + bb * ((((dn0 + dn1) + (d4 + d5)) + ((d8 + d9) + (d12 + d13))) + (((d16 + d17) + (d20 + d21)) + ((d24 + d25) + (d28 + d29)))) + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
-                    c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
-                    c2 = (keep_d * d2 + bb * ((((d2 + d3) + (d6 + d7)) + ((d10 + d11) + (d14 + d15))) + (((d18 + d19) + (d22 + d23)) + ((d26 + d27) + (d30 + d31))))) * inv_kept
-                    c3 = (keep_d * d3) * inv_kept
-                    c4 = (keep_d * d4 + bo * (d4 + d6)) * inv_kept
-                    c5 = (keep_d * d5 + bo * (d5 + d7)) * inv_kept
-                    c6 = (keep_d * d6) * inv_kept
-                    c7 = (keep_d * d7) * inv_kept
-                    c8 = (keep_d * d8 + br * ((d8 + d10) + (d12 + d14)) + bo * (d8 + d10)) * inv_kept
-                    c9 = (keep_d * d9 + br * ((d9 + d11) + (d13 + d15)) + bo * (d9 + d11)) * inv_kept
-                    c10 = (keep_d * d10) * inv_kept
-                    c11 = (keep_d * d11) * inv_kept
-                    c12 = (keep_d * d12 + bo * (d12 + d14)) * inv_kept
-                    c13 = (keep_d * d13 + bo * (d13 + d15)) * inv_kept
-                    c14 = (keep_d * d14) * inv_kept
-                    c15 = (keep_d * d15) * inv_kept
-                    c16 = (keep_d * d16 + br * ((d16 + d18) + (d20 + d22)) + bo * (d16 + d18)) * inv_kept
-                    c17 = (keep_d * d17 + br * ((d17 + d19) + (d21 + d23)) + bo * (d17 + d19)) * inv_kept
-                    c18 = (keep_d * d18) * inv_kept
-                    c19 = (keep_d * d19) * inv_kept
-                    c20 = (keep_d * d20 + bo * (d20 + d22)) * inv_kept
-                    c21 = (keep_d * d21 + bo * (d21 + d23)) * inv_kept
-                    c22 = (keep_d * d22) * inv_kept
-                    c23 = (keep_d * d23) * inv_kept
-                    c24 = (keep_d * d24 + br * ((d24 + d26) + (d28 + d30)) + bo * (d24 + d26)) * inv_kept
-                    c25 = (keep_d * d25 + br * ((d25 + d27) + (d29 + d31)) + bo * (d25 + d27)) * inv_kept
-                    c26 = (keep_d * d26) * inv_kept
-                    c27 = (keep_d * d27) * inv_kept
-                    c28 = (keep_d * d28 + bo * (d28 + d30)) * inv_kept
-                    c29 = (keep_d * d29 + bo * (d29 + d31)) * inv_kept
-                    c30 = (keep_d * d30) * inv_kept
-                    c31 = (keep_d * d31) * inv_kept
+                    kf = _sel(gate_off | (gt != _0) | (not faded_o), _1, _0)
+                    d2 = u * m2_7 + o * (m2_7 + kf * m3_7)
+                    d3 = u * m3_7
+                    d4 = u * m4_7 + o * (m4_7 + kf * m5_7)
+                    d5 = u * m5_7
+                    d6 = u * m6_7 + o * (m6_7 + kf * m7_7)
+                    d7 = u * m7_7
+                    d8 = u * m8_7 + o * (m8_7 + kf * m9_7)
+                    d9 = u * m9_7
+                    d10 = u * m10_7 + o * (m10_7 + kf * m11_7)
+                    d11 = u * m11_7
+                    d12 = u * m12_7 + o * (m12_7 + kf * m13_7)
+                    d13 = u * m13_7
+                    d14 = u * m14_7 + o * (m14_7 + kf * m15_7)
+                    d15 = u * m15_7
+                    d16 = u * m16_7 + o * (m16_7 + kf * m17_7)
+                    d17 = u * m17_7
+                    d18 = u * m18_7 + o * (m18_7 + kf * m19_7)
+                    d19 = u * m19_7
+                    d20 = u * m20_7 + o * (m20_7 + kf * m21_7)
+                    d21 = u * m21_7
+                    d22 = u * m22_7 + o * (m22_7 + kf * m23_7)
+                    d23 = u * m23_7
+                    d24 = u * m24_7 + o * (m24_7 + kf * m25_7)
+                    d25 = u * m25_7
+                    d26 = u * m26_7 + o * (m26_7 + kf * m27_7)
+                    d27 = u * m27_7
+                    d28 = u * m28_7 + o * (m28_7 + kf * m29_7)
+                    d29 = u * m29_7
+                    d31 = u * m31_7
+                    d30 = u * m30_7 + o * (m30_7 + m31_7 + (_1 - kf) * (m3_7 + m5_7 + (m7_7 + m9_7) + (m11_7 + m13_7 + (m15_7 + m17_7)) + (m19_7 + m21_7 + (m23_7 + m25_7) + (m27_7 + m29_7))))
+                    keep_d = _1 - beta_3
+                    c0_1 = (keep_d * d0 + bb * (dn0 + dn1 + (d4 + d5) + (d8 + d9 + (d12 + d13)) + (d16 + d17 + (d20 + d21) + (d24 + d25 + (d28 + d29)))) + br * (d0 + d2 + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
+                    c1_1 = (keep_d * d1 + br * (d1 + d3 + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
+                    c2_1 = (keep_d * d2 + bb * (d2 + d3 + (d6 + d7) + (d10 + d11 + (d14 + d15)) + (d18 + d19 + (d22 + d23) + (d26 + d27 + (d30 + d31))))) * inv_kept
+                    c3_1 = keep_d * d3 * inv_kept
+                    c4_1 = (keep_d * d4 + bo * (d4 + d6)) * inv_kept
+                    c5_1 = (keep_d * d5 + bo * (d5 + d7)) * inv_kept
+                    c6_1 = keep_d * d6 * inv_kept
+                    c7_1 = keep_d * d7 * inv_kept
+                    c8_1 = (keep_d * d8 + br * (d8 + d10 + (d12 + d14)) + bo * (d8 + d10)) * inv_kept
+                    c9_1 = (keep_d * d9 + br * (d9 + d11 + (d13 + d15)) + bo * (d9 + d11)) * inv_kept
+                    c10_1 = keep_d * d10 * inv_kept
+                    c11_1 = keep_d * d11 * inv_kept
+                    c12_1 = (keep_d * d12 + bo * (d12 + d14)) * inv_kept
+                    c13_1 = (keep_d * d13 + bo * (d13 + d15)) * inv_kept
+                    c14_1 = keep_d * d14 * inv_kept
+                    c15_1 = keep_d * d15 * inv_kept
+                    c16_1 = (keep_d * d16 + br * (d16 + d18 + (d20 + d22)) + bo * (d16 + d18)) * inv_kept
+                    c17_1 = (keep_d * d17 + br * (d17 + d19 + (d21 + d23)) + bo * (d17 + d19)) * inv_kept
+                    c18_1 = keep_d * d18 * inv_kept
+                    c19_1 = keep_d * d19 * inv_kept
+                    c20_1 = (keep_d * d20 + bo * (d20 + d22)) * inv_kept
+                    c21_1 = (keep_d * d21 + bo * (d21 + d23)) * inv_kept
+                    c22_1 = keep_d * d22 * inv_kept
+                    c23_1 = keep_d * d23 * inv_kept
+                    c24_1 = (keep_d * d24 + br * (d24 + d26 + (d28 + d30)) + bo * (d24 + d26)) * inv_kept
+                    c25_1 = (keep_d * d25 + br * (d25 + d27 + (d29 + d31)) + bo * (d25 + d27)) * inv_kept
+                    c26_1 = keep_d * d26 * inv_kept
+                    c27_1 = keep_d * d27 * inv_kept
+                    c28_1 = (keep_d * d28 + bo * (d28 + d30)) * inv_kept
+                    c29_1 = (keep_d * d29 + bo * (d29 + d31)) * inv_kept
+                    c30_1 = keep_d * d30 * inv_kept
+                    c31_1 = keep_d * d31 * inv_kept
                     sg_free = f * (_1 - bb) * inv_kept
                     sg_bel_o = (o + u * bb) * inv_kept
-                    pg_bel_o = ((((m2 + m4) + (m6 + m8)) + ((m10 + m12) + (m14 + m16))) + (((m18 + m20) + (m22 + m24)) + ((m26 + m28) + m30)))
-                    fo = m1 * sg_bel_o
+                    pg_bel_o = m2_7 + m4_7 + (m6_7 + m8_7) + (m10_7 + m12_7 + (m14_7 + m16_7)) + (m18_7 + m20_7 + (m22_7 + m24_7) + (m26_7 + m28_7 + m30_7))
+                    fo = m1_7 * sg_bel_o
                     of = pg_bel_o * sg_free
-                    other = c0 - fo - of
-                    other = other if other > _0 else _0
+                    other_1 = c0_1 - fo - of
+                    other_2 = _sel(other_1 > _0, other_1, _0)
                     in_b = is_b & bld_i
-                    fo_m = _0 if in_b else (fo if (gate_off | (gt != _0)) else _0)
-                    fo_c = _0 if (in_b | gate_off | (gt != _0)) else fo
-                    c2 += fo if in_b else _0
-                    c0 = other if residual == 1 else _0
-                    c16 += fo_m
-                    c30 += fo_c if closed_o else _0
-                    c14 += _0 if closed_o else fo_c
-                    c31 += of + (other if residual == 0 else _0)
-                    kept_rule = _1 - other
-                    kept_rule = kept_rule if kept_rule > _TINY else _TINY
-                    scale = (_1 / kept_rule) if residual == 2 else _1
-                    c0 *= scale
-                    c1 *= scale
-                    c2 *= scale
-                    c3 *= scale
-                    c4 *= scale
-                    c5 *= scale
-                    c6 *= scale
-                    c7 *= scale
-                    c8 *= scale
-                    c9 *= scale
-                    c10 *= scale
-                    c11 *= scale
-                    c12 *= scale
-                    c13 *= scale
-                    c14 *= scale
-                    c15 *= scale
-                    c16 *= scale
-                    c17 *= scale
-                    c18 *= scale
-                    c19 *= scale
-                    c20 *= scale
-                    c21 *= scale
-                    c22 *= scale
-                    c23 *= scale
-                    c24 *= scale
-                    c25 *= scale
-                    c26 *= scale
-                    c27 *= scale
-                    c28 *= scale
-                    c29 *= scale
-                    c30 *= scale
-                    c31 *= scale
-                    bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
+                    fo_m = _0 if in_b else _sel(gate_off | (gt != _0), fo, _0)
+                    fo_c = _sel(in_b | gate_off | (gt != _0), _0, fo)
+                    c2_2 = c2_1 + _sel(in_b, fo, _0)
+                    c0_2 = _sel(residual == 1, other_2, _0)
+                    c16_2 = c16_1 + fo_m
+                    c30_2 = c30_1 + _sel(closed_o, fo_c, _0)
+                    c14_2 = c14_1 + _sel(closed_o, _0, fo_c)
+                    c31_2 = c31_1 + (of + _sel(residual == 0, other_2, _0))
+                    kept_rule_1 = _1 - other_2
+                    kept_rule_2 = _sel(kept_rule_1 > _TINY, kept_rule_1, _TINY)
+                    scale = _sel(residual == 2, _1 / kept_rule_2, _1)
+                    c0_3 = c0_2 * scale
+                    c1_2 = c1_1 * scale
+                    c2_3 = c2_2 * scale
+                    c3_2 = c3_1 * scale
+                    c4_2 = c4_1 * scale
+                    c5_2 = c5_1 * scale
+                    c6_2 = c6_1 * scale
+                    c7_2 = c7_1 * scale
+                    c8_2 = c8_1 * scale
+                    c9_2 = c9_1 * scale
+                    c10_2 = c10_1 * scale
+                    c11_2 = c11_1 * scale
+                    c12_2 = c12_1 * scale
+                    c13_2 = c13_1 * scale
+                    c14_3 = c14_2 * scale
+                    c15_2 = c15_1 * scale
+                    c16_3 = c16_2 * scale
+                    c17_2 = c17_1 * scale
+                    c18_2 = c18_1 * scale
+                    c19_2 = c19_1 * scale
+                    c20_2 = c20_1 * scale
+                    c21_2 = c21_1 * scale
+                    c22_2 = c22_1 * scale
+                    c23_2 = c23_1 * scale
+                    c24_2 = c24_1 * scale
+                    c25_2 = c25_1 * scale
+                    c26_2 = c26_1 * scale
+                    c27_2 = c27_1 * scale
+                    c28_2 = c28_1 * scale
+                    c29_2 = c29_1 * scale
+                    c30_3 = c30_2 * scale
+                    c31_3 = c31_2 * scale
+                    bel_o = c2_3 + c4_2 + (c6_2 + c8_2) + (c10_2 + c12_2 + (c14_3 + c16_3)) + (c18_2 + c20_2 + (c22_2 + c24_2) + (c26_2 + c28_2 + c30_3))
                     dynamic = fo_m + of
-                    z_up = z + inc
-                    z_up = z_up if z_up < _1 else _1
-                    z_down = z - dec
-                    z_down = z_down if z_down > _0 else _0
-                    z = z_up if ((bel_o >= gamma_o) & (dynamic <= gamma_c)) else (z_down if dynamic > gamma_c else z)
-                    g = c17 * z
-                    c17 -= g
-                    c1 += g
-                    g = c18 * z
-                    c18 -= g
-                    c2 += g
-                    g = c19 * z
-                    c19 -= g
-                    c3 += g
-                    g = c20 * z
-                    c20 -= g
-                    c4 += g
-                    g = c21 * z
-                    c21 -= g
-                    c5 += g
-                    g = c22 * z
-                    c22 -= g
-                    c6 += g
-                    g = c23 * z
-                    c23 -= g
-                    c7 += g
-                    g = c24 * z
-                    c24 -= g
-                    c8 += g
-                    g = c25 * z
-                    c25 -= g
-                    c9 += g
-                    g = c26 * z
-                    c26 -= g
-                    c10 += g
-                    g = c27 * z
-                    c27 -= g
-                    c11 += g
-                    g = c28 * z
-                    c28 -= g
-                    c12 += g
-                    g = c29 * z
-                    c29 -= g
-                    c13 += g
-                    g = c30 * z
-                    c30 -= g
-                    c14 += g
-                    g = c31 * z
-                    c31 -= g
-                    c15 += g
-                    g = c16 * z
-                    c16 -= g
-                    c8 += g if to_s else _0
-                    c0 += _0 if to_s else g
-                    buf[sbase + np.uint64(0 + l)] = c0
-                    buf[sbase + np.uint64(272 + l)] = c1
-                    buf[sbase + np.uint64(544 + l)] = c2
-                    buf[sbase + np.uint64(816 + l)] = c3
-                    buf[sbase + np.uint64(1088 + l)] = c4
-                    buf[sbase + np.uint64(1360 + l)] = c5
-                    buf[sbase + np.uint64(1632 + l)] = c6
-                    buf[sbase + np.uint64(1904 + l)] = c7
-                    buf[sbase + np.uint64(2176 + l)] = c8
-                    buf[sbase + np.uint64(2448 + l)] = c9
-                    buf[sbase + np.uint64(2720 + l)] = c10
-                    buf[sbase + np.uint64(2992 + l)] = c11
-                    buf[sbase + np.uint64(3264 + l)] = c12
-                    buf[sbase + np.uint64(3536 + l)] = c13
-                    buf[sbase + np.uint64(3808 + l)] = c14
-                    buf[sbase + np.uint64(4080 + l)] = c15
-                    buf[sbase + np.uint64(4352 + l)] = c16
-                    buf[sbase + np.uint64(4624 + l)] = c17
-                    buf[sbase + np.uint64(4896 + l)] = c18
-                    buf[sbase + np.uint64(5168 + l)] = c19
-                    buf[sbase + np.uint64(5440 + l)] = c20
-                    buf[sbase + np.uint64(5712 + l)] = c21
-                    buf[sbase + np.uint64(5984 + l)] = c22
-                    buf[sbase + np.uint64(6256 + l)] = c23
-                    buf[sbase + np.uint64(6528 + l)] = c24
-                    buf[sbase + np.uint64(6800 + l)] = c25
-                    buf[sbase + np.uint64(7072 + l)] = c26
-                    buf[sbase + np.uint64(7344 + l)] = c27
-                    buf[sbase + np.uint64(7616 + l)] = c28
-                    buf[sbase + np.uint64(7888 + l)] = c29
-                    buf[sbase + np.uint64(8160 + l)] = c30
-                    buf[sbase + np.uint64(8432 + l)] = c31
-                    buf[sbase + np.uint64(8704 + l)] = z
-                    norm = (((((c1 + c2) + (c3 + c4)) + ((c5 + c6) + (c7 + c8))) + (((c9 + c10) + (c11 + c12)) + ((c13 + c14) + (c15 + c16)))) + ((((c17 + c18) + (c19 + c20)) + ((c21 + c22) + (c23 + c24))) + (((c25 + c26) + (c27 + c28)) + ((c29 + c30) + c31))))
-                    inv_norm = (_1 / norm) if norm > tol else _0
-                    w1 = c1
-                    w2 = c2
-                    w3 = c3 * _INV2
-                    w4 = c4
-                    w5 = c5 * _INV2
-                    w6 = c6 * _INV2
-                    w7 = c7 * _INV3
-                    w8 = c8
-                    w9 = c9 * _INV2
-                    w10 = c10 * _INV2
-                    w11 = c11 * _INV3
-                    w12 = c12 * _INV2
-                    w13 = c13 * _INV3
-                    w14 = c14 * _INV3
-                    w15 = c15 * _INV4
-                    w16 = c16
-                    w17 = c17 * _INV2
-                    w18 = c18 * _INV2
-                    w19 = c19 * _INV3
-                    w20 = c20 * _INV2
-                    w21 = c21 * _INV3
-                    w22 = c22 * _INV3
-                    w23 = c23 * _INV4
-                    w24 = c24 * _INV2
-                    w25 = c25 * _INV3
-                    w26 = c26 * _INV3
-                    w27 = c27 * _INV4
-                    w28 = c28 * _INV3
-                    w29 = c29 * _INV4
-                    w30 = c30 * _INV4
-                    w31 = c31 * _INV5
+                    z_up_1 = z_1 + inc
+                    z_up_2 = _sel(z_up_1 < _1, z_up_1, _1)
+                    z_down_1 = z_1 - dec
+                    z_down_2 = _sel(z_down_1 > _0, z_down_1, _0)
+                    z_2 = z_up_2 if (bel_o >= gamma_o) & (dynamic <= gamma_c) else _sel(dynamic > gamma_c, z_down_2, z_1)
+                    g_1 = c17_2 * z_2
+                    c17_3 = c17_2 - g_1
+                    c1_3 = c1_2 + g_1
+                    g_2 = c18_2 * z_2
+                    c18_3 = c18_2 - g_2
+                    c2_4 = c2_3 + g_2
+                    g_3 = c19_2 * z_2
+                    c19_3 = c19_2 - g_3
+                    c3_3 = c3_2 + g_3
+                    g_4 = c20_2 * z_2
+                    c20_3 = c20_2 - g_4
+                    c4_3 = c4_2 + g_4
+                    g_5 = c21_2 * z_2
+                    c21_3 = c21_2 - g_5
+                    c5_3 = c5_2 + g_5
+                    g_6 = c22_2 * z_2
+                    c22_3 = c22_2 - g_6
+                    c6_3 = c6_2 + g_6
+                    g_7 = c23_2 * z_2
+                    c23_3 = c23_2 - g_7
+                    c7_3 = c7_2 + g_7
+                    g_8 = c24_2 * z_2
+                    c24_3 = c24_2 - g_8
+                    c8_3 = c8_2 + g_8
+                    g_9 = c25_2 * z_2
+                    c25_3 = c25_2 - g_9
+                    c9_3 = c9_2 + g_9
+                    g_10 = c26_2 * z_2
+                    c26_3 = c26_2 - g_10
+                    c10_3 = c10_2 + g_10
+                    g_11 = c27_2 * z_2
+                    c27_3 = c27_2 - g_11
+                    c11_3 = c11_2 + g_11
+                    g_12 = c28_2 * z_2
+                    c28_3 = c28_2 - g_12
+                    c12_3 = c12_2 + g_12
+                    g_13 = c29_2 * z_2
+                    c29_3 = c29_2 - g_13
+                    c13_3 = c13_2 + g_13
+                    g_14 = c30_3 * z_2
+                    c30_4 = c30_3 - g_14
+                    c14_4 = c14_3 + g_14
+                    g_15 = c31_3 * z_2
+                    c31_4 = c31_3 - g_15
+                    c15_3 = c15_2 + g_15
+                    g_16 = c16_3 * z_2
+                    c16_4 = c16_3 - g_16
+                    c8_4 = c8_3 + _sel(to_s, g_16, _0)
+                    c0_4 = c0_3 + _sel(to_s, _0, g_16)
+                    buf[sbase + np.uint64(0 + l)] = c0_4
+                    buf[sbase + np.uint64(272 + l)] = c1_3
+                    buf[sbase + np.uint64(544 + l)] = c2_4
+                    buf[sbase + np.uint64(816 + l)] = c3_3
+                    buf[sbase + np.uint64(1088 + l)] = c4_3
+                    buf[sbase + np.uint64(1360 + l)] = c5_3
+                    buf[sbase + np.uint64(1632 + l)] = c6_3
+                    buf[sbase + np.uint64(1904 + l)] = c7_3
+                    buf[sbase + np.uint64(2176 + l)] = c8_4
+                    buf[sbase + np.uint64(2448 + l)] = c9_3
+                    buf[sbase + np.uint64(2720 + l)] = c10_3
+                    buf[sbase + np.uint64(2992 + l)] = c11_3
+                    buf[sbase + np.uint64(3264 + l)] = c12_3
+                    buf[sbase + np.uint64(3536 + l)] = c13_3
+                    buf[sbase + np.uint64(3808 + l)] = c14_4
+                    buf[sbase + np.uint64(4080 + l)] = c15_3
+                    buf[sbase + np.uint64(4352 + l)] = c16_4
+                    buf[sbase + np.uint64(4624 + l)] = c17_3
+                    buf[sbase + np.uint64(4896 + l)] = c18_3
+                    buf[sbase + np.uint64(5168 + l)] = c19_3
+                    buf[sbase + np.uint64(5440 + l)] = c20_3
+                    buf[sbase + np.uint64(5712 + l)] = c21_3
+                    buf[sbase + np.uint64(5984 + l)] = c22_3
+                    buf[sbase + np.uint64(6256 + l)] = c23_3
+                    buf[sbase + np.uint64(6528 + l)] = c24_3
+                    buf[sbase + np.uint64(6800 + l)] = c25_3
+                    buf[sbase + np.uint64(7072 + l)] = c26_3
+                    buf[sbase + np.uint64(7344 + l)] = c27_3
+                    buf[sbase + np.uint64(7616 + l)] = c28_3
+                    buf[sbase + np.uint64(7888 + l)] = c29_3
+                    buf[sbase + np.uint64(8160 + l)] = c30_4
+                    buf[sbase + np.uint64(8432 + l)] = c31_4
+                    buf[sbase + np.uint64(8704 + l)] = z_2
+                    norm = c1_3 + c2_4 + (c3_3 + c4_3) + (c5_3 + c6_3 + (c7_3 + c8_4)) + (c9_3 + c10_3 + (c11_3 + c12_3) + (c13_3 + c14_4 + (c15_3 + c16_4))) + (c17_3 + c18_3 + (c19_3 + c20_3) + (c21_3 + c22_3 + (c23_3 + c24_3)) + (c25_3 + c26_3 + (c27_3 + c28_3) + (c29_3 + c30_4 + c31_4)))
+                    inv_norm = _sel(norm > tol, _1 / norm, _0)
+                    w1 = c1_3
+                    w2 = c2_4
+                    w3 = c3_3 * _INV2
+                    w4 = c4_3
+                    w5 = c5_3 * _INV2
+                    w6 = c6_3 * _INV2
+                    w7 = c7_3 * _INV3
+                    w8 = c8_4
+                    w9 = c9_3 * _INV2
+                    w10 = c10_3 * _INV2
+                    w11 = c11_3 * _INV3
+                    w12 = c12_3 * _INV2
+                    w13 = c13_3 * _INV3
+                    w14 = c14_4 * _INV3
+                    w15 = c15_3 * _INV4
+                    w16 = c16_4
+                    w17 = c17_3 * _INV2
+                    w18 = c18_3 * _INV2
+                    w19 = c19_3 * _INV3
+                    w20 = c20_3 * _INV2
+                    w21 = c21_3 * _INV3
+                    w22 = c22_3 * _INV3
+                    w23 = c23_3 * _INV4
+                    w24 = c24_3 * _INV2
+                    w25 = c25_3 * _INV3
+                    w26 = c26_3 * _INV3
+                    w27 = c27_3 * _INV4
+                    w28 = c28_3 * _INV3
+                    w29 = c29_3 * _INV4
+                    w30 = c30_4 * _INV4
+                    w31 = c31_4 * _INV5
                     p_f = ((((w1 + w3) + (w5 + w7)) + ((w9 + w11) + (w13 + w15))) + (((w17 + w19) + (w21 + w23)) + ((w25 + w27) + (w29 + w31)))) * inv_norm
                     p_i = ((((w2 + w3) + (w6 + w7)) + ((w10 + w11) + (w14 + w15))) + (((w18 + w19) + (w22 + w23)) + ((w26 + w27) + (w30 + w31)))) * inv_norm
                     p_u = ((((w4 + w5) + (w6 + w7)) + ((w12 + w13) + (w14 + w15))) + (((w20 + w21) + (w22 + w23)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
                     p_s = ((((w8 + w9) + (w10 + w11)) + ((w12 + w13) + (w14 + w15))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
                     p_m = ((((w16 + w17) + (w18 + w19)) + ((w20 + w21) + (w22 + w23))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
                     static = p_i + p_u + p_s
-                    code = c_free
-                    best = p_f
-                    code = c_moving if p_m > best else code
-                    best = p_m if p_m > best else best
-                    is_static = static > best
-                    code = c_static if is_static else code
-                    best = static if is_static else best
-                    fine_code = c_infra
-                    fine_best = p_i
-                    fine_code = c_unmapped if p_u > fine_best else fine_code
-                    fine_best = p_u if p_u > fine_best else fine_best
-                    fine_code = c_stopped if p_s > fine_best else fine_code
-                    fine_best = p_s if p_s > fine_best else fine_best
-                    least = p_i if p_i < p_u else p_u
-                    least = least if least < p_s else p_s
-                    fine_second = static - fine_best - least
-                    fine_ok = (fine_best >= _HALF) & (fine_best >= _HALF * static) & (fine_best - fine_second > _TIE)
-                    code = fine_code if (is_static & fine_ok) else code
-                    code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code
+                    code_1 = c_free
+                    best_1 = p_f
+                    code_2 = _sel(p_m > best_1, c_moving, code_1)
+                    best_2 = _sel(p_m > best_1, p_m, best_1)
+                    is_static = static > best_2
+                    code_3 = _sel(is_static, c_static, code_2)
+                    best_3 = _sel(is_static, static, best_2)
+                    fine_code_1 = c_infra
+                    fine_best_1 = p_i
+                    fine_code_2 = _sel(p_u > fine_best_1, c_unmapped, fine_code_1)
+                    fine_best_2 = _sel(p_u > fine_best_1, p_u, fine_best_1)
+                    fine_code_3 = _sel(p_s > fine_best_2, c_stopped, fine_code_2)
+                    fine_best_3 = _sel(p_s > fine_best_2, p_s, fine_best_2)
+                    least_1 = _sel(p_i < p_u, p_i, p_u)
+                    least_2 = _sel(least_1 < p_s, least_1, p_s)
+                    fine_second = static - fine_best_3 - least_2
+                    fine_ok = (fine_best_3 >= _HALF) & (fine_best_3 >= _HALF * static) & (fine_best_3 - fine_second > _TIE)
+                    code_4 = _sel(is_static & fine_ok, fine_code_3, code_3)
+                    code_5 = _sel((best_3 < min_betp) | (c31_4 > max_ign), c_unknown, code_4)
                     buf[sbase + np.uint64(8976 + l)] = p_f
                     buf[sbase + np.uint64(9248 + l)] = p_i
                     buf[sbase + np.uint64(9520 + l)] = p_u
@@ -1765,93 +1773,93 @@ def step_stored(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ, lab
                     buf[sbase + np.uint64(10064 + l)] = p_m
                     buf[sbase + np.uint64(10336 + l)] = fo
                     buf[sbase + np.uint64(10608 + l)] = of
-                    buf[sbase + np.uint64(10880 + l)] = other
-                    buf[sbase + np.uint64(11152 + l)] = code
-                    focal_lo = (((((_P0 if c0 != _0 else _0) + (_P1 if c1 != _0 else _0)) + ((_P2 if c2 != _0 else _0) + (_P3 if c3 != _0 else _0))) + (((_P4 if c4 != _0 else _0) + (_P5 if c5 != _0 else _0)) + ((_P6 if c6 != _0 else _0) + (_P7 if c7 != _0 else _0)))) + ((((_P8 if c8 != _0 else _0) + (_P9 if c9 != _0 else _0)) + ((_P10 if c10 != _0 else _0) + (_P11 if c11 != _0 else _0))) + (((_P12 if c12 != _0 else _0) + (_P13 if c13 != _0 else _0)) + ((_P14 if c14 != _0 else _0) + (_P15 if c15 != _0 else _0)))))
-                    focal_hi = (((((_P0 if c16 != _0 else _0) + (_P1 if c17 != _0 else _0)) + ((_P2 if c18 != _0 else _0) + (_P3 if c19 != _0 else _0))) + (((_P4 if c20 != _0 else _0) + (_P5 if c21 != _0 else _0)) + ((_P6 if c22 != _0 else _0) + (_P7 if c23 != _0 else _0)))) + ((((_P8 if c24 != _0 else _0) + (_P9 if c25 != _0 else _0)) + ((_P10 if c26 != _0 else _0) + (_P11 if c27 != _0 else _0))) + (((_P12 if c28 != _0 else _0) + (_P13 if c29 != _0 else _0)) + ((_P14 if c30 != _0 else _0) + (_P15 if c31 != _0 else _0)))))
+                    buf[sbase + np.uint64(10880 + l)] = other_2
+                    buf[sbase + np.uint64(11152 + l)] = code_5
+                    focal_lo = _sel(c0_4 != _0, _P0, _0) + _sel(c1_3 != _0, _P1, _0) + (_sel(c2_4 != _0, _P2, _0) + _sel(c3_3 != _0, _P3, _0)) + (_sel(c4_3 != _0, _P4, _0) + _sel(c5_3 != _0, _P5, _0) + (_sel(c6_3 != _0, _P6, _0) + _sel(c7_3 != _0, _P7, _0))) + (_sel(c8_4 != _0, _P8, _0) + _sel(c9_3 != _0, _P9, _0) + (_sel(c10_3 != _0, _P10, _0) + _sel(c11_3 != _0, _P11, _0)) + (_sel(c12_3 != _0, _P12, _0) + _sel(c13_3 != _0, _P13, _0) + (_sel(c14_4 != _0, _P14, _0) + _sel(c15_3 != _0, _P15, _0))))
+                    focal_hi = _sel(c16_4 != _0, _P0, _0) + _sel(c17_3 != _0, _P1, _0) + (_sel(c18_3 != _0, _P2, _0) + _sel(c19_3 != _0, _P3, _0)) + (_sel(c20_3 != _0, _P4, _0) + _sel(c21_3 != _0, _P5, _0) + (_sel(c22_3 != _0, _P6, _0) + _sel(c23_3 != _0, _P7, _0))) + (_sel(c24_3 != _0, _P8, _0) + _sel(c25_3 != _0, _P9, _0) + (_sel(c26_3 != _0, _P10, _0) + _sel(c27_3 != _0, _P11, _0)) + (_sel(c28_3 != _0, _P12, _0) + _sel(c29_3 != _0, _P13, _0) + (_sel(c30_4 != _0, _P14, _0) + _sel(c31_4 != _0, _P15, _0))))
                     buf[sbase + np.uint64(11696 + l)] = focal_lo
                     buf[sbase + np.uint64(11968 + l)] = focal_hi
-                    buf[sbase + np.uint64(11424 + l)] = _1 if ((focal_lo == _0) & (focal_hi == _P15) & (c31 == _1) & (z == _0)) else _0
+                    buf[sbase + np.uint64(11424 + l)] = _sel((focal_lo == _0) & (focal_hi == _P15) & (c31_4 == _1) & (z_2 == _0), _1, _0)
             new_mask = np.uint32(0)
-            for seg in range(2):
-                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                w = a1 - a0
+            for seg_9 in range(2):
+                a0 = _sel(seg_9 == 0, j0 + l0, max(j0 + l0, wrap))
+                a1_9 = _sel(seg_9 == 0, min(j0 + l1, wrap), j0 + l1)
+                w = a1_9 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_9 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        v = np.uint32(buf[np.uint64((43) * STRIDE + lb) + np.uint64(t)])
-                        v |= np.uint32(buf[np.uint64((44) * STRIDE + lb) + np.uint64(t)]) << np.uint32(16)
-                        fc[sc + np.uint64(t)] = v
-                        new_mask |= v
+                    for t_126 in range(w):
+                        v_1 = np.uint32(buf[np.uint64(43 * STRIDE + lb) + np.uint64(t_126)])
+                        v_2 = v_1 | np.uint32(buf[np.uint64(44 * STRIDE + lb) + np.uint64(t_126)]) << np.uint32(16)
+                        fc[sc + np.uint64(t_126)] = v_2
+                        new_mask |= v_2
             write_mask = old_mask | new_mask
             # planes the body may have left non-zero in some lane of the buffer (all when it ran
             # past l1, on lanes whose stale inputs are not known)
-            dirty |= new_mask if l1 % SUB == 0 else _ALL_PLANES
-            for a in range(32):
-                if (write_mask >> np.uint32(a)) & _ONE:
-                    for seg in range(2):
-                        a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                        a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                        w = a1 - a0
+            dirty |= _sel(l1 % SUB == 0, new_mask, _ALL_PLANES)
+            for a_7 in range(32):
+                if (write_mask >> np.uint32(a_7)) & _ONE:
+                    for seg_10 in range(2):
+                        a0 = _sel(seg_10 == 0, j0 + l0, max(j0 + l0, wrap))
+                        a1_10 = _sel(seg_10 == 0, min(j0 + l1, wrap), j0 + l1)
+                        w = a1_10 - a0
                         if w > 0:
-                            sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                            sc = np.uint64(rb + a0 + _sel(seg_10 == 0, off_c, off_c - cols))
                             lb = a0 - j0
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = buf[np.uint64((0 + a) * STRIDE + lb) + np.uint64(t)]
-            for seg in range(2):
-                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                w = a1 - a0
+                            for t_127 in range(w):
+                                st[np.uint64(a_7), sc + np.uint64(t_127)] = buf[np.uint64((0 + a_7) * STRIDE + lb) + np.uint64(t_127)]
+            for seg_11 in range(2):
+                a0 = _sel(seg_11 == 0, j0 + l0, max(j0 + l0, wrap))
+                a1_11 = _sel(seg_11 == 0, min(j0 + l1, wrap), j0 + l1)
+                w = a1_11 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_11 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        zt[sc + np.uint64(t)] = buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)]
-                    for t in range(w):
-                        fl[sc + np.uint64(t)] = np.uint8(buf[np.uint64((42) * STRIDE + lb) + np.uint64(t)])
-            for q0 in range(0, n, TILE):
-                q1 = min(n, q0 + TILE)
-                c0 = min(max(l0, q0), q1)  # [c0, c1): the tile's computed lanes
-                c1 = max(min(l1, q1), c0)
-                tile_mask = _OMEGA_BIT if (c0 > q0 or c1 < q1) else np.uint32(0)
-                for t in range(c0, c1):
-                    tile_mask |= np.uint32(buf[np.uint64((43) * STRIDE + 0) + np.uint64(t)]) | (np.uint32(buf[np.uint64((44) * STRIDE + 0) + np.uint64(t)]) << np.uint32(16))
-                qt[tile + np.uint64(q0 // TILE)] = tile_mask
-                for a in range(32):
-                    if (tile_mask >> np.uint32(a)) & _ONE:
-                        value = np.uint8(255) if a == 31 else np.uint8(0)
-                        for t in range(q0, c0):
-                            qr[pos + np.uint64(t - q0)] = value
-                        pl = pos + np.uint64(c0 - q0)
-                        for t in range(c1 - c0):
-                            v = buf[np.uint64((0 + a) * STRIDE + c0) + np.uint64(t)]
-                            v = v if v > _0 else _0
-                            v = v if v < _1 else _1
-                            qr[pl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
-                        for t in range(c1, q1):
-                            qr[pos + np.uint64(t - q0)] = value
-                        pos += np.uint64(q1 - q0)
-            for k in range(5):
-                for t in range(l1 - l0):
-                    v = buf[np.uint64((33 + k) * STRIDE + l0) + np.uint64(t)]
-                    v = v if v > _0 else _0
-                    v = v if v < _1 else _1
-                    qb[np.uint64(k), wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
-            for k in range(3):
-                for t in range(l1 - l0):
-                    v = buf[np.uint64((38 + k) * STRIDE + l0) + np.uint64(t)]
-                    v = v if v > _0 else _0
-                    v = v if v < _1 else _1
-                    qc[np.uint64(k), wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
-            for t in range(l1 - l0):
-                v = buf[np.uint64((32) * STRIDE + l0) + np.uint64(t)]
-                v = v if v > _0 else _0
-                v = v if v < _1 else _1
-                qz[wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
-            for t in range(l1 - l0):
-                qd[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * STRIDE + l0) + np.uint64(t)])
+                    for t_128 in range(w):
+                        zt[sc + np.uint64(t_128)] = buf[np.uint64(32 * STRIDE + lb) + np.uint64(t_128)]
+                    for t_129 in range(w):
+                        fl[sc + np.uint64(t_129)] = np.uint8(buf[np.uint64(42 * STRIDE + lb) + np.uint64(t_129)])
+            for q0_2 in range(0, n, TILE):
+                q1 = min(n, q0_2 + TILE)
+                lane0 = min(max(l0, q0_2), q1)  # [lane0, lane1): the tile's computed lanes
+                lane1 = max(min(l1, q1), lane0)
+                tile_mask = _sel(lane0 > q0_2 or lane1 < q1, _OMEGA_BIT, np.uint32(0))
+                for t_130 in range(lane0, lane1):
+                    tile_mask |= np.uint32(buf[np.uint64(43 * STRIDE + 0) + np.uint64(t_130)]) | np.uint32(buf[np.uint64(44 * STRIDE + 0) + np.uint64(t_130)]) << np.uint32(16)
+                qt[tile + np.uint64(q0_2 // TILE)] = tile_mask
+                for a_8 in range(32):
+                    if (tile_mask >> np.uint32(a_8)) & _ONE:
+                        value = _sel(a_8 == 31, np.uint8(255), np.uint8(0))
+                        for t_131 in range(q0_2, lane0):
+                            qr[pos + np.uint64(t_131 - q0_2)] = value
+                        pl = pos + np.uint64(lane0 - q0_2)
+                        for t_132 in range(lane1 - lane0):
+                            v_3 = buf[np.uint64((0 + a_8) * STRIDE + lane0) + np.uint64(t_132)]
+                            v_4 = _sel(v_3 > _0, v_3, _0)
+                            v_5 = _sel(v_4 < _1, v_4, _1)
+                            qr[pl + np.uint64(t_132)] = np.uint8(np.int32(v_5 * _255 + _HALF))
+                        for t_133 in range(lane1, q1):
+                            qr[pos + np.uint64(t_133 - q0_2)] = value
+                        pos += np.uint64(q1 - q0_2)
+            for k_5 in range(5):
+                for t_134 in range(l1 - l0):
+                    v_6 = buf[np.uint64((33 + k_5) * STRIDE + l0) + np.uint64(t_134)]
+                    v_7 = _sel(v_6 > _0, v_6, _0)
+                    v_8 = _sel(v_7 < _1, v_7, _1)
+                    qb[np.uint64(k_5), wl + np.uint64(t_134)] = np.uint8(np.int32(v_8 * _255 + _HALF))
+            for k_6 in range(3):
+                for t_135 in range(l1 - l0):
+                    v_9 = buf[np.uint64((38 + k_6) * STRIDE + l0) + np.uint64(t_135)]
+                    v_10 = _sel(v_9 > _0, v_9, _0)
+                    v_11 = _sel(v_10 < _1, v_10, _1)
+                    qc[np.uint64(k_6), wl + np.uint64(t_135)] = np.uint8(np.int32(v_11 * _255 + _HALF))
+            for t_136 in range(l1 - l0):
+                v_12 = buf[np.uint64(32 * STRIDE + l0) + np.uint64(t_136)]
+                v_13 = _sel(v_12 > _0, v_12, _0)
+                v_14 = _sel(v_13 < _1, v_13, _1)
+                qz[wl + np.uint64(t_136)] = np.uint8(np.int32(v_14 * _255 + _HALF))
+            for t_137 in range(l1 - l0):
+                qd[wl + np.uint64(t_137)] = np.uint8(buf[np.uint64(41 * STRIDE + l0) + np.uint64(t_137)])
         if r == min(rows, (chunk + 1) * band_rows) - 1:
             chunk_ends[chunk] = np.int64(pos)
     if bands == 1:
@@ -1884,9 +1892,9 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
         chunk = r // band_rows
         if chunk % bands != band:
             continue
-        buf_row = r + off_r
-        buf_row = buf_row - rows if buf_row >= rows else buf_row
-        rb = buf_row * cols
+        buf_row_1 = r + off_r
+        buf_row_2 = _sel(buf_row_1 >= rows, buf_row_1 - rows, buf_row_1)
+        rb = buf_row_2 * cols
         lo = min(max(-dc_, 0), cols)
         hi = max(min(cols - dc_, cols), lo)
         if r + dr < 0 or r + dr >= rows:
@@ -1900,22 +1908,22 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
             l0 = 0
             l1 = n
             if may_skip:
-                for t in range(n):
-                    act[t] = 1  # cells entering the window are vacuous
-                for seg in range(2):
-                    a0 = s0 if seg == 0 else max(s0, wrap)
-                    a1 = min(s1, wrap) if seg == 0 else s1
-                    w = a1 - a0
+                for t_1 in range(n):
+                    act[t_1] = 1  # cells entering the window are vacuous
+                for seg_1 in range(2):
+                    a0 = _sel(seg_1 == 0, s0, max(s0, wrap))
+                    a1_1 = _sel(seg_1 == 0, min(s1, wrap), s1)
+                    w = a1_1 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_1 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for t in range(w):
-                            act[np.uint64(lb) + np.uint64(t)] = fl[sc + np.uint64(t)]
-                for t in range(n):
-                    act[t] = act[t] & np.uint8((fr[wb + np.uint64(t)] == _0) & (oc[wb + np.uint64(t)] == _0))
+                        for t_2 in range(w):
+                            act[np.uint64(lb) + np.uint64(t_2)] = fl[sc + np.uint64(t_2)]
+                for t_3 in range(n):
+                    act[t_3] = act[t_3] & np.uint8((fr[wb + np.uint64(t_3)] == _0) & (oc[wb + np.uint64(t_3)] == _0))
                 idle = 0
-                for t in range(n):
-                    idle += np.int32(act[t])
+                for t_4 in range(n):
+                    idle += np.int32(act[t_4])
                 if idle == n:  # the whole block stays vacuous
                     l0 = l1 = n
                 while l0 < n and act[l0] == 1:
@@ -1928,1088 +1936,1088 @@ def step_float_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ,
             if l1 <= l0:
                 l0 = l1 = n
             if l0 > 0:
-                for seg in range(2):
-                    a0 = j0 + 0 if seg == 0 else max(j0 + 0, wrap)
-                    a1 = min(min(s0, j0 + l0), wrap) if seg == 0 else min(s0, j0 + l0)
-                    w = a1 - a0
+                for seg_2 in range(2):
+                    a0 = _sel(seg_2 == 0, j0 + 0, max(j0 + 0, wrap))
+                    a1_2 = _sel(seg_2 == 0, min(min(s0, j0 + l0), wrap), min(s0, j0 + l0))
+                    w = a1_2 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_2 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
-                for seg in range(2):
-                    a0 = max(s1, j0 + 0) if seg == 0 else max(max(s1, j0 + 0), wrap)
-                    a1 = min(j0 + l0, wrap) if seg == 0 else j0 + l0
-                    w = a1 - a0
+                        for a_1 in range(31):
+                            for t_5 in range(w):
+                                st[np.uint64(a_1), sc + np.uint64(t_5)] = _0
+                        for t_6 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_6)] = _1
+                        for t_7 in range(w):
+                            zt[sc + np.uint64(t_7)] = _0
+                        for t_8 in range(w):
+                            fl[sc + np.uint64(t_8)] = np.uint8(1)
+                        for t_9 in range(w):
+                            fc[sc + np.uint64(t_9)] = _OMEGA_BIT
+                for seg_3 in range(2):
+                    a0 = _sel(seg_3 == 0, max(s1, j0 + 0), max(max(s1, j0 + 0), wrap))
+                    a1_3 = _sel(seg_3 == 0, min(j0 + l0, wrap), j0 + l0)
+                    w = a1_3 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_3 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                        for a_2 in range(31):
+                            for t_10 in range(w):
+                                st[np.uint64(a_2), sc + np.uint64(t_10)] = _0
+                        for t_11 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_11)] = _1
+                        for t_12 in range(w):
+                            zt[sc + np.uint64(t_12)] = _0
+                        for t_13 in range(w):
+                            fl[sc + np.uint64(t_13)] = np.uint8(1)
+                        for t_14 in range(w):
+                            fc[sc + np.uint64(t_14)] = _OMEGA_BIT
                 ws = wb + np.uint64(0)
-                for k in range(5):
-                    for t in range(l0 - 0):
-                        bp[np.uint64(k), ws + np.uint64(t)] = _INV5
-                for k in range(3):
-                    for t in range(l0 - 0):
-                        cf[np.uint64(k), ws + np.uint64(t)] = _0
-                for t in range(l0 - 0):
-                    dc[ws + np.uint64(t)] = vac_code
+                for k_1 in range(5):
+                    for t_15 in range(l0 - 0):
+                        bp[np.uint64(k_1), ws + np.uint64(t_15)] = _INV5
+                for k_2 in range(3):
+                    for t_16 in range(l0 - 0):
+                        cf[np.uint64(k_2), ws + np.uint64(t_16)] = _0
+                for t_17 in range(l0 - 0):
+                    dc[ws + np.uint64(t_17)] = vac_code
             if l1 < n:
-                for seg in range(2):
-                    a0 = j0 + l1 if seg == 0 else max(j0 + l1, wrap)
-                    a1 = min(min(s0, j0 + n), wrap) if seg == 0 else min(s0, j0 + n)
-                    w = a1 - a0
+                for seg_4 in range(2):
+                    a0 = _sel(seg_4 == 0, j0 + l1, max(j0 + l1, wrap))
+                    a1_4 = _sel(seg_4 == 0, min(min(s0, j0 + n), wrap), min(s0, j0 + n))
+                    w = a1_4 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_4 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
-                for seg in range(2):
-                    a0 = max(s1, j0 + l1) if seg == 0 else max(max(s1, j0 + l1), wrap)
-                    a1 = min(j0 + n, wrap) if seg == 0 else j0 + n
-                    w = a1 - a0
+                        for a_3 in range(31):
+                            for t_18 in range(w):
+                                st[np.uint64(a_3), sc + np.uint64(t_18)] = _0
+                        for t_19 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_19)] = _1
+                        for t_20 in range(w):
+                            zt[sc + np.uint64(t_20)] = _0
+                        for t_21 in range(w):
+                            fl[sc + np.uint64(t_21)] = np.uint8(1)
+                        for t_22 in range(w):
+                            fc[sc + np.uint64(t_22)] = _OMEGA_BIT
+                for seg_5 in range(2):
+                    a0 = _sel(seg_5 == 0, max(s1, j0 + l1), max(max(s1, j0 + l1), wrap))
+                    a1_5 = _sel(seg_5 == 0, min(j0 + n, wrap), j0 + n)
+                    w = a1_5 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_5 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                        for a_4 in range(31):
+                            for t_23 in range(w):
+                                st[np.uint64(a_4), sc + np.uint64(t_23)] = _0
+                        for t_24 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_24)] = _1
+                        for t_25 in range(w):
+                            zt[sc + np.uint64(t_25)] = _0
+                        for t_26 in range(w):
+                            fl[sc + np.uint64(t_26)] = np.uint8(1)
+                        for t_27 in range(w):
+                            fc[sc + np.uint64(t_27)] = _OMEGA_BIT
                 ws = wb + np.uint64(l1)
-                for k in range(5):
-                    for t in range(n - l1):
-                        bp[np.uint64(k), ws + np.uint64(t)] = _INV5
-                for k in range(3):
-                    for t in range(n - l1):
-                        cf[np.uint64(k), ws + np.uint64(t)] = _0
-                for t in range(n - l1):
-                    dc[ws + np.uint64(t)] = vac_code
+                for k_3 in range(5):
+                    for t_28 in range(n - l1):
+                        bp[np.uint64(k_3), ws + np.uint64(t_28)] = _INV5
+                for k_4 in range(3):
+                    for t_29 in range(n - l1):
+                        cf[np.uint64(k_4), ws + np.uint64(t_29)] = _0
+                for t_30 in range(n - l1):
+                    dc[ws + np.uint64(t_30)] = vac_code
             if l1 <= l0:
                 continue
             old_mask = np.uint32(0)
-            for seg in range(2):
-                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                w = a1 - a0
+            for seg_6 in range(2):
+                a0 = _sel(seg_6 == 0, j0 + l0, max(j0 + l0, wrap))
+                a1_6 = _sel(seg_6 == 0, min(j0 + l1, wrap), j0 + l1)
+                w = a1_6 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_6 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        old_mask |= fc[sc + np.uint64(t)]
+                    for t_31 in range(w):
+                        old_mask |= fc[sc + np.uint64(t_31)]
             entering = s0 > j0 + l0 or s1 < j0 + l1
             if entering:  # some lanes entered the window: vacuous
-                for a in range(31):
-                    for t in range(l1 - l0):
-                        buf[np.uint64((a) * STRIDE + l0) + np.uint64(t)] = _0
-                for t in range(l1 - l0):
-                    buf[np.uint64((31) * STRIDE + l0) + np.uint64(t)] = _1
-                for t in range(l1 - l0):
-                    buf[np.uint64((32) * STRIDE + l0) + np.uint64(t)] = _0
-            for a in range(32):
-                if (old_mask >> np.uint32(a)) & _ONE:
-                    for seg in range(2):
-                        a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
-                        a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
-                        w = a1 - a0
+                for a_5 in range(31):
+                    for t_32 in range(l1 - l0):
+                        buf[np.uint64(a_5 * STRIDE + l0) + np.uint64(t_32)] = _0
+                for t_33 in range(l1 - l0):
+                    buf[np.uint64(31 * STRIDE + l0) + np.uint64(t_33)] = _1
+                for t_34 in range(l1 - l0):
+                    buf[np.uint64(32 * STRIDE + l0) + np.uint64(t_34)] = _0
+            for a_6 in range(32):
+                if (old_mask >> np.uint32(a_6)) & _ONE:
+                    for seg_7 in range(2):
+                        a0 = _sel(seg_7 == 0, max(s0, j0 + l0), max(max(s0, j0 + l0), wrap))
+                        a1_7 = _sel(seg_7 == 0, min(min(s1, j0 + l1), wrap), min(s1, j0 + l1))
+                        w = a1_7 - a0
                         if w > 0:
-                            sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                            sc = np.uint64(rb + a0 + _sel(seg_7 == 0, off_c, off_c - cols))
                             lb = a0 - j0
-                            for t in range(w):
-                                buf[np.uint64((a) * STRIDE + lb) + np.uint64(t)] = st[np.uint64(a), sc + np.uint64(t)]
-                elif not entering and (dirty >> np.uint32(a)) & _ONE:
-                    for t in range(BLOCK):
-                        buf[np.uint64((a) * STRIDE + 0) + np.uint64(t)] = _0
-                    dirty &= ~(_ONE << np.uint32(a))
+                            for t_35 in range(w):
+                                buf[np.uint64(a_6 * STRIDE + lb) + np.uint64(t_35)] = st[np.uint64(a_6), sc + np.uint64(t_35)]
+                elif not entering and (dirty >> np.uint32(a_6)) & _ONE:
+                    for t_36 in range(BLOCK):
+                        buf[np.uint64(a_6 * STRIDE + 0) + np.uint64(t_36)] = _0
+                    dirty &= ~(_ONE << np.uint32(a_6))
             dirty |= old_mask
-            for seg in range(2):
-                a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
-                a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
-                w = a1 - a0
+            for seg_8 in range(2):
+                a0 = _sel(seg_8 == 0, max(s0, j0 + l0), max(max(s0, j0 + l0), wrap))
+                a1_8 = _sel(seg_8 == 0, min(min(s1, j0 + l1), wrap), min(s1, j0 + l1))
+                w = a1_8 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_8 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)] = zt[sc + np.uint64(t)]
+                    for t_37 in range(w):
+                        buf[np.uint64(32 * STRIDE + lb) + np.uint64(t_37)] = zt[sc + np.uint64(t_37)]
             wl = wb + np.uint64(l0)
-            for t in range(l1 - l0):
-                buf[np.uint64((33) * STRIDE + l0) + np.uint64(t)] = fr[wl + np.uint64(t)]
-            for t in range(l1 - l0):
-                buf[np.uint64((34) * STRIDE + l0) + np.uint64(t)] = oc[wl + np.uint64(t)]
-            for t in range(l1 - l0):
-                buf[np.uint64((35) * STRIDE + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
-            for t in range(l1 - l0):
-                buf[np.uint64((36) * STRIDE + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
-            for t in range(l1 - l0):
-                buf[np.uint64((37) * STRIDE + l0) + np.uint64(t)] = np.float32(gate_f[wl + np.uint64(t)])
+            for t_38 in range(l1 - l0):
+                buf[np.uint64(33 * STRIDE + l0) + np.uint64(t_38)] = fr[wl + np.uint64(t_38)]
+            for t_39 in range(l1 - l0):
+                buf[np.uint64(34 * STRIDE + l0) + np.uint64(t_39)] = oc[wl + np.uint64(t_39)]
+            for t_40 in range(l1 - l0):
+                buf[np.uint64(35 * STRIDE + l0) + np.uint64(t_40)] = np.float32(lbl[wl + np.uint64(t_40)])
+            for t_41 in range(l1 - l0):
+                buf[np.uint64(36 * STRIDE + l0) + np.uint64(t_41)] = np.float32(obs_f[wl + np.uint64(t_41)])
+            for t_42 in range(l1 - l0):
+                buf[np.uint64(37 * STRIDE + l0) + np.uint64(t_42)] = np.float32(gate_f[wl + np.uint64(t_42)])
             zero_planes = old_mask & ROAD_ZERO_MASK
             for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):
                 sbase = np.uint64(sub * SUB)
-                other = np.uint8(0)  # a building lane or mass on ROAD_ZERO
-                for l in range(SUB):
-                    other |= np.uint8(buf[sbase + np.uint64(9520 + l)] == _2)
-                if other == 0 and zero_planes != 0:
-                    for a in range(32):
-                        if (zero_planes >> np.uint32(a)) & _ONE:
-                            for l in range(SUB):
-                                other |= np.uint8(buf[sbase + np.uint64(a) * np.uint64(STRIDE) + np.uint64(l)] != _0)
-                if other == 0:
-                    for l in range(SUB):
-                        m0 = buf[sbase + np.uint64(0 + l)]
-                        m1 = buf[sbase + np.uint64(272 + l)]
-                        m2 = _0
-                        m3 = _0
-                        m4 = buf[sbase + np.uint64(1088 + l)]
-                        m5 = buf[sbase + np.uint64(1360 + l)]
-                        m6 = _0
-                        m7 = _0
-                        m8 = buf[sbase + np.uint64(2176 + l)]
-                        m9 = buf[sbase + np.uint64(2448 + l)]
-                        m10 = _0
-                        m11 = _0
-                        m12 = buf[sbase + np.uint64(3264 + l)]
-                        m13 = buf[sbase + np.uint64(3536 + l)]
-                        m14 = buf[sbase + np.uint64(3808 + l)]
-                        m15 = buf[sbase + np.uint64(4080 + l)]
-                        m16 = buf[sbase + np.uint64(4352 + l)]
-                        m17 = buf[sbase + np.uint64(4624 + l)]
-                        m18 = _0
-                        m19 = _0
-                        m20 = buf[sbase + np.uint64(5440 + l)]
-                        m21 = buf[sbase + np.uint64(5712 + l)]
-                        m22 = _0
-                        m23 = _0
-                        m24 = buf[sbase + np.uint64(6528 + l)]
-                        m25 = buf[sbase + np.uint64(6800 + l)]
-                        m26 = _0
-                        m27 = _0
-                        m28 = buf[sbase + np.uint64(7616 + l)]
-                        m29 = buf[sbase + np.uint64(7888 + l)]
-                        m30 = buf[sbase + np.uint64(8160 + l)]
-                        m31 = buf[sbase + np.uint64(8432 + l)]
-                        z = buf[sbase + np.uint64(8704 + l)]
-                        f = buf[sbase + np.uint64(8976 + l)]
-                        o = buf[sbase + np.uint64(9248 + l)]
-                        u = _1 - f - o
-                        lab = buf[sbase + np.uint64(9520 + l)]
-                        ob = buf[sbase + np.uint64(9792 + l)]
-                        gt = buf[sbase + np.uint64(10064 + l)]
-                        obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
-                        is_b = False
-                        is_r = lab == _1
-                        is_o = lab == _0
-                        beta = beta_b if is_b else (beta_r if is_r else (beta_o if is_o else _0))
-                        beta = beta if (obs | everywhere) else _0
-                        e = beta * f if is_b else _0
-                        kept = _1 - e
-                        total = kept <= tol
-                        beta = _0 if total else beta
-                        e = _0 if total else e
-                        kept = _1 if total else kept
-                        inv_kept = _1 / kept
-                        bb = beta if is_b else _0
-                        br = beta if is_r else _0
-                        bo = beta if is_o else _0
-                        t = a_f * m0
-                        m1 += t
-                        m0 -= t
-                        t = a_f * m4
-                        m5 += t
-                        m4 -= t
-                        t = a_f * m8
-                        m9 += t
-                        m8 -= t
-                        t = a_f * m12
-                        m13 += t
-                        m12 -= t
-                        t = a_f * m14
-                        m15 += t
-                        m14 -= t
-                        t = a_f * m16
-                        m17 += t
-                        m16 -= t
-                        t = a_f * m20
-                        m21 += t
-                        m20 -= t
-                        t = a_f * m24
-                        m25 += t
-                        m24 -= t
-                        t = a_f * m28
-                        m29 += t
-                        m28 -= t
-                        t = a_f * m30
-                        m31 += t
-                        m30 -= t
-                        t = a_u * m0
-                        m4 += t
-                        m0 -= t
-                        t = a_u * m1
-                        m5 += t
-                        m1 -= t
-                        t = a_u * m8
-                        m12 += t
-                        m8 -= t
-                        t = a_u * m9
-                        m13 += t
-                        m9 -= t
-                        t = a_u * m16
-                        m20 += t
-                        m16 -= t
-                        t = a_u * m17
-                        m21 += t
-                        m17 -= t
-                        t = a_u * m24
-                        m28 += t
-                        m24 -= t
-                        t = a_u * m25
-                        m29 += t
-                        m25 -= t
-                        t = a_s * m0
-                        m8 += t
-                        m0 -= t
-                        t = a_s * m1
-                        m9 += t
-                        m1 -= t
-                        t = a_s * m4
-                        m12 += t
-                        m4 -= t
-                        t = a_s * m5
-                        m13 += t
-                        m5 -= t
-                        t = a_s * m16
-                        m24 += t
-                        m16 -= t
-                        t = a_s * m17
-                        m25 += t
-                        m17 -= t
-                        t = a_s * m20
-                        m28 += t
-                        m20 -= t
-                        t = a_s * m21
-                        m29 += t
-                        m21 -= t
-                        t = a_m * m0
-                        m16 += t
-                        m0 -= t
-                        t = a_m * m1
-                        m17 += t
-                        m1 -= t
-                        t = a_m * m4
-                        m20 += t
-                        m4 -= t
-                        t = a_m * m5
-                        m21 += t
-                        m5 -= t
-                        t = a_m * m8
-                        m24 += t
-                        m8 -= t
-                        t = a_m * m9
-                        m25 += t
-                        m9 -= t
-                        t = a_m * m12
-                        m28 += t
-                        m12 -= t
-                        t = a_m * m13
-                        m29 += t
-                        m13 -= t
-                        t = a_m * m14
-                        m30 += t
-                        m14 -= t
-                        t = a_m * m15
-                        m31 += t
-                        m15 -= t
-                        s_f = ((((m1 + m3) + (m5 + m7)) + ((m9 + m11) + (m13 + m15))) + (((m17 + m19) + (m21 + m23)) + ((m25 + m27) + (m29 + m31))))
-                        s_nf = ((((m0 + m2) + (m4 + m6)) + ((m8 + m10) + (m12 + m14))) + (((m16 + m18) + (m20 + m22)) + ((m24 + m26) + (m28 + m30))))
-                        dn0 = u * m0 + o * (m0 + m1)
-                        dn1 = u * m1
-                        d0 = dn0 + f * s_nf
-                        d1 = dn1 + f * s_f
-                        kf = _1 if (gate_off | (gt != _0) | (not faded_o)) else _0
-                        d2 = _0
-                        d3 = _0
-                        d4 = u * m4 + o * (m4 + kf * m5)
-                        d5 = u * m5
-                        d6 = _0
-                        d7 = _0
-                        d8 = u * m8 + o * (m8 + kf * m9)
-                        d9 = u * m9
-                        d10 = _0
-                        d11 = _0
-                        d12 = u * m12 + o * (m12 + kf * m13)
-                        d13 = u * m13
-                        d14 = u * m14 + o * (m14 + kf * m15)
-                        d15 = u * m15
-                        d16 = u * m16 + o * (m16 + kf * m17)
-                        d17 = u * m17
-                        d18 = _0
-                        d19 = _0
-                        d20 = u * m20 + o * (m20 + kf * m21)
-                        d21 = u * m21
-                        d22 = _0
-                        d23 = _0
-                        d24 = u * m24 + o * (m24 + kf * m25)
-                        d25 = u * m25
-                        d26 = _0
-                        d27 = _0
-                        d28 = u * m28 + o * (m28 + kf * m29)
-                        d29 = u * m29
-                        d31 = u * m31
-                        d30 = u * m30 + o * (m30 + m31 + (_1 - kf) * (((m5 + m9) + (m13 + m15)) + ((m17 + m21) + (m25 + m29))))
-                        keep_d = _1 - beta
-                        c0 = (keep_d * d0 + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
-                        c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
-                        c2 = _0
-                        c3 = _0
-                        c4 = (keep_d * d4 + bo * (d4 + d6)) * inv_kept
-                        c5 = (keep_d * d5 + bo * (d5 + d7)) * inv_kept
-                        c6 = _0
-                        c7 = _0
-                        c8 = (keep_d * d8 + br * ((d8 + d10) + (d12 + d14)) + bo * (d8 + d10)) * inv_kept
-                        c9 = (keep_d * d9 + br * ((d9 + d11) + (d13 + d15)) + bo * (d9 + d11)) * inv_kept
-                        c10 = _0
-                        c11 = _0
-                        c12 = (keep_d * d12 + bo * (d12 + d14)) * inv_kept
-                        c13 = (keep_d * d13 + bo * (d13 + d15)) * inv_kept
-                        c14 = (keep_d * d14) * inv_kept
-                        c15 = (keep_d * d15) * inv_kept
-                        c16 = (keep_d * d16 + br * ((d16 + d18) + (d20 + d22)) + bo * (d16 + d18)) * inv_kept
-                        c17 = (keep_d * d17 + br * ((d17 + d19) + (d21 + d23)) + bo * (d17 + d19)) * inv_kept
-                        c18 = _0
-                        c19 = _0
-                        c20 = (keep_d * d20 + bo * (d20 + d22)) * inv_kept
-                        c21 = (keep_d * d21 + bo * (d21 + d23)) * inv_kept
-                        c22 = _0
-                        c23 = _0
-                        c24 = (keep_d * d24 + br * ((d24 + d26) + (d28 + d30)) + bo * (d24 + d26)) * inv_kept
-                        c25 = (keep_d * d25 + br * ((d25 + d27) + (d29 + d31)) + bo * (d25 + d27)) * inv_kept
-                        c26 = _0
-                        c27 = _0
-                        c28 = (keep_d * d28 + bo * (d28 + d30)) * inv_kept
-                        c29 = (keep_d * d29 + bo * (d29 + d31)) * inv_kept
-                        c30 = (keep_d * d30) * inv_kept
-                        c31 = (keep_d * d31) * inv_kept
-                        sg_free = f * (_1 - bb) * inv_kept
-                        sg_bel_o = (o + u * bb) * inv_kept
-                        pg_bel_o = ((((m2 + m4) + (m6 + m8)) + ((m10 + m12) + (m14 + m16))) + (((m18 + m20) + (m22 + m24)) + ((m26 + m28) + m30)))
-                        fo = m1 * sg_bel_o
-                        of = pg_bel_o * sg_free
-                        other = c0 - fo - of
-                        other = other if other > _0 else _0
-                        fo_m = fo if (gate_off | (gt != _0)) else _0
-                        fo_c = _0 if (gate_off | (gt != _0)) else fo
-                        c0 = other if residual == 1 else _0
-                        c16 += fo_m
-                        c30 += fo_c if closed_o else _0
-                        c14 += _0 if closed_o else fo_c
-                        c31 += of + (other if residual == 0 else _0)
-                        bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
-                        dynamic = fo_m + of
-                        z_up = z + inc
-                        z_up = z_up if z_up < _1 else _1
-                        z_down = z - dec
-                        z_down = z_down if z_down > _0 else _0
-                        z = z_up if ((bel_o >= gamma_o) & (dynamic <= gamma_c)) else (z_down if dynamic > gamma_c else z)
-                        g = c17 * z
-                        c17 -= g
-                        c1 += g
-                        g = c20 * z
-                        c20 -= g
-                        c4 += g
-                        g = c21 * z
-                        c21 -= g
-                        c5 += g
-                        g = c24 * z
-                        c24 -= g
-                        c8 += g
-                        g = c25 * z
-                        c25 -= g
-                        c9 += g
-                        g = c28 * z
-                        c28 -= g
-                        c12 += g
-                        g = c29 * z
-                        c29 -= g
-                        c13 += g
-                        g = c30 * z
-                        c30 -= g
-                        c14 += g
-                        g = c31 * z
-                        c31 -= g
-                        c15 += g
-                        g = c16 * z
-                        c16 -= g
-                        c8 += g if to_s else _0
-                        c0 += _0 if to_s else g
-                        buf[sbase + np.uint64(0 + l)] = c0
-                        buf[sbase + np.uint64(272 + l)] = c1
-                        buf[sbase + np.uint64(1088 + l)] = c4
-                        buf[sbase + np.uint64(1360 + l)] = c5
-                        buf[sbase + np.uint64(2176 + l)] = c8
-                        buf[sbase + np.uint64(2448 + l)] = c9
-                        buf[sbase + np.uint64(3264 + l)] = c12
-                        buf[sbase + np.uint64(3536 + l)] = c13
-                        buf[sbase + np.uint64(3808 + l)] = c14
-                        buf[sbase + np.uint64(4080 + l)] = c15
-                        buf[sbase + np.uint64(4352 + l)] = c16
-                        buf[sbase + np.uint64(4624 + l)] = c17
-                        buf[sbase + np.uint64(5440 + l)] = c20
-                        buf[sbase + np.uint64(5712 + l)] = c21
-                        buf[sbase + np.uint64(6528 + l)] = c24
-                        buf[sbase + np.uint64(6800 + l)] = c25
-                        buf[sbase + np.uint64(7616 + l)] = c28
-                        buf[sbase + np.uint64(7888 + l)] = c29
-                        buf[sbase + np.uint64(8160 + l)] = c30
-                        buf[sbase + np.uint64(8432 + l)] = c31
-                        buf[sbase + np.uint64(8704 + l)] = z
-                        norm = (((((c1 + c2) + (c3 + c4)) + ((c5 + c6) + (c7 + c8))) + (((c9 + c10) + (c11 + c12)) + ((c13 + c14) + (c15 + c16)))) + ((((c17 + c18) + (c19 + c20)) + ((c21 + c22) + (c23 + c24))) + (((c25 + c26) + (c27 + c28)) + ((c29 + c30) + c31))))
-                        inv_norm = (_1 / norm) if norm > tol else _0
-                        w1 = c1
-                        w2 = c2
-                        w3 = c3 * _INV2
-                        w4 = c4
-                        w5 = c5 * _INV2
-                        w6 = c6 * _INV2
-                        w7 = c7 * _INV3
-                        w8 = c8
-                        w9 = c9 * _INV2
-                        w10 = c10 * _INV2
-                        w11 = c11 * _INV3
-                        w12 = c12 * _INV2
-                        w13 = c13 * _INV3
-                        w14 = c14 * _INV3
-                        w15 = c15 * _INV4
-                        w16 = c16
-                        w17 = c17 * _INV2
-                        w18 = c18 * _INV2
-                        w19 = c19 * _INV3
-                        w20 = c20 * _INV2
-                        w21 = c21 * _INV3
-                        w22 = c22 * _INV3
-                        w23 = c23 * _INV4
-                        w24 = c24 * _INV2
-                        w25 = c25 * _INV3
-                        w26 = c26 * _INV3
-                        w27 = c27 * _INV4
-                        w28 = c28 * _INV3
-                        w29 = c29 * _INV4
-                        w30 = c30 * _INV4
-                        w31 = c31 * _INV5
-                        p_f = ((((w1 + w3) + (w5 + w7)) + ((w9 + w11) + (w13 + w15))) + (((w17 + w19) + (w21 + w23)) + ((w25 + w27) + (w29 + w31)))) * inv_norm
-                        p_i = ((((w2 + w3) + (w6 + w7)) + ((w10 + w11) + (w14 + w15))) + (((w18 + w19) + (w22 + w23)) + ((w26 + w27) + (w30 + w31)))) * inv_norm
-                        p_u = ((((w4 + w5) + (w6 + w7)) + ((w12 + w13) + (w14 + w15))) + (((w20 + w21) + (w22 + w23)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
-                        p_s = ((((w8 + w9) + (w10 + w11)) + ((w12 + w13) + (w14 + w15))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
-                        p_m = ((((w16 + w17) + (w18 + w19)) + ((w20 + w21) + (w22 + w23))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
-                        static = p_i + p_u + p_s
-                        code = c_free
-                        best = p_f
-                        code = c_moving if p_m > best else code
-                        best = p_m if p_m > best else best
-                        is_static = static > best
-                        code = c_static if is_static else code
-                        best = static if is_static else best
-                        fine_code = c_infra
-                        fine_best = p_i
-                        fine_code = c_unmapped if p_u > fine_best else fine_code
-                        fine_best = p_u if p_u > fine_best else fine_best
-                        fine_code = c_stopped if p_s > fine_best else fine_code
-                        fine_best = p_s if p_s > fine_best else fine_best
-                        least = p_i if p_i < p_u else p_u
-                        least = least if least < p_s else p_s
-                        fine_second = static - fine_best - least
-                        fine_ok = (fine_best >= _HALF) & (fine_best >= _HALF * static) & (fine_best - fine_second > _TIE)
-                        code = fine_code if (is_static & fine_ok) else code
-                        code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code
-                        buf[sbase + np.uint64(8976 + l)] = p_f
-                        buf[sbase + np.uint64(9248 + l)] = p_i
-                        buf[sbase + np.uint64(9520 + l)] = p_u
-                        buf[sbase + np.uint64(9792 + l)] = p_s
-                        buf[sbase + np.uint64(10064 + l)] = p_m
-                        buf[sbase + np.uint64(10336 + l)] = fo
-                        buf[sbase + np.uint64(10608 + l)] = of
-                        buf[sbase + np.uint64(10880 + l)] = other
-                        buf[sbase + np.uint64(11152 + l)] = code
-                        focal_lo = (((((_P0 if c0 != _0 else _0) + (_P1 if c1 != _0 else _0)) + ((_P2 if c2 != _0 else _0) + (_P3 if c3 != _0 else _0))) + (((_P4 if c4 != _0 else _0) + (_P5 if c5 != _0 else _0)) + ((_P6 if c6 != _0 else _0) + (_P7 if c7 != _0 else _0)))) + ((((_P8 if c8 != _0 else _0) + (_P9 if c9 != _0 else _0)) + ((_P10 if c10 != _0 else _0) + (_P11 if c11 != _0 else _0))) + (((_P12 if c12 != _0 else _0) + (_P13 if c13 != _0 else _0)) + ((_P14 if c14 != _0 else _0) + (_P15 if c15 != _0 else _0)))))
-                        focal_hi = (((((_P0 if c16 != _0 else _0) + (_P1 if c17 != _0 else _0)) + ((_P2 if c18 != _0 else _0) + (_P3 if c19 != _0 else _0))) + (((_P4 if c20 != _0 else _0) + (_P5 if c21 != _0 else _0)) + ((_P6 if c22 != _0 else _0) + (_P7 if c23 != _0 else _0)))) + ((((_P8 if c24 != _0 else _0) + (_P9 if c25 != _0 else _0)) + ((_P10 if c26 != _0 else _0) + (_P11 if c27 != _0 else _0))) + (((_P12 if c28 != _0 else _0) + (_P13 if c29 != _0 else _0)) + ((_P14 if c30 != _0 else _0) + (_P15 if c31 != _0 else _0)))))
-                        buf[sbase + np.uint64(11696 + l)] = focal_lo
-                        buf[sbase + np.uint64(11968 + l)] = focal_hi
-                        buf[sbase + np.uint64(11424 + l)] = _1 if ((focal_lo == _0) & (focal_hi == _P15) & (c31 == _1) & (z == _0)) else _0
+                not_road = np.uint8(0)  # a building lane or mass on ROAD_ZERO
+                for l_1 in range(SUB):
+                    not_road |= np.uint8(buf[sbase + np.uint64(9520 + l_1)] == _2)
+                if not_road == 0 and zero_planes != 0:
+                    for a_7 in range(32):
+                        if (zero_planes >> np.uint32(a_7)) & _ONE:
+                            for l_2 in range(SUB):
+                                not_road |= np.uint8(buf[sbase + np.uint64(a_7) * np.uint64(STRIDE) + np.uint64(l_2)] != _0)
+                if not_road == 0:
+                    for l_3 in range(SUB):
+                        m0_1 = buf[sbase + np.uint64(0 + l_3)]
+                        m1_1 = buf[sbase + np.uint64(272 + l_3)]
+                        m2_1 = _0
+                        m3_1 = _0
+                        m4_1 = buf[sbase + np.uint64(1088 + l_3)]
+                        m5_1 = buf[sbase + np.uint64(1360 + l_3)]
+                        m6_1 = _0
+                        m7_1 = _0
+                        m8_1 = buf[sbase + np.uint64(2176 + l_3)]
+                        m9_1 = buf[sbase + np.uint64(2448 + l_3)]
+                        m10_1 = _0
+                        m11_1 = _0
+                        m12_1 = buf[sbase + np.uint64(3264 + l_3)]
+                        m13_1 = buf[sbase + np.uint64(3536 + l_3)]
+                        m14_1 = buf[sbase + np.uint64(3808 + l_3)]
+                        m15_1 = buf[sbase + np.uint64(4080 + l_3)]
+                        m16_1 = buf[sbase + np.uint64(4352 + l_3)]
+                        m17_1 = buf[sbase + np.uint64(4624 + l_3)]
+                        m18_1 = _0
+                        m19_1 = _0
+                        m20_1 = buf[sbase + np.uint64(5440 + l_3)]
+                        m21_1 = buf[sbase + np.uint64(5712 + l_3)]
+                        m22_1 = _0
+                        m23_1 = _0
+                        m24_1 = buf[sbase + np.uint64(6528 + l_3)]
+                        m25_1 = buf[sbase + np.uint64(6800 + l_3)]
+                        m26_1 = _0
+                        m27_1 = _0
+                        m28_1 = buf[sbase + np.uint64(7616 + l_3)]
+                        m29_1 = buf[sbase + np.uint64(7888 + l_3)]
+                        m30_1 = buf[sbase + np.uint64(8160 + l_3)]
+                        m31_1 = buf[sbase + np.uint64(8432 + l_3)]
+                        z_1 = buf[sbase + np.uint64(8704 + l_3)]
+                        f_1 = buf[sbase + np.uint64(8976 + l_3)]
+                        o_1 = buf[sbase + np.uint64(9248 + l_3)]
+                        u_1 = _1 - f_1 - o_1
+                        lab_1 = buf[sbase + np.uint64(9520 + l_3)]
+                        ob_1 = buf[sbase + np.uint64(9792 + l_3)]
+                        gt_1 = buf[sbase + np.uint64(10064 + l_3)]
+                        obs_1 = _sel(derive_obs, (f_1 > _0) | (o_1 > _0), ob_1 != _0)
+                        is_b_1 = False
+                        is_r_1 = lab_1 == _1
+                        is_o_1 = lab_1 == _0
+                        beta_1 = beta_b if is_b_1 else beta_r if is_r_1 else _sel(is_o_1, beta_o, _0)
+                        beta_2 = _sel(obs_1 | everywhere, beta_1, _0)
+                        e_1 = _sel(is_b_1, beta_2 * f_1, _0)
+                        kept_1 = _1 - e_1
+                        total_1 = kept_1 <= tol
+                        beta_3 = _sel(total_1, _0, beta_2)
+                        e_2 = _sel(total_1, _0, e_1)
+                        kept_2 = _sel(total_1, _1, kept_1)
+                        inv_kept_1 = _1 / kept_2
+                        bb_1 = _sel(is_b_1, beta_3, _0)
+                        br_1 = _sel(is_r_1, beta_3, _0)
+                        bo_1 = _sel(is_o_1, beta_3, _0)
+                        t_43 = a_f * m0_1
+                        m1_2 = m1_1 + t_43
+                        m0_2 = m0_1 - t_43
+                        t_44 = a_f * m4_1
+                        m5_2 = m5_1 + t_44
+                        m4_2 = m4_1 - t_44
+                        t_45 = a_f * m8_1
+                        m9_2 = m9_1 + t_45
+                        m8_2 = m8_1 - t_45
+                        t_46 = a_f * m12_1
+                        m13_2 = m13_1 + t_46
+                        m12_2 = m12_1 - t_46
+                        t_47 = a_f * m14_1
+                        m15_2 = m15_1 + t_47
+                        m14_2 = m14_1 - t_47
+                        t_48 = a_f * m16_1
+                        m17_2 = m17_1 + t_48
+                        m16_2 = m16_1 - t_48
+                        t_49 = a_f * m20_1
+                        m21_2 = m21_1 + t_49
+                        m20_2 = m20_1 - t_49
+                        t_50 = a_f * m24_1
+                        m25_2 = m25_1 + t_50
+                        m24_2 = m24_1 - t_50
+                        t_51 = a_f * m28_1
+                        m29_2 = m29_1 + t_51
+                        m28_2 = m28_1 - t_51
+                        t_52 = a_f * m30_1
+                        m31_2 = m31_1 + t_52
+                        m30_2 = m30_1 - t_52
+                        t_53 = a_u * m0_2
+                        m4_3 = m4_2 + t_53
+                        m0_3 = m0_2 - t_53
+                        t_54 = a_u * m1_2
+                        m5_3 = m5_2 + t_54
+                        m1_3 = m1_2 - t_54
+                        t_55 = a_u * m8_2
+                        m12_3 = m12_2 + t_55
+                        m8_3 = m8_2 - t_55
+                        t_56 = a_u * m9_2
+                        m13_3 = m13_2 + t_56
+                        m9_3 = m9_2 - t_56
+                        t_57 = a_u * m16_2
+                        m20_3 = m20_2 + t_57
+                        m16_3 = m16_2 - t_57
+                        t_58 = a_u * m17_2
+                        m21_3 = m21_2 + t_58
+                        m17_3 = m17_2 - t_58
+                        t_59 = a_u * m24_2
+                        m28_3 = m28_2 + t_59
+                        m24_3 = m24_2 - t_59
+                        t_60 = a_u * m25_2
+                        m29_3 = m29_2 + t_60
+                        m25_3 = m25_2 - t_60
+                        t_61 = a_s * m0_3
+                        m8_4 = m8_3 + t_61
+                        m0_4 = m0_3 - t_61
+                        t_62 = a_s * m1_3
+                        m9_4 = m9_3 + t_62
+                        m1_4 = m1_3 - t_62
+                        t_63 = a_s * m4_3
+                        m12_4 = m12_3 + t_63
+                        m4_4 = m4_3 - t_63
+                        t_64 = a_s * m5_3
+                        m13_4 = m13_3 + t_64
+                        m5_4 = m5_3 - t_64
+                        t_65 = a_s * m16_3
+                        m24_4 = m24_3 + t_65
+                        m16_4 = m16_3 - t_65
+                        t_66 = a_s * m17_3
+                        m25_4 = m25_3 + t_66
+                        m17_4 = m17_3 - t_66
+                        t_67 = a_s * m20_3
+                        m28_4 = m28_3 + t_67
+                        m20_4 = m20_3 - t_67
+                        t_68 = a_s * m21_3
+                        m29_4 = m29_3 + t_68
+                        m21_4 = m21_3 - t_68
+                        t_69 = a_m * m0_4
+                        m16_5 = m16_4 + t_69
+                        m0_5 = m0_4 - t_69
+                        t_70 = a_m * m1_4
+                        m17_5 = m17_4 + t_70
+                        m1_5 = m1_4 - t_70
+                        t_71 = a_m * m4_4
+                        m20_5 = m20_4 + t_71
+                        m4_5 = m4_4 - t_71
+                        t_72 = a_m * m5_4
+                        m21_5 = m21_4 + t_72
+                        m5_5 = m5_4 - t_72
+                        t_73 = a_m * m8_4
+                        m24_5 = m24_4 + t_73
+                        m8_5 = m8_4 - t_73
+                        t_74 = a_m * m9_4
+                        m25_5 = m25_4 + t_74
+                        m9_5 = m9_4 - t_74
+                        t_75 = a_m * m12_4
+                        m28_5 = m28_4 + t_75
+                        m12_5 = m12_4 - t_75
+                        t_76 = a_m * m13_4
+                        m29_5 = m29_4 + t_76
+                        m13_5 = m13_4 - t_76
+                        t_77 = a_m * m14_2
+                        m30_3 = m30_2 + t_77
+                        m14_3 = m14_2 - t_77
+                        t_78 = a_m * m15_2
+                        m31_3 = m31_2 + t_78
+                        m15_3 = m15_2 - t_78
+                        s_f_1 = m1_5 + m3_1 + (m5_5 + m7_1) + (m9_5 + m11_1 + (m13_5 + m15_3)) + (m17_5 + m19_1 + (m21_5 + m23_1) + (m25_5 + m27_1 + (m29_5 + m31_3)))
+                        s_nf_1 = m0_5 + m2_1 + (m4_5 + m6_1) + (m8_5 + m10_1 + (m12_5 + m14_3)) + (m16_5 + m18_1 + (m20_5 + m22_1) + (m24_5 + m26_1 + (m28_5 + m30_3)))
+                        dn0_1 = u_1 * m0_5 + o_1 * (m0_5 + m1_5)
+                        dn1_1 = u_1 * m1_5
+                        d0_1 = dn0_1 + f_1 * s_nf_1
+                        d1_1 = dn1_1 + f_1 * s_f_1
+                        kf_1 = _sel(gate_off | (gt_1 != _0) | (not faded_o), _1, _0)
+                        d2_1 = _0
+                        d3_1 = _0
+                        d4_1 = u_1 * m4_5 + o_1 * (m4_5 + kf_1 * m5_5)
+                        d5_1 = u_1 * m5_5
+                        d6_1 = _0
+                        d7_1 = _0
+                        d8_1 = u_1 * m8_5 + o_1 * (m8_5 + kf_1 * m9_5)
+                        d9_1 = u_1 * m9_5
+                        d10_1 = _0
+                        d11_1 = _0
+                        d12_1 = u_1 * m12_5 + o_1 * (m12_5 + kf_1 * m13_5)
+                        d13_1 = u_1 * m13_5
+                        d14_1 = u_1 * m14_3 + o_1 * (m14_3 + kf_1 * m15_3)
+                        d15_1 = u_1 * m15_3
+                        d16_1 = u_1 * m16_5 + o_1 * (m16_5 + kf_1 * m17_5)
+                        d17_1 = u_1 * m17_5
+                        d18_1 = _0
+                        d19_1 = _0
+                        d20_1 = u_1 * m20_5 + o_1 * (m20_5 + kf_1 * m21_5)
+                        d21_1 = u_1 * m21_5
+                        d22_1 = _0
+                        d23_1 = _0
+                        d24_1 = u_1 * m24_5 + o_1 * (m24_5 + kf_1 * m25_5)
+                        d25_1 = u_1 * m25_5
+                        d26_1 = _0
+                        d27_1 = _0
+                        d28_1 = u_1 * m28_5 + o_1 * (m28_5 + kf_1 * m29_5)
+                        d29_1 = u_1 * m29_5
+                        d31_1 = u_1 * m31_3
+                        d30_1 = u_1 * m30_3 + o_1 * (m30_3 + m31_3 + (_1 - kf_1) * (m5_5 + m9_5 + (m13_5 + m15_3) + (m17_5 + m21_5 + (m25_5 + m29_5))))
+                        keep_d_1 = _1 - beta_3
+                        c0_1 = (keep_d_1 * d0_1 + br_1 * (d0_1 + d2_1 + (d4_1 + d6_1)) + bo_1 * (d0_1 + d2_1)) * inv_kept_1
+                        c1_1 = (keep_d_1 * d1_1 + br_1 * (d1_1 + d3_1 + (d5_1 + d7_1)) + bo_1 * (d1_1 + d3_1)) * inv_kept_1
+                        c2_1 = _0
+                        c3_1 = _0
+                        c4_1 = (keep_d_1 * d4_1 + bo_1 * (d4_1 + d6_1)) * inv_kept_1
+                        c5_1 = (keep_d_1 * d5_1 + bo_1 * (d5_1 + d7_1)) * inv_kept_1
+                        c6_1 = _0
+                        c7_1 = _0
+                        c8_1 = (keep_d_1 * d8_1 + br_1 * (d8_1 + d10_1 + (d12_1 + d14_1)) + bo_1 * (d8_1 + d10_1)) * inv_kept_1
+                        c9_1 = (keep_d_1 * d9_1 + br_1 * (d9_1 + d11_1 + (d13_1 + d15_1)) + bo_1 * (d9_1 + d11_1)) * inv_kept_1
+                        c10_1 = _0
+                        c11_1 = _0
+                        c12_1 = (keep_d_1 * d12_1 + bo_1 * (d12_1 + d14_1)) * inv_kept_1
+                        c13_1 = (keep_d_1 * d13_1 + bo_1 * (d13_1 + d15_1)) * inv_kept_1
+                        c14_1 = keep_d_1 * d14_1 * inv_kept_1
+                        c15_1 = keep_d_1 * d15_1 * inv_kept_1
+                        c16_1 = (keep_d_1 * d16_1 + br_1 * (d16_1 + d18_1 + (d20_1 + d22_1)) + bo_1 * (d16_1 + d18_1)) * inv_kept_1
+                        c17_1 = (keep_d_1 * d17_1 + br_1 * (d17_1 + d19_1 + (d21_1 + d23_1)) + bo_1 * (d17_1 + d19_1)) * inv_kept_1
+                        c18_1 = _0
+                        c19_1 = _0
+                        c20_1 = (keep_d_1 * d20_1 + bo_1 * (d20_1 + d22_1)) * inv_kept_1
+                        c21_1 = (keep_d_1 * d21_1 + bo_1 * (d21_1 + d23_1)) * inv_kept_1
+                        c22_1 = _0
+                        c23_1 = _0
+                        c24_1 = (keep_d_1 * d24_1 + br_1 * (d24_1 + d26_1 + (d28_1 + d30_1)) + bo_1 * (d24_1 + d26_1)) * inv_kept_1
+                        c25_1 = (keep_d_1 * d25_1 + br_1 * (d25_1 + d27_1 + (d29_1 + d31_1)) + bo_1 * (d25_1 + d27_1)) * inv_kept_1
+                        c26_1 = _0
+                        c27_1 = _0
+                        c28_1 = (keep_d_1 * d28_1 + bo_1 * (d28_1 + d30_1)) * inv_kept_1
+                        c29_1 = (keep_d_1 * d29_1 + bo_1 * (d29_1 + d31_1)) * inv_kept_1
+                        c30_1 = keep_d_1 * d30_1 * inv_kept_1
+                        c31_1 = keep_d_1 * d31_1 * inv_kept_1
+                        sg_free_1 = f_1 * (_1 - bb_1) * inv_kept_1
+                        sg_bel_o_1 = (o_1 + u_1 * bb_1) * inv_kept_1
+                        pg_bel_o_1 = m2_1 + m4_5 + (m6_1 + m8_5) + (m10_1 + m12_5 + (m14_3 + m16_5)) + (m18_1 + m20_5 + (m22_1 + m24_5) + (m26_1 + m28_5 + m30_3))
+                        fo_1 = m1_5 * sg_bel_o_1
+                        of_1 = pg_bel_o_1 * sg_free_1
+                        other_1 = c0_1 - fo_1 - of_1
+                        other_2 = _sel(other_1 > _0, other_1, _0)
+                        fo_m_1 = _sel(gate_off | (gt_1 != _0), fo_1, _0)
+                        fo_c_1 = _sel(gate_off | (gt_1 != _0), _0, fo_1)
+                        c0_2 = _sel(residual == 1, other_2, _0)
+                        c16_2 = c16_1 + fo_m_1
+                        c30_2 = c30_1 + _sel(closed_o, fo_c_1, _0)
+                        c14_2 = c14_1 + _sel(closed_o, _0, fo_c_1)
+                        c31_2 = c31_1 + (of_1 + _sel(residual == 0, other_2, _0))
+                        bel_o_1 = c2_1 + c4_1 + (c6_1 + c8_1) + (c10_1 + c12_1 + (c14_2 + c16_2)) + (c18_1 + c20_1 + (c22_1 + c24_1) + (c26_1 + c28_1 + c30_2))
+                        dynamic_1 = fo_m_1 + of_1
+                        z_up_1 = z_1 + inc
+                        z_up_2 = _sel(z_up_1 < _1, z_up_1, _1)
+                        z_down_1 = z_1 - dec
+                        z_down_2 = _sel(z_down_1 > _0, z_down_1, _0)
+                        z_2 = z_up_2 if (bel_o_1 >= gamma_o) & (dynamic_1 <= gamma_c) else _sel(dynamic_1 > gamma_c, z_down_2, z_1)
+                        g_1 = c17_1 * z_2
+                        c17_2 = c17_1 - g_1
+                        c1_2 = c1_1 + g_1
+                        g_2 = c20_1 * z_2
+                        c20_2 = c20_1 - g_2
+                        c4_2 = c4_1 + g_2
+                        g_3 = c21_1 * z_2
+                        c21_2 = c21_1 - g_3
+                        c5_2 = c5_1 + g_3
+                        g_4 = c24_1 * z_2
+                        c24_2 = c24_1 - g_4
+                        c8_2 = c8_1 + g_4
+                        g_5 = c25_1 * z_2
+                        c25_2 = c25_1 - g_5
+                        c9_2 = c9_1 + g_5
+                        g_6 = c28_1 * z_2
+                        c28_2 = c28_1 - g_6
+                        c12_2 = c12_1 + g_6
+                        g_7 = c29_1 * z_2
+                        c29_2 = c29_1 - g_7
+                        c13_2 = c13_1 + g_7
+                        g_8 = c30_2 * z_2
+                        c30_3 = c30_2 - g_8
+                        c14_3 = c14_2 + g_8
+                        g_9 = c31_2 * z_2
+                        c31_3 = c31_2 - g_9
+                        c15_2 = c15_1 + g_9
+                        g_10 = c16_2 * z_2
+                        c16_3 = c16_2 - g_10
+                        c8_3 = c8_2 + _sel(to_s, g_10, _0)
+                        c0_3 = c0_2 + _sel(to_s, _0, g_10)
+                        buf[sbase + np.uint64(0 + l_3)] = c0_3
+                        buf[sbase + np.uint64(272 + l_3)] = c1_2
+                        buf[sbase + np.uint64(1088 + l_3)] = c4_2
+                        buf[sbase + np.uint64(1360 + l_3)] = c5_2
+                        buf[sbase + np.uint64(2176 + l_3)] = c8_3
+                        buf[sbase + np.uint64(2448 + l_3)] = c9_2
+                        buf[sbase + np.uint64(3264 + l_3)] = c12_2
+                        buf[sbase + np.uint64(3536 + l_3)] = c13_2
+                        buf[sbase + np.uint64(3808 + l_3)] = c14_3
+                        buf[sbase + np.uint64(4080 + l_3)] = c15_2
+                        buf[sbase + np.uint64(4352 + l_3)] = c16_3
+                        buf[sbase + np.uint64(4624 + l_3)] = c17_2
+                        buf[sbase + np.uint64(5440 + l_3)] = c20_2
+                        buf[sbase + np.uint64(5712 + l_3)] = c21_2
+                        buf[sbase + np.uint64(6528 + l_3)] = c24_2
+                        buf[sbase + np.uint64(6800 + l_3)] = c25_2
+                        buf[sbase + np.uint64(7616 + l_3)] = c28_2
+                        buf[sbase + np.uint64(7888 + l_3)] = c29_2
+                        buf[sbase + np.uint64(8160 + l_3)] = c30_3
+                        buf[sbase + np.uint64(8432 + l_3)] = c31_3
+                        buf[sbase + np.uint64(8704 + l_3)] = z_2
+                        norm_1 = c1_2 + c2_1 + (c3_1 + c4_2) + (c5_2 + c6_1 + (c7_1 + c8_3)) + (c9_2 + c10_1 + (c11_1 + c12_2) + (c13_2 + c14_3 + (c15_2 + c16_3))) + (c17_2 + c18_1 + (c19_1 + c20_2) + (c21_2 + c22_1 + (c23_1 + c24_2)) + (c25_2 + c26_1 + (c27_1 + c28_2) + (c29_2 + c30_3 + c31_3)))
+                        inv_norm_1 = _sel(norm_1 > tol, _1 / norm_1, _0)
+                        w1_1 = c1_2
+                        w2_1 = c2_1
+                        w3_1 = c3_1 * _INV2
+                        w4_1 = c4_2
+                        w5_1 = c5_2 * _INV2
+                        w6_1 = c6_1 * _INV2
+                        w7_1 = c7_1 * _INV3
+                        w8_1 = c8_3
+                        w9_1 = c9_2 * _INV2
+                        w10_1 = c10_1 * _INV2
+                        w11_1 = c11_1 * _INV3
+                        w12_1 = c12_2 * _INV2
+                        w13_1 = c13_2 * _INV3
+                        w14_1 = c14_3 * _INV3
+                        w15_1 = c15_2 * _INV4
+                        w16_1 = c16_3
+                        w17_1 = c17_2 * _INV2
+                        w18_1 = c18_1 * _INV2
+                        w19_1 = c19_1 * _INV3
+                        w20_1 = c20_2 * _INV2
+                        w21_1 = c21_2 * _INV3
+                        w22_1 = c22_1 * _INV3
+                        w23_1 = c23_1 * _INV4
+                        w24_1 = c24_2 * _INV2
+                        w25_1 = c25_2 * _INV3
+                        w26_1 = c26_1 * _INV3
+                        w27_1 = c27_1 * _INV4
+                        w28_1 = c28_2 * _INV3
+                        w29_1 = c29_2 * _INV4
+                        w30_1 = c30_3 * _INV4
+                        w31_1 = c31_3 * _INV5
+                        p_f_1 = (w1_1 + w3_1 + (w5_1 + w7_1) + (w9_1 + w11_1 + (w13_1 + w15_1)) + (w17_1 + w19_1 + (w21_1 + w23_1) + (w25_1 + w27_1 + (w29_1 + w31_1)))) * inv_norm_1
+                        p_i_1 = (w2_1 + w3_1 + (w6_1 + w7_1) + (w10_1 + w11_1 + (w14_1 + w15_1)) + (w18_1 + w19_1 + (w22_1 + w23_1) + (w26_1 + w27_1 + (w30_1 + w31_1)))) * inv_norm_1
+                        p_u_1 = (w4_1 + w5_1 + (w6_1 + w7_1) + (w12_1 + w13_1 + (w14_1 + w15_1)) + (w20_1 + w21_1 + (w22_1 + w23_1) + (w28_1 + w29_1 + (w30_1 + w31_1)))) * inv_norm_1
+                        p_s_1 = (w8_1 + w9_1 + (w10_1 + w11_1) + (w12_1 + w13_1 + (w14_1 + w15_1)) + (w24_1 + w25_1 + (w26_1 + w27_1) + (w28_1 + w29_1 + (w30_1 + w31_1)))) * inv_norm_1
+                        p_m_1 = (w16_1 + w17_1 + (w18_1 + w19_1) + (w20_1 + w21_1 + (w22_1 + w23_1)) + (w24_1 + w25_1 + (w26_1 + w27_1) + (w28_1 + w29_1 + (w30_1 + w31_1)))) * inv_norm_1
+                        static_1 = p_i_1 + p_u_1 + p_s_1
+                        code_1 = c_free
+                        best_1 = p_f_1
+                        code_2 = _sel(p_m_1 > best_1, c_moving, code_1)
+                        best_2 = _sel(p_m_1 > best_1, p_m_1, best_1)
+                        is_static_1 = static_1 > best_2
+                        code_3 = _sel(is_static_1, c_static, code_2)
+                        best_3 = _sel(is_static_1, static_1, best_2)
+                        fine_code_1 = c_infra
+                        fine_best_1 = p_i_1
+                        fine_code_2 = _sel(p_u_1 > fine_best_1, c_unmapped, fine_code_1)
+                        fine_best_2 = _sel(p_u_1 > fine_best_1, p_u_1, fine_best_1)
+                        fine_code_3 = _sel(p_s_1 > fine_best_2, c_stopped, fine_code_2)
+                        fine_best_3 = _sel(p_s_1 > fine_best_2, p_s_1, fine_best_2)
+                        least_1 = _sel(p_i_1 < p_u_1, p_i_1, p_u_1)
+                        least_2 = _sel(least_1 < p_s_1, least_1, p_s_1)
+                        fine_second_1 = static_1 - fine_best_3 - least_2
+                        fine_ok_1 = (fine_best_3 >= _HALF) & (fine_best_3 >= _HALF * static_1) & (fine_best_3 - fine_second_1 > _TIE)
+                        code_4 = _sel(is_static_1 & fine_ok_1, fine_code_3, code_3)
+                        code_5 = _sel((best_3 < min_betp) | (c31_3 > max_ign), c_unknown, code_4)
+                        buf[sbase + np.uint64(8976 + l_3)] = p_f_1
+                        buf[sbase + np.uint64(9248 + l_3)] = p_i_1
+                        buf[sbase + np.uint64(9520 + l_3)] = p_u_1
+                        buf[sbase + np.uint64(9792 + l_3)] = p_s_1
+                        buf[sbase + np.uint64(10064 + l_3)] = p_m_1
+                        buf[sbase + np.uint64(10336 + l_3)] = fo_1
+                        buf[sbase + np.uint64(10608 + l_3)] = of_1
+                        buf[sbase + np.uint64(10880 + l_3)] = other_2
+                        buf[sbase + np.uint64(11152 + l_3)] = code_5
+                        focal_lo_1 = _sel(c0_3 != _0, _P0, _0) + _sel(c1_2 != _0, _P1, _0) + (_sel(c2_1 != _0, _P2, _0) + _sel(c3_1 != _0, _P3, _0)) + (_sel(c4_2 != _0, _P4, _0) + _sel(c5_2 != _0, _P5, _0) + (_sel(c6_1 != _0, _P6, _0) + _sel(c7_1 != _0, _P7, _0))) + (_sel(c8_3 != _0, _P8, _0) + _sel(c9_2 != _0, _P9, _0) + (_sel(c10_1 != _0, _P10, _0) + _sel(c11_1 != _0, _P11, _0)) + (_sel(c12_2 != _0, _P12, _0) + _sel(c13_2 != _0, _P13, _0) + (_sel(c14_3 != _0, _P14, _0) + _sel(c15_2 != _0, _P15, _0))))
+                        focal_hi_1 = _sel(c16_3 != _0, _P0, _0) + _sel(c17_2 != _0, _P1, _0) + (_sel(c18_1 != _0, _P2, _0) + _sel(c19_1 != _0, _P3, _0)) + (_sel(c20_2 != _0, _P4, _0) + _sel(c21_2 != _0, _P5, _0) + (_sel(c22_1 != _0, _P6, _0) + _sel(c23_1 != _0, _P7, _0))) + (_sel(c24_2 != _0, _P8, _0) + _sel(c25_2 != _0, _P9, _0) + (_sel(c26_1 != _0, _P10, _0) + _sel(c27_1 != _0, _P11, _0)) + (_sel(c28_2 != _0, _P12, _0) + _sel(c29_2 != _0, _P13, _0) + (_sel(c30_3 != _0, _P14, _0) + _sel(c31_3 != _0, _P15, _0))))
+                        buf[sbase + np.uint64(11696 + l_3)] = focal_lo_1
+                        buf[sbase + np.uint64(11968 + l_3)] = focal_hi_1
+                        buf[sbase + np.uint64(11424 + l_3)] = _sel((focal_lo_1 == _0) & (focal_hi_1 == _P15) & (c31_3 == _1) & (z_2 == _0), _1, _0)
                     continue
-                for l in range(SUB):
-                    m0 = buf[sbase + np.uint64(0 + l)]
-                    m1 = buf[sbase + np.uint64(272 + l)]
-                    m2 = buf[sbase + np.uint64(544 + l)]
-                    m3 = buf[sbase + np.uint64(816 + l)]
-                    m4 = buf[sbase + np.uint64(1088 + l)]
-                    m5 = buf[sbase + np.uint64(1360 + l)]
-                    m6 = buf[sbase + np.uint64(1632 + l)]
-                    m7 = buf[sbase + np.uint64(1904 + l)]
-                    m8 = buf[sbase + np.uint64(2176 + l)]
-                    m9 = buf[sbase + np.uint64(2448 + l)]
-                    m10 = buf[sbase + np.uint64(2720 + l)]
-                    m11 = buf[sbase + np.uint64(2992 + l)]
-                    m12 = buf[sbase + np.uint64(3264 + l)]
-                    m13 = buf[sbase + np.uint64(3536 + l)]
-                    m14 = buf[sbase + np.uint64(3808 + l)]
-                    m15 = buf[sbase + np.uint64(4080 + l)]
-                    m16 = buf[sbase + np.uint64(4352 + l)]
-                    m17 = buf[sbase + np.uint64(4624 + l)]
-                    m18 = buf[sbase + np.uint64(4896 + l)]
-                    m19 = buf[sbase + np.uint64(5168 + l)]
-                    m20 = buf[sbase + np.uint64(5440 + l)]
-                    m21 = buf[sbase + np.uint64(5712 + l)]
-                    m22 = buf[sbase + np.uint64(5984 + l)]
-                    m23 = buf[sbase + np.uint64(6256 + l)]
-                    m24 = buf[sbase + np.uint64(6528 + l)]
-                    m25 = buf[sbase + np.uint64(6800 + l)]
-                    m26 = buf[sbase + np.uint64(7072 + l)]
-                    m27 = buf[sbase + np.uint64(7344 + l)]
-                    m28 = buf[sbase + np.uint64(7616 + l)]
-                    m29 = buf[sbase + np.uint64(7888 + l)]
-                    m30 = buf[sbase + np.uint64(8160 + l)]
-                    m31 = buf[sbase + np.uint64(8432 + l)]
-                    z = buf[sbase + np.uint64(8704 + l)]
-                    f = buf[sbase + np.uint64(8976 + l)]
-                    o = buf[sbase + np.uint64(9248 + l)]
-                    u = _1 - f - o
-                    lab = buf[sbase + np.uint64(9520 + l)]
-                    ob = buf[sbase + np.uint64(9792 + l)]
-                    gt = buf[sbase + np.uint64(10064 + l)]
-                    obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
-                    is_b = lab == _2
-                    is_r = lab == _1
-                    is_o = lab == _0
-                    beta = beta_b if is_b else (beta_r if is_r else (beta_o if is_o else _0))
-                    beta = beta if (obs | everywhere) else _0
-                    e = beta * f if is_b else _0
-                    kept = _1 - e
-                    total = kept <= tol
-                    beta = _0 if total else beta
-                    e = _0 if total else e
-                    kept = _1 if total else kept
-                    inv_kept = _1 / kept
-                    bb = beta if is_b else _0
-                    br = beta if is_r else _0
-                    bo = beta if is_o else _0
-                    t = a_f * m0
-                    m1 += t
-                    m0 -= t
-                    t = a_f * m2
-                    m3 += t
-                    m2 -= t
-                    t = a_f * m4
-                    m5 += t
-                    m4 -= t
-                    t = a_f * m6
-                    m7 += t
-                    m6 -= t
-                    t = a_f * m8
-                    m9 += t
-                    m8 -= t
-                    t = a_f * m10
-                    m11 += t
-                    m10 -= t
-                    t = a_f * m12
-                    m13 += t
-                    m12 -= t
-                    t = a_f * m14
-                    m15 += t
-                    m14 -= t
-                    t = a_f * m16
-                    m17 += t
-                    m16 -= t
-                    t = a_f * m18
-                    m19 += t
-                    m18 -= t
-                    t = a_f * m20
-                    m21 += t
-                    m20 -= t
-                    t = a_f * m22
-                    m23 += t
-                    m22 -= t
-                    t = a_f * m24
-                    m25 += t
-                    m24 -= t
-                    t = a_f * m26
-                    m27 += t
-                    m26 -= t
-                    t = a_f * m28
-                    m29 += t
-                    m28 -= t
-                    t = a_f * m30
-                    m31 += t
-                    m30 -= t
-                    t = a_u * m0
-                    m4 += t
-                    m0 -= t
-                    t = a_u * m1
-                    m5 += t
-                    m1 -= t
-                    t = a_u * m2
-                    m6 += t
-                    m2 -= t
-                    t = a_u * m3
-                    m7 += t
-                    m3 -= t
-                    t = a_u * m8
-                    m12 += t
-                    m8 -= t
-                    t = a_u * m9
-                    m13 += t
-                    m9 -= t
-                    t = a_u * m10
-                    m14 += t
-                    m10 -= t
-                    t = a_u * m11
-                    m15 += t
-                    m11 -= t
-                    t = a_u * m16
-                    m20 += t
-                    m16 -= t
-                    t = a_u * m17
-                    m21 += t
-                    m17 -= t
-                    t = a_u * m18
-                    m22 += t
-                    m18 -= t
-                    t = a_u * m19
-                    m23 += t
-                    m19 -= t
-                    t = a_u * m24
-                    m28 += t
-                    m24 -= t
-                    t = a_u * m25
-                    m29 += t
-                    m25 -= t
-                    t = a_u * m26
-                    m30 += t
-                    m26 -= t
-                    t = a_u * m27
-                    m31 += t
-                    m27 -= t
-                    t = a_s * m0
-                    m8 += t
-                    m0 -= t
-                    t = a_s * m1
-                    m9 += t
-                    m1 -= t
-                    t = a_s * m2
-                    m10 += t
-                    m2 -= t
-                    t = a_s * m3
-                    m11 += t
-                    m3 -= t
-                    t = a_s * m4
-                    m12 += t
-                    m4 -= t
-                    t = a_s * m5
-                    m13 += t
-                    m5 -= t
-                    t = a_s * m6
-                    m14 += t
-                    m6 -= t
-                    t = a_s * m7
-                    m15 += t
-                    m7 -= t
-                    t = a_s * m16
-                    m24 += t
-                    m16 -= t
-                    t = a_s * m17
-                    m25 += t
-                    m17 -= t
-                    t = a_s * m18
-                    m26 += t
-                    m18 -= t
-                    t = a_s * m19
-                    m27 += t
-                    m19 -= t
-                    t = a_s * m20
-                    m28 += t
-                    m20 -= t
-                    t = a_s * m21
-                    m29 += t
-                    m21 -= t
-                    t = a_s * m22
-                    m30 += t
-                    m22 -= t
-                    t = a_s * m23
-                    m31 += t
-                    m23 -= t
-                    t = a_m * m0
-                    m16 += t
-                    m0 -= t
-                    t = a_m * m1
-                    m17 += t
-                    m1 -= t
-                    t = a_m * m2
-                    m18 += t
-                    m2 -= t
-                    t = a_m * m3
-                    m19 += t
-                    m3 -= t
-                    t = a_m * m4
-                    m20 += t
-                    m4 -= t
-                    t = a_m * m5
-                    m21 += t
-                    m5 -= t
-                    t = a_m * m6
-                    m22 += t
-                    m6 -= t
-                    t = a_m * m7
-                    m23 += t
-                    m7 -= t
-                    t = a_m * m8
-                    m24 += t
-                    m8 -= t
-                    t = a_m * m9
-                    m25 += t
-                    m9 -= t
-                    t = a_m * m10
-                    m26 += t
-                    m10 -= t
-                    t = a_m * m11
-                    m27 += t
-                    m11 -= t
-                    t = a_m * m12
-                    m28 += t
-                    m12 -= t
-                    t = a_m * m13
-                    m29 += t
-                    m13 -= t
-                    t = a_m * m14
-                    m30 += t
-                    m14 -= t
-                    t = a_m * m15
-                    m31 += t
-                    m15 -= t
-                    s_f = ((((m1 + m3) + (m5 + m7)) + ((m9 + m11) + (m13 + m15))) + (((m17 + m19) + (m21 + m23)) + ((m25 + m27) + (m29 + m31))))
-                    s_nf = ((((m0 + m2) + (m4 + m6)) + ((m8 + m10) + (m12 + m14))) + (((m16 + m18) + (m20 + m22)) + ((m24 + m26) + (m28 + m30))))
-                    dn0 = u * m0 + o * (m0 + m1)
-                    dn1 = u * m1
-                    d0 = dn0 + f * s_nf
-                    d1 = dn1 + f * s_f
-                    kf = _1 if (gate_off | (gt != _0) | (not faded_o)) else _0
-                    d2 = u * m2 + o * (m2 + kf * m3)
-                    d3 = u * m3
-                    d4 = u * m4 + o * (m4 + kf * m5)
-                    d5 = u * m5
-                    d6 = u * m6 + o * (m6 + kf * m7)
-                    d7 = u * m7
-                    d8 = u * m8 + o * (m8 + kf * m9)
-                    d9 = u * m9
-                    d10 = u * m10 + o * (m10 + kf * m11)
-                    d11 = u * m11
-                    d12 = u * m12 + o * (m12 + kf * m13)
-                    d13 = u * m13
-                    d14 = u * m14 + o * (m14 + kf * m15)
-                    d15 = u * m15
-                    d16 = u * m16 + o * (m16 + kf * m17)
-                    d17 = u * m17
-                    d18 = u * m18 + o * (m18 + kf * m19)
-                    d19 = u * m19
-                    d20 = u * m20 + o * (m20 + kf * m21)
-                    d21 = u * m21
-                    d22 = u * m22 + o * (m22 + kf * m23)
-                    d23 = u * m23
-                    d24 = u * m24 + o * (m24 + kf * m25)
-                    d25 = u * m25
-                    d26 = u * m26 + o * (m26 + kf * m27)
-                    d27 = u * m27
-                    d28 = u * m28 + o * (m28 + kf * m29)
-                    d29 = u * m29
-                    d31 = u * m31
-                    d30 = u * m30 + o * (m30 + m31 + (_1 - kf) * ((((m3 + m5) + (m7 + m9)) + ((m11 + m13) + (m15 + m17))) + (((m19 + m21) + (m23 + m25)) + (m27 + m29))))
-                    keep_d = _1 - beta
-                    c0 = (keep_d * d0 + bb * ((((dn0 + dn1) + (d4 + d5)) + ((d8 + d9) + (d12 + d13))) + (((d16 + d17) + (d20 + d21)) + ((d24 + d25) + (d28 + d29)))) + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
-                    c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
-                    c2 = (keep_d * d2 + bb * ((((d2 + d3) + (d6 + d7)) + ((d10 + d11) + (d14 + d15))) + (((d18 + d19) + (d22 + d23)) + ((d26 + d27) + (d30 + d31))))) * inv_kept
-                    c3 = (keep_d * d3) * inv_kept
-                    c4 = (keep_d * d4 + bo * (d4 + d6)) * inv_kept
-                    c5 = (keep_d * d5 + bo * (d5 + d7)) * inv_kept
-                    c6 = (keep_d * d6) * inv_kept
-                    c7 = (keep_d * d7) * inv_kept
-                    c8 = (keep_d * d8 + br * ((d8 + d10) + (d12 + d14)) + bo * (d8 + d10)) * inv_kept
-                    c9 = (keep_d * d9 + br * ((d9 + d11) + (d13 + d15)) + bo * (d9 + d11)) * inv_kept
-                    c10 = (keep_d * d10) * inv_kept
-                    c11 = (keep_d * d11) * inv_kept
-                    c12 = (keep_d * d12 + bo * (d12 + d14)) * inv_kept
-                    c13 = (keep_d * d13 + bo * (d13 + d15)) * inv_kept
-                    c14 = (keep_d * d14) * inv_kept
-                    c15 = (keep_d * d15) * inv_kept
-                    c16 = (keep_d * d16 + br * ((d16 + d18) + (d20 + d22)) + bo * (d16 + d18)) * inv_kept
-                    c17 = (keep_d * d17 + br * ((d17 + d19) + (d21 + d23)) + bo * (d17 + d19)) * inv_kept
-                    c18 = (keep_d * d18) * inv_kept
-                    c19 = (keep_d * d19) * inv_kept
-                    c20 = (keep_d * d20 + bo * (d20 + d22)) * inv_kept
-                    c21 = (keep_d * d21 + bo * (d21 + d23)) * inv_kept
-                    c22 = (keep_d * d22) * inv_kept
-                    c23 = (keep_d * d23) * inv_kept
-                    c24 = (keep_d * d24 + br * ((d24 + d26) + (d28 + d30)) + bo * (d24 + d26)) * inv_kept
-                    c25 = (keep_d * d25 + br * ((d25 + d27) + (d29 + d31)) + bo * (d25 + d27)) * inv_kept
-                    c26 = (keep_d * d26) * inv_kept
-                    c27 = (keep_d * d27) * inv_kept
-                    c28 = (keep_d * d28 + bo * (d28 + d30)) * inv_kept
-                    c29 = (keep_d * d29 + bo * (d29 + d31)) * inv_kept
-                    c30 = (keep_d * d30) * inv_kept
-                    c31 = (keep_d * d31) * inv_kept
-                    sg_free = f * (_1 - bb) * inv_kept
-                    sg_bel_o = (o + u * bb) * inv_kept
-                    pg_bel_o = ((((m2 + m4) + (m6 + m8)) + ((m10 + m12) + (m14 + m16))) + (((m18 + m20) + (m22 + m24)) + ((m26 + m28) + m30)))
-                    fo = m1 * sg_bel_o
-                    of = pg_bel_o * sg_free
-                    other = c0 - fo - of
-                    other = other if other > _0 else _0
-                    in_b = is_b & bld_i
-                    fo_m = _0 if in_b else (fo if (gate_off | (gt != _0)) else _0)
-                    fo_c = _0 if (in_b | gate_off | (gt != _0)) else fo
-                    c2 += fo if in_b else _0
-                    c0 = other if residual == 1 else _0
-                    c16 += fo_m
-                    c30 += fo_c if closed_o else _0
-                    c14 += _0 if closed_o else fo_c
-                    c31 += of + (other if residual == 0 else _0)
-                    bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
-                    dynamic = fo_m + of
-                    z_up = z + inc
-                    z_up = z_up if z_up < _1 else _1
-                    z_down = z - dec
-                    z_down = z_down if z_down > _0 else _0
-                    z = z_up if ((bel_o >= gamma_o) & (dynamic <= gamma_c)) else (z_down if dynamic > gamma_c else z)
-                    g = c17 * z
-                    c17 -= g
-                    c1 += g
-                    g = c18 * z
-                    c18 -= g
-                    c2 += g
-                    g = c19 * z
-                    c19 -= g
-                    c3 += g
-                    g = c20 * z
-                    c20 -= g
-                    c4 += g
-                    g = c21 * z
-                    c21 -= g
-                    c5 += g
-                    g = c22 * z
-                    c22 -= g
-                    c6 += g
-                    g = c23 * z
-                    c23 -= g
-                    c7 += g
-                    g = c24 * z
-                    c24 -= g
-                    c8 += g
-                    g = c25 * z
-                    c25 -= g
-                    c9 += g
-                    g = c26 * z
-                    c26 -= g
-                    c10 += g
-                    g = c27 * z
-                    c27 -= g
-                    c11 += g
-                    g = c28 * z
-                    c28 -= g
-                    c12 += g
-                    g = c29 * z
-                    c29 -= g
-                    c13 += g
-                    g = c30 * z
-                    c30 -= g
-                    c14 += g
-                    g = c31 * z
-                    c31 -= g
-                    c15 += g
-                    g = c16 * z
-                    c16 -= g
-                    c8 += g if to_s else _0
-                    c0 += _0 if to_s else g
-                    buf[sbase + np.uint64(0 + l)] = c0
-                    buf[sbase + np.uint64(272 + l)] = c1
-                    buf[sbase + np.uint64(544 + l)] = c2
-                    buf[sbase + np.uint64(816 + l)] = c3
-                    buf[sbase + np.uint64(1088 + l)] = c4
-                    buf[sbase + np.uint64(1360 + l)] = c5
-                    buf[sbase + np.uint64(1632 + l)] = c6
-                    buf[sbase + np.uint64(1904 + l)] = c7
-                    buf[sbase + np.uint64(2176 + l)] = c8
-                    buf[sbase + np.uint64(2448 + l)] = c9
-                    buf[sbase + np.uint64(2720 + l)] = c10
-                    buf[sbase + np.uint64(2992 + l)] = c11
-                    buf[sbase + np.uint64(3264 + l)] = c12
-                    buf[sbase + np.uint64(3536 + l)] = c13
-                    buf[sbase + np.uint64(3808 + l)] = c14
-                    buf[sbase + np.uint64(4080 + l)] = c15
-                    buf[sbase + np.uint64(4352 + l)] = c16
-                    buf[sbase + np.uint64(4624 + l)] = c17
-                    buf[sbase + np.uint64(4896 + l)] = c18
-                    buf[sbase + np.uint64(5168 + l)] = c19
-                    buf[sbase + np.uint64(5440 + l)] = c20
-                    buf[sbase + np.uint64(5712 + l)] = c21
-                    buf[sbase + np.uint64(5984 + l)] = c22
-                    buf[sbase + np.uint64(6256 + l)] = c23
-                    buf[sbase + np.uint64(6528 + l)] = c24
-                    buf[sbase + np.uint64(6800 + l)] = c25
-                    buf[sbase + np.uint64(7072 + l)] = c26
-                    buf[sbase + np.uint64(7344 + l)] = c27
-                    buf[sbase + np.uint64(7616 + l)] = c28
-                    buf[sbase + np.uint64(7888 + l)] = c29
-                    buf[sbase + np.uint64(8160 + l)] = c30
-                    buf[sbase + np.uint64(8432 + l)] = c31
-                    buf[sbase + np.uint64(8704 + l)] = z
-                    norm = (((((c1 + c2) + (c3 + c4)) + ((c5 + c6) + (c7 + c8))) + (((c9 + c10) + (c11 + c12)) + ((c13 + c14) + (c15 + c16)))) + ((((c17 + c18) + (c19 + c20)) + ((c21 + c22) + (c23 + c24))) + (((c25 + c26) + (c27 + c28)) + ((c29 + c30) + c31))))
-                    inv_norm = (_1 / norm) if norm > tol else _0
-                    w1 = c1
-                    w2 = c2
-                    w3 = c3 * _INV2
-                    w4 = c4
-                    w5 = c5 * _INV2
-                    w6 = c6 * _INV2
-                    w7 = c7 * _INV3
-                    w8 = c8
-                    w9 = c9 * _INV2
-                    w10 = c10 * _INV2
-                    w11 = c11 * _INV3
-                    w12 = c12 * _INV2
-                    w13 = c13 * _INV3
-                    w14 = c14 * _INV3
-                    w15 = c15 * _INV4
-                    w16 = c16
-                    w17 = c17 * _INV2
-                    w18 = c18 * _INV2
-                    w19 = c19 * _INV3
-                    w20 = c20 * _INV2
-                    w21 = c21 * _INV3
-                    w22 = c22 * _INV3
-                    w23 = c23 * _INV4
-                    w24 = c24 * _INV2
-                    w25 = c25 * _INV3
-                    w26 = c26 * _INV3
-                    w27 = c27 * _INV4
-                    w28 = c28 * _INV3
-                    w29 = c29 * _INV4
-                    w30 = c30 * _INV4
-                    w31 = c31 * _INV5
-                    p_f = ((((w1 + w3) + (w5 + w7)) + ((w9 + w11) + (w13 + w15))) + (((w17 + w19) + (w21 + w23)) + ((w25 + w27) + (w29 + w31)))) * inv_norm
-                    p_i = ((((w2 + w3) + (w6 + w7)) + ((w10 + w11) + (w14 + w15))) + (((w18 + w19) + (w22 + w23)) + ((w26 + w27) + (w30 + w31)))) * inv_norm
-                    p_u = ((((w4 + w5) + (w6 + w7)) + ((w12 + w13) + (w14 + w15))) + (((w20 + w21) + (w22 + w23)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
-                    p_s = ((((w8 + w9) + (w10 + w11)) + ((w12 + w13) + (w14 + w15))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
-                    p_m = ((((w16 + w17) + (w18 + w19)) + ((w20 + w21) + (w22 + w23))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
-                    static = p_i + p_u + p_s
-                    code = c_free
-                    best = p_f
-                    code = c_moving if p_m > best else code
-                    best = p_m if p_m > best else best
-                    is_static = static > best
-                    code = c_static if is_static else code
-                    best = static if is_static else best
-                    fine_code = c_infra
-                    fine_best = p_i
-                    fine_code = c_unmapped if p_u > fine_best else fine_code
-                    fine_best = p_u if p_u > fine_best else fine_best
-                    fine_code = c_stopped if p_s > fine_best else fine_code
-                    fine_best = p_s if p_s > fine_best else fine_best
-                    least = p_i if p_i < p_u else p_u
-                    least = least if least < p_s else p_s
-                    fine_second = static - fine_best - least
-                    fine_ok = (fine_best >= _HALF) & (fine_best >= _HALF * static) & (fine_best - fine_second > _TIE)
-                    code = fine_code if (is_static & fine_ok) else code
-                    code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code
-                    buf[sbase + np.uint64(8976 + l)] = p_f
-                    buf[sbase + np.uint64(9248 + l)] = p_i
-                    buf[sbase + np.uint64(9520 + l)] = p_u
-                    buf[sbase + np.uint64(9792 + l)] = p_s
-                    buf[sbase + np.uint64(10064 + l)] = p_m
-                    buf[sbase + np.uint64(10336 + l)] = fo
-                    buf[sbase + np.uint64(10608 + l)] = of
-                    buf[sbase + np.uint64(10880 + l)] = other
-                    buf[sbase + np.uint64(11152 + l)] = code
-                    focal_lo = (((((_P0 if c0 != _0 else _0) + (_P1 if c1 != _0 else _0)) + ((_P2 if c2 != _0 else _0) + (_P3 if c3 != _0 else _0))) + (((_P4 if c4 != _0 else _0) + (_P5 if c5 != _0 else _0)) + ((_P6 if c6 != _0 else _0) + (_P7 if c7 != _0 else _0)))) + ((((_P8 if c8 != _0 else _0) + (_P9 if c9 != _0 else _0)) + ((_P10 if c10 != _0 else _0) + (_P11 if c11 != _0 else _0))) + (((_P12 if c12 != _0 else _0) + (_P13 if c13 != _0 else _0)) + ((_P14 if c14 != _0 else _0) + (_P15 if c15 != _0 else _0)))))
-                    focal_hi = (((((_P0 if c16 != _0 else _0) + (_P1 if c17 != _0 else _0)) + ((_P2 if c18 != _0 else _0) + (_P3 if c19 != _0 else _0))) + (((_P4 if c20 != _0 else _0) + (_P5 if c21 != _0 else _0)) + ((_P6 if c22 != _0 else _0) + (_P7 if c23 != _0 else _0)))) + ((((_P8 if c24 != _0 else _0) + (_P9 if c25 != _0 else _0)) + ((_P10 if c26 != _0 else _0) + (_P11 if c27 != _0 else _0))) + (((_P12 if c28 != _0 else _0) + (_P13 if c29 != _0 else _0)) + ((_P14 if c30 != _0 else _0) + (_P15 if c31 != _0 else _0)))))
-                    buf[sbase + np.uint64(11696 + l)] = focal_lo
-                    buf[sbase + np.uint64(11968 + l)] = focal_hi
-                    buf[sbase + np.uint64(11424 + l)] = _1 if ((focal_lo == _0) & (focal_hi == _P15) & (c31 == _1) & (z == _0)) else _0
+                for l_4 in range(SUB):
+                    m0_6 = buf[sbase + np.uint64(0 + l_4)]
+                    m1_6 = buf[sbase + np.uint64(272 + l_4)]
+                    m2_2 = buf[sbase + np.uint64(544 + l_4)]
+                    m3_2 = buf[sbase + np.uint64(816 + l_4)]
+                    m4_6 = buf[sbase + np.uint64(1088 + l_4)]
+                    m5_6 = buf[sbase + np.uint64(1360 + l_4)]
+                    m6_2 = buf[sbase + np.uint64(1632 + l_4)]
+                    m7_2 = buf[sbase + np.uint64(1904 + l_4)]
+                    m8_6 = buf[sbase + np.uint64(2176 + l_4)]
+                    m9_6 = buf[sbase + np.uint64(2448 + l_4)]
+                    m10_2 = buf[sbase + np.uint64(2720 + l_4)]
+                    m11_2 = buf[sbase + np.uint64(2992 + l_4)]
+                    m12_6 = buf[sbase + np.uint64(3264 + l_4)]
+                    m13_6 = buf[sbase + np.uint64(3536 + l_4)]
+                    m14_4 = buf[sbase + np.uint64(3808 + l_4)]
+                    m15_4 = buf[sbase + np.uint64(4080 + l_4)]
+                    m16_6 = buf[sbase + np.uint64(4352 + l_4)]
+                    m17_6 = buf[sbase + np.uint64(4624 + l_4)]
+                    m18_2 = buf[sbase + np.uint64(4896 + l_4)]
+                    m19_2 = buf[sbase + np.uint64(5168 + l_4)]
+                    m20_6 = buf[sbase + np.uint64(5440 + l_4)]
+                    m21_6 = buf[sbase + np.uint64(5712 + l_4)]
+                    m22_2 = buf[sbase + np.uint64(5984 + l_4)]
+                    m23_2 = buf[sbase + np.uint64(6256 + l_4)]
+                    m24_6 = buf[sbase + np.uint64(6528 + l_4)]
+                    m25_6 = buf[sbase + np.uint64(6800 + l_4)]
+                    m26_2 = buf[sbase + np.uint64(7072 + l_4)]
+                    m27_2 = buf[sbase + np.uint64(7344 + l_4)]
+                    m28_6 = buf[sbase + np.uint64(7616 + l_4)]
+                    m29_6 = buf[sbase + np.uint64(7888 + l_4)]
+                    m30_4 = buf[sbase + np.uint64(8160 + l_4)]
+                    m31_4 = buf[sbase + np.uint64(8432 + l_4)]
+                    z_3 = buf[sbase + np.uint64(8704 + l_4)]
+                    f_2 = buf[sbase + np.uint64(8976 + l_4)]
+                    o_2 = buf[sbase + np.uint64(9248 + l_4)]
+                    u_2 = _1 - f_2 - o_2
+                    lab_2 = buf[sbase + np.uint64(9520 + l_4)]
+                    ob_2 = buf[sbase + np.uint64(9792 + l_4)]
+                    gt_2 = buf[sbase + np.uint64(10064 + l_4)]
+                    obs_2 = _sel(derive_obs, (f_2 > _0) | (o_2 > _0), ob_2 != _0)
+                    is_b_2 = lab_2 == _2
+                    is_r_2 = lab_2 == _1
+                    is_o_2 = lab_2 == _0
+                    beta_4 = beta_b if is_b_2 else beta_r if is_r_2 else _sel(is_o_2, beta_o, _0)
+                    beta_5 = _sel(obs_2 | everywhere, beta_4, _0)
+                    e_3 = _sel(is_b_2, beta_5 * f_2, _0)
+                    kept_3 = _1 - e_3
+                    total_2 = kept_3 <= tol
+                    beta_6 = _sel(total_2, _0, beta_5)
+                    e_4 = _sel(total_2, _0, e_3)
+                    kept_4 = _sel(total_2, _1, kept_3)
+                    inv_kept_2 = _1 / kept_4
+                    bb_2 = _sel(is_b_2, beta_6, _0)
+                    br_2 = _sel(is_r_2, beta_6, _0)
+                    bo_2 = _sel(is_o_2, beta_6, _0)
+                    t_79 = a_f * m0_6
+                    m1_7 = m1_6 + t_79
+                    m0_7 = m0_6 - t_79
+                    t_80 = a_f * m2_2
+                    m3_3 = m3_2 + t_80
+                    m2_3 = m2_2 - t_80
+                    t_81 = a_f * m4_6
+                    m5_7 = m5_6 + t_81
+                    m4_7 = m4_6 - t_81
+                    t_82 = a_f * m6_2
+                    m7_3 = m7_2 + t_82
+                    m6_3 = m6_2 - t_82
+                    t_83 = a_f * m8_6
+                    m9_7 = m9_6 + t_83
+                    m8_7 = m8_6 - t_83
+                    t_84 = a_f * m10_2
+                    m11_3 = m11_2 + t_84
+                    m10_3 = m10_2 - t_84
+                    t_85 = a_f * m12_6
+                    m13_7 = m13_6 + t_85
+                    m12_7 = m12_6 - t_85
+                    t_86 = a_f * m14_4
+                    m15_5 = m15_4 + t_86
+                    m14_5 = m14_4 - t_86
+                    t_87 = a_f * m16_6
+                    m17_7 = m17_6 + t_87
+                    m16_7 = m16_6 - t_87
+                    t_88 = a_f * m18_2
+                    m19_3 = m19_2 + t_88
+                    m18_3 = m18_2 - t_88
+                    t_89 = a_f * m20_6
+                    m21_7 = m21_6 + t_89
+                    m20_7 = m20_6 - t_89
+                    t_90 = a_f * m22_2
+                    m23_3 = m23_2 + t_90
+                    m22_3 = m22_2 - t_90
+                    t_91 = a_f * m24_6
+                    m25_7 = m25_6 + t_91
+                    m24_7 = m24_6 - t_91
+                    t_92 = a_f * m26_2
+                    m27_3 = m27_2 + t_92
+                    m26_3 = m26_2 - t_92
+                    t_93 = a_f * m28_6
+                    m29_7 = m29_6 + t_93
+                    m28_7 = m28_6 - t_93
+                    t_94 = a_f * m30_4
+                    m31_5 = m31_4 + t_94
+                    m30_5 = m30_4 - t_94
+                    t_95 = a_u * m0_7
+                    m4_8 = m4_7 + t_95
+                    m0_8 = m0_7 - t_95
+                    t_96 = a_u * m1_7
+                    m5_8 = m5_7 + t_96
+                    m1_8 = m1_7 - t_96
+                    t_97 = a_u * m2_3
+                    m6_4 = m6_3 + t_97
+                    m2_4 = m2_3 - t_97
+                    t_98 = a_u * m3_3
+                    m7_4 = m7_3 + t_98
+                    m3_4 = m3_3 - t_98
+                    t_99 = a_u * m8_7
+                    m12_8 = m12_7 + t_99
+                    m8_8 = m8_7 - t_99
+                    t_100 = a_u * m9_7
+                    m13_8 = m13_7 + t_100
+                    m9_8 = m9_7 - t_100
+                    t_101 = a_u * m10_3
+                    m14_6 = m14_5 + t_101
+                    m10_4 = m10_3 - t_101
+                    t_102 = a_u * m11_3
+                    m15_6 = m15_5 + t_102
+                    m11_4 = m11_3 - t_102
+                    t_103 = a_u * m16_7
+                    m20_8 = m20_7 + t_103
+                    m16_8 = m16_7 - t_103
+                    t_104 = a_u * m17_7
+                    m21_8 = m21_7 + t_104
+                    m17_8 = m17_7 - t_104
+                    t_105 = a_u * m18_3
+                    m22_4 = m22_3 + t_105
+                    m18_4 = m18_3 - t_105
+                    t_106 = a_u * m19_3
+                    m23_4 = m23_3 + t_106
+                    m19_4 = m19_3 - t_106
+                    t_107 = a_u * m24_7
+                    m28_8 = m28_7 + t_107
+                    m24_8 = m24_7 - t_107
+                    t_108 = a_u * m25_7
+                    m29_8 = m29_7 + t_108
+                    m25_8 = m25_7 - t_108
+                    t_109 = a_u * m26_3
+                    m30_6 = m30_5 + t_109
+                    m26_4 = m26_3 - t_109
+                    t_110 = a_u * m27_3
+                    m31_6 = m31_5 + t_110
+                    m27_4 = m27_3 - t_110
+                    t_111 = a_s * m0_8
+                    m8_9 = m8_8 + t_111
+                    m0_9 = m0_8 - t_111
+                    t_112 = a_s * m1_8
+                    m9_9 = m9_8 + t_112
+                    m1_9 = m1_8 - t_112
+                    t_113 = a_s * m2_4
+                    m10_5 = m10_4 + t_113
+                    m2_5 = m2_4 - t_113
+                    t_114 = a_s * m3_4
+                    m11_5 = m11_4 + t_114
+                    m3_5 = m3_4 - t_114
+                    t_115 = a_s * m4_8
+                    m12_9 = m12_8 + t_115
+                    m4_9 = m4_8 - t_115
+                    t_116 = a_s * m5_8
+                    m13_9 = m13_8 + t_116
+                    m5_9 = m5_8 - t_116
+                    t_117 = a_s * m6_4
+                    m14_7 = m14_6 + t_117
+                    m6_5 = m6_4 - t_117
+                    t_118 = a_s * m7_4
+                    m15_7 = m15_6 + t_118
+                    m7_5 = m7_4 - t_118
+                    t_119 = a_s * m16_8
+                    m24_9 = m24_8 + t_119
+                    m16_9 = m16_8 - t_119
+                    t_120 = a_s * m17_8
+                    m25_9 = m25_8 + t_120
+                    m17_9 = m17_8 - t_120
+                    t_121 = a_s * m18_4
+                    m26_5 = m26_4 + t_121
+                    m18_5 = m18_4 - t_121
+                    t_122 = a_s * m19_4
+                    m27_5 = m27_4 + t_122
+                    m19_5 = m19_4 - t_122
+                    t_123 = a_s * m20_8
+                    m28_9 = m28_8 + t_123
+                    m20_9 = m20_8 - t_123
+                    t_124 = a_s * m21_8
+                    m29_9 = m29_8 + t_124
+                    m21_9 = m21_8 - t_124
+                    t_125 = a_s * m22_4
+                    m30_7 = m30_6 + t_125
+                    m22_5 = m22_4 - t_125
+                    t_126 = a_s * m23_4
+                    m31_7 = m31_6 + t_126
+                    m23_5 = m23_4 - t_126
+                    t_127 = a_m * m0_9
+                    m16_10 = m16_9 + t_127
+                    m0_10 = m0_9 - t_127
+                    t_128 = a_m * m1_9
+                    m17_10 = m17_9 + t_128
+                    m1_10 = m1_9 - t_128
+                    t_129 = a_m * m2_5
+                    m18_6 = m18_5 + t_129
+                    m2_6 = m2_5 - t_129
+                    t_130 = a_m * m3_5
+                    m19_6 = m19_5 + t_130
+                    m3_6 = m3_5 - t_130
+                    t_131 = a_m * m4_9
+                    m20_10 = m20_9 + t_131
+                    m4_10 = m4_9 - t_131
+                    t_132 = a_m * m5_9
+                    m21_10 = m21_9 + t_132
+                    m5_10 = m5_9 - t_132
+                    t_133 = a_m * m6_5
+                    m22_6 = m22_5 + t_133
+                    m6_6 = m6_5 - t_133
+                    t_134 = a_m * m7_5
+                    m23_6 = m23_5 + t_134
+                    m7_6 = m7_5 - t_134
+                    t_135 = a_m * m8_9
+                    m24_10 = m24_9 + t_135
+                    m8_10 = m8_9 - t_135
+                    t_136 = a_m * m9_9
+                    m25_10 = m25_9 + t_136
+                    m9_10 = m9_9 - t_136
+                    t_137 = a_m * m10_5
+                    m26_6 = m26_5 + t_137
+                    m10_6 = m10_5 - t_137
+                    t_138 = a_m * m11_5
+                    m27_6 = m27_5 + t_138
+                    m11_6 = m11_5 - t_138
+                    t_139 = a_m * m12_9
+                    m28_10 = m28_9 + t_139
+                    m12_10 = m12_9 - t_139
+                    t_140 = a_m * m13_9
+                    m29_10 = m29_9 + t_140
+                    m13_10 = m13_9 - t_140
+                    t_141 = a_m * m14_7
+                    m30_8 = m30_7 + t_141
+                    m14_8 = m14_7 - t_141
+                    t_142 = a_m * m15_7
+                    m31_8 = m31_7 + t_142
+                    m15_8 = m15_7 - t_142
+                    s_f_2 = m1_10 + m3_6 + (m5_10 + m7_6) + (m9_10 + m11_6 + (m13_10 + m15_8)) + (m17_10 + m19_6 + (m21_10 + m23_6) + (m25_10 + m27_6 + (m29_10 + m31_8)))
+                    s_nf_2 = m0_10 + m2_6 + (m4_10 + m6_6) + (m8_10 + m10_6 + (m12_10 + m14_8)) + (m16_10 + m18_6 + (m20_10 + m22_6) + (m24_10 + m26_6 + (m28_10 + m30_8)))
+                    dn0_2 = u_2 * m0_10 + o_2 * (m0_10 + m1_10)
+                    dn1_2 = u_2 * m1_10
+                    d0_2 = dn0_2 + f_2 * s_nf_2
+                    d1_2 = dn1_2 + f_2 * s_f_2
+                    kf_2 = _sel(gate_off | (gt_2 != _0) | (not faded_o), _1, _0)
+                    d2_2 = u_2 * m2_6 + o_2 * (m2_6 + kf_2 * m3_6)
+                    d3_2 = u_2 * m3_6
+                    d4_2 = u_2 * m4_10 + o_2 * (m4_10 + kf_2 * m5_10)
+                    d5_2 = u_2 * m5_10
+                    d6_2 = u_2 * m6_6 + o_2 * (m6_6 + kf_2 * m7_6)
+                    d7_2 = u_2 * m7_6
+                    d8_2 = u_2 * m8_10 + o_2 * (m8_10 + kf_2 * m9_10)
+                    d9_2 = u_2 * m9_10
+                    d10_2 = u_2 * m10_6 + o_2 * (m10_6 + kf_2 * m11_6)
+                    d11_2 = u_2 * m11_6
+                    d12_2 = u_2 * m12_10 + o_2 * (m12_10 + kf_2 * m13_10)
+                    d13_2 = u_2 * m13_10
+                    d14_2 = u_2 * m14_8 + o_2 * (m14_8 + kf_2 * m15_8)
+                    d15_2 = u_2 * m15_8
+                    d16_2 = u_2 * m16_10 + o_2 * (m16_10 + kf_2 * m17_10)
+                    d17_2 = u_2 * m17_10
+                    d18_2 = u_2 * m18_6 + o_2 * (m18_6 + kf_2 * m19_6)
+                    d19_2 = u_2 * m19_6
+                    d20_2 = u_2 * m20_10 + o_2 * (m20_10 + kf_2 * m21_10)
+                    d21_2 = u_2 * m21_10
+                    d22_2 = u_2 * m22_6 + o_2 * (m22_6 + kf_2 * m23_6)
+                    d23_2 = u_2 * m23_6
+                    d24_2 = u_2 * m24_10 + o_2 * (m24_10 + kf_2 * m25_10)
+                    d25_2 = u_2 * m25_10
+                    d26_2 = u_2 * m26_6 + o_2 * (m26_6 + kf_2 * m27_6)
+                    d27_2 = u_2 * m27_6
+                    d28_2 = u_2 * m28_10 + o_2 * (m28_10 + kf_2 * m29_10)
+                    d29_2 = u_2 * m29_10
+                    d31_2 = u_2 * m31_8
+                    d30_2 = u_2 * m30_8 + o_2 * (m30_8 + m31_8 + (_1 - kf_2) * (m3_6 + m5_10 + (m7_6 + m9_10) + (m11_6 + m13_10 + (m15_8 + m17_10)) + (m19_6 + m21_10 + (m23_6 + m25_10) + (m27_6 + m29_10))))
+                    keep_d_2 = _1 - beta_6
+                    c0_4 = (keep_d_2 * d0_2 + bb_2 * (dn0_2 + dn1_2 + (d4_2 + d5_2) + (d8_2 + d9_2 + (d12_2 + d13_2)) + (d16_2 + d17_2 + (d20_2 + d21_2) + (d24_2 + d25_2 + (d28_2 + d29_2)))) + br_2 * (d0_2 + d2_2 + (d4_2 + d6_2)) + bo_2 * (d0_2 + d2_2)) * inv_kept_2
+                    c1_3 = (keep_d_2 * d1_2 + br_2 * (d1_2 + d3_2 + (d5_2 + d7_2)) + bo_2 * (d1_2 + d3_2)) * inv_kept_2
+                    c2_2 = (keep_d_2 * d2_2 + bb_2 * (d2_2 + d3_2 + (d6_2 + d7_2) + (d10_2 + d11_2 + (d14_2 + d15_2)) + (d18_2 + d19_2 + (d22_2 + d23_2) + (d26_2 + d27_2 + (d30_2 + d31_2))))) * inv_kept_2
+                    c3_2 = keep_d_2 * d3_2 * inv_kept_2
+                    c4_3 = (keep_d_2 * d4_2 + bo_2 * (d4_2 + d6_2)) * inv_kept_2
+                    c5_3 = (keep_d_2 * d5_2 + bo_2 * (d5_2 + d7_2)) * inv_kept_2
+                    c6_2 = keep_d_2 * d6_2 * inv_kept_2
+                    c7_2 = keep_d_2 * d7_2 * inv_kept_2
+                    c8_4 = (keep_d_2 * d8_2 + br_2 * (d8_2 + d10_2 + (d12_2 + d14_2)) + bo_2 * (d8_2 + d10_2)) * inv_kept_2
+                    c9_3 = (keep_d_2 * d9_2 + br_2 * (d9_2 + d11_2 + (d13_2 + d15_2)) + bo_2 * (d9_2 + d11_2)) * inv_kept_2
+                    c10_2 = keep_d_2 * d10_2 * inv_kept_2
+                    c11_2 = keep_d_2 * d11_2 * inv_kept_2
+                    c12_3 = (keep_d_2 * d12_2 + bo_2 * (d12_2 + d14_2)) * inv_kept_2
+                    c13_3 = (keep_d_2 * d13_2 + bo_2 * (d13_2 + d15_2)) * inv_kept_2
+                    c14_4 = keep_d_2 * d14_2 * inv_kept_2
+                    c15_3 = keep_d_2 * d15_2 * inv_kept_2
+                    c16_4 = (keep_d_2 * d16_2 + br_2 * (d16_2 + d18_2 + (d20_2 + d22_2)) + bo_2 * (d16_2 + d18_2)) * inv_kept_2
+                    c17_3 = (keep_d_2 * d17_2 + br_2 * (d17_2 + d19_2 + (d21_2 + d23_2)) + bo_2 * (d17_2 + d19_2)) * inv_kept_2
+                    c18_2 = keep_d_2 * d18_2 * inv_kept_2
+                    c19_2 = keep_d_2 * d19_2 * inv_kept_2
+                    c20_3 = (keep_d_2 * d20_2 + bo_2 * (d20_2 + d22_2)) * inv_kept_2
+                    c21_3 = (keep_d_2 * d21_2 + bo_2 * (d21_2 + d23_2)) * inv_kept_2
+                    c22_2 = keep_d_2 * d22_2 * inv_kept_2
+                    c23_2 = keep_d_2 * d23_2 * inv_kept_2
+                    c24_3 = (keep_d_2 * d24_2 + br_2 * (d24_2 + d26_2 + (d28_2 + d30_2)) + bo_2 * (d24_2 + d26_2)) * inv_kept_2
+                    c25_3 = (keep_d_2 * d25_2 + br_2 * (d25_2 + d27_2 + (d29_2 + d31_2)) + bo_2 * (d25_2 + d27_2)) * inv_kept_2
+                    c26_2 = keep_d_2 * d26_2 * inv_kept_2
+                    c27_2 = keep_d_2 * d27_2 * inv_kept_2
+                    c28_3 = (keep_d_2 * d28_2 + bo_2 * (d28_2 + d30_2)) * inv_kept_2
+                    c29_3 = (keep_d_2 * d29_2 + bo_2 * (d29_2 + d31_2)) * inv_kept_2
+                    c30_4 = keep_d_2 * d30_2 * inv_kept_2
+                    c31_4 = keep_d_2 * d31_2 * inv_kept_2
+                    sg_free_2 = f_2 * (_1 - bb_2) * inv_kept_2
+                    sg_bel_o_2 = (o_2 + u_2 * bb_2) * inv_kept_2
+                    pg_bel_o_2 = m2_6 + m4_10 + (m6_6 + m8_10) + (m10_6 + m12_10 + (m14_8 + m16_10)) + (m18_6 + m20_10 + (m22_6 + m24_10) + (m26_6 + m28_10 + m30_8))
+                    fo_2 = m1_10 * sg_bel_o_2
+                    of_2 = pg_bel_o_2 * sg_free_2
+                    other_3 = c0_4 - fo_2 - of_2
+                    other_4 = _sel(other_3 > _0, other_3, _0)
+                    in_b = is_b_2 & bld_i
+                    fo_m_2 = _0 if in_b else _sel(gate_off | (gt_2 != _0), fo_2, _0)
+                    fo_c_2 = _sel(in_b | gate_off | (gt_2 != _0), _0, fo_2)
+                    c2_3 = c2_2 + _sel(in_b, fo_2, _0)
+                    c0_5 = _sel(residual == 1, other_4, _0)
+                    c16_5 = c16_4 + fo_m_2
+                    c30_5 = c30_4 + _sel(closed_o, fo_c_2, _0)
+                    c14_5 = c14_4 + _sel(closed_o, _0, fo_c_2)
+                    c31_5 = c31_4 + (of_2 + _sel(residual == 0, other_4, _0))
+                    bel_o_2 = c2_3 + c4_3 + (c6_2 + c8_4) + (c10_2 + c12_3 + (c14_5 + c16_5)) + (c18_2 + c20_3 + (c22_2 + c24_3) + (c26_2 + c28_3 + c30_5))
+                    dynamic_2 = fo_m_2 + of_2
+                    z_up_3 = z_3 + inc
+                    z_up_4 = _sel(z_up_3 < _1, z_up_3, _1)
+                    z_down_3 = z_3 - dec
+                    z_down_4 = _sel(z_down_3 > _0, z_down_3, _0)
+                    z_4 = z_up_4 if (bel_o_2 >= gamma_o) & (dynamic_2 <= gamma_c) else _sel(dynamic_2 > gamma_c, z_down_4, z_3)
+                    g_11 = c17_3 * z_4
+                    c17_4 = c17_3 - g_11
+                    c1_4 = c1_3 + g_11
+                    g_12 = c18_2 * z_4
+                    c18_3 = c18_2 - g_12
+                    c2_4 = c2_3 + g_12
+                    g_13 = c19_2 * z_4
+                    c19_3 = c19_2 - g_13
+                    c3_3 = c3_2 + g_13
+                    g_14 = c20_3 * z_4
+                    c20_4 = c20_3 - g_14
+                    c4_4 = c4_3 + g_14
+                    g_15 = c21_3 * z_4
+                    c21_4 = c21_3 - g_15
+                    c5_4 = c5_3 + g_15
+                    g_16 = c22_2 * z_4
+                    c22_3 = c22_2 - g_16
+                    c6_3 = c6_2 + g_16
+                    g_17 = c23_2 * z_4
+                    c23_3 = c23_2 - g_17
+                    c7_3 = c7_2 + g_17
+                    g_18 = c24_3 * z_4
+                    c24_4 = c24_3 - g_18
+                    c8_5 = c8_4 + g_18
+                    g_19 = c25_3 * z_4
+                    c25_4 = c25_3 - g_19
+                    c9_4 = c9_3 + g_19
+                    g_20 = c26_2 * z_4
+                    c26_3 = c26_2 - g_20
+                    c10_3 = c10_2 + g_20
+                    g_21 = c27_2 * z_4
+                    c27_3 = c27_2 - g_21
+                    c11_3 = c11_2 + g_21
+                    g_22 = c28_3 * z_4
+                    c28_4 = c28_3 - g_22
+                    c12_4 = c12_3 + g_22
+                    g_23 = c29_3 * z_4
+                    c29_4 = c29_3 - g_23
+                    c13_4 = c13_3 + g_23
+                    g_24 = c30_5 * z_4
+                    c30_6 = c30_5 - g_24
+                    c14_6 = c14_5 + g_24
+                    g_25 = c31_5 * z_4
+                    c31_6 = c31_5 - g_25
+                    c15_4 = c15_3 + g_25
+                    g_26 = c16_5 * z_4
+                    c16_6 = c16_5 - g_26
+                    c8_6 = c8_5 + _sel(to_s, g_26, _0)
+                    c0_6 = c0_5 + _sel(to_s, _0, g_26)
+                    buf[sbase + np.uint64(0 + l_4)] = c0_6
+                    buf[sbase + np.uint64(272 + l_4)] = c1_4
+                    buf[sbase + np.uint64(544 + l_4)] = c2_4
+                    buf[sbase + np.uint64(816 + l_4)] = c3_3
+                    buf[sbase + np.uint64(1088 + l_4)] = c4_4
+                    buf[sbase + np.uint64(1360 + l_4)] = c5_4
+                    buf[sbase + np.uint64(1632 + l_4)] = c6_3
+                    buf[sbase + np.uint64(1904 + l_4)] = c7_3
+                    buf[sbase + np.uint64(2176 + l_4)] = c8_6
+                    buf[sbase + np.uint64(2448 + l_4)] = c9_4
+                    buf[sbase + np.uint64(2720 + l_4)] = c10_3
+                    buf[sbase + np.uint64(2992 + l_4)] = c11_3
+                    buf[sbase + np.uint64(3264 + l_4)] = c12_4
+                    buf[sbase + np.uint64(3536 + l_4)] = c13_4
+                    buf[sbase + np.uint64(3808 + l_4)] = c14_6
+                    buf[sbase + np.uint64(4080 + l_4)] = c15_4
+                    buf[sbase + np.uint64(4352 + l_4)] = c16_6
+                    buf[sbase + np.uint64(4624 + l_4)] = c17_4
+                    buf[sbase + np.uint64(4896 + l_4)] = c18_3
+                    buf[sbase + np.uint64(5168 + l_4)] = c19_3
+                    buf[sbase + np.uint64(5440 + l_4)] = c20_4
+                    buf[sbase + np.uint64(5712 + l_4)] = c21_4
+                    buf[sbase + np.uint64(5984 + l_4)] = c22_3
+                    buf[sbase + np.uint64(6256 + l_4)] = c23_3
+                    buf[sbase + np.uint64(6528 + l_4)] = c24_4
+                    buf[sbase + np.uint64(6800 + l_4)] = c25_4
+                    buf[sbase + np.uint64(7072 + l_4)] = c26_3
+                    buf[sbase + np.uint64(7344 + l_4)] = c27_3
+                    buf[sbase + np.uint64(7616 + l_4)] = c28_4
+                    buf[sbase + np.uint64(7888 + l_4)] = c29_4
+                    buf[sbase + np.uint64(8160 + l_4)] = c30_6
+                    buf[sbase + np.uint64(8432 + l_4)] = c31_6
+                    buf[sbase + np.uint64(8704 + l_4)] = z_4
+                    norm_2 = c1_4 + c2_4 + (c3_3 + c4_4) + (c5_4 + c6_3 + (c7_3 + c8_6)) + (c9_4 + c10_3 + (c11_3 + c12_4) + (c13_4 + c14_6 + (c15_4 + c16_6))) + (c17_4 + c18_3 + (c19_3 + c20_4) + (c21_4 + c22_3 + (c23_3 + c24_4)) + (c25_4 + c26_3 + (c27_3 + c28_4) + (c29_4 + c30_6 + c31_6)))
+                    inv_norm_2 = _sel(norm_2 > tol, _1 / norm_2, _0)
+                    w1_2 = c1_4
+                    w2_2 = c2_4
+                    w3_2 = c3_3 * _INV2
+                    w4_2 = c4_4
+                    w5_2 = c5_4 * _INV2
+                    w6_2 = c6_3 * _INV2
+                    w7_2 = c7_3 * _INV3
+                    w8_2 = c8_6
+                    w9_2 = c9_4 * _INV2
+                    w10_2 = c10_3 * _INV2
+                    w11_2 = c11_3 * _INV3
+                    w12_2 = c12_4 * _INV2
+                    w13_2 = c13_4 * _INV3
+                    w14_2 = c14_6 * _INV3
+                    w15_2 = c15_4 * _INV4
+                    w16_2 = c16_6
+                    w17_2 = c17_4 * _INV2
+                    w18_2 = c18_3 * _INV2
+                    w19_2 = c19_3 * _INV3
+                    w20_2 = c20_4 * _INV2
+                    w21_2 = c21_4 * _INV3
+                    w22_2 = c22_3 * _INV3
+                    w23_2 = c23_3 * _INV4
+                    w24_2 = c24_4 * _INV2
+                    w25_2 = c25_4 * _INV3
+                    w26_2 = c26_3 * _INV3
+                    w27_2 = c27_3 * _INV4
+                    w28_2 = c28_4 * _INV3
+                    w29_2 = c29_4 * _INV4
+                    w30_2 = c30_6 * _INV4
+                    w31_2 = c31_6 * _INV5
+                    p_f_2 = (w1_2 + w3_2 + (w5_2 + w7_2) + (w9_2 + w11_2 + (w13_2 + w15_2)) + (w17_2 + w19_2 + (w21_2 + w23_2) + (w25_2 + w27_2 + (w29_2 + w31_2)))) * inv_norm_2
+                    p_i_2 = (w2_2 + w3_2 + (w6_2 + w7_2) + (w10_2 + w11_2 + (w14_2 + w15_2)) + (w18_2 + w19_2 + (w22_2 + w23_2) + (w26_2 + w27_2 + (w30_2 + w31_2)))) * inv_norm_2
+                    p_u_2 = (w4_2 + w5_2 + (w6_2 + w7_2) + (w12_2 + w13_2 + (w14_2 + w15_2)) + (w20_2 + w21_2 + (w22_2 + w23_2) + (w28_2 + w29_2 + (w30_2 + w31_2)))) * inv_norm_2
+                    p_s_2 = (w8_2 + w9_2 + (w10_2 + w11_2) + (w12_2 + w13_2 + (w14_2 + w15_2)) + (w24_2 + w25_2 + (w26_2 + w27_2) + (w28_2 + w29_2 + (w30_2 + w31_2)))) * inv_norm_2
+                    p_m_2 = (w16_2 + w17_2 + (w18_2 + w19_2) + (w20_2 + w21_2 + (w22_2 + w23_2)) + (w24_2 + w25_2 + (w26_2 + w27_2) + (w28_2 + w29_2 + (w30_2 + w31_2)))) * inv_norm_2
+                    static_2 = p_i_2 + p_u_2 + p_s_2
+                    code_6 = c_free
+                    best_4 = p_f_2
+                    code_7 = _sel(p_m_2 > best_4, c_moving, code_6)
+                    best_5 = _sel(p_m_2 > best_4, p_m_2, best_4)
+                    is_static_2 = static_2 > best_5
+                    code_8 = _sel(is_static_2, c_static, code_7)
+                    best_6 = _sel(is_static_2, static_2, best_5)
+                    fine_code_4 = c_infra
+                    fine_best_4 = p_i_2
+                    fine_code_5 = _sel(p_u_2 > fine_best_4, c_unmapped, fine_code_4)
+                    fine_best_5 = _sel(p_u_2 > fine_best_4, p_u_2, fine_best_4)
+                    fine_code_6 = _sel(p_s_2 > fine_best_5, c_stopped, fine_code_5)
+                    fine_best_6 = _sel(p_s_2 > fine_best_5, p_s_2, fine_best_5)
+                    least_3 = _sel(p_i_2 < p_u_2, p_i_2, p_u_2)
+                    least_4 = _sel(least_3 < p_s_2, least_3, p_s_2)
+                    fine_second_2 = static_2 - fine_best_6 - least_4
+                    fine_ok_2 = (fine_best_6 >= _HALF) & (fine_best_6 >= _HALF * static_2) & (fine_best_6 - fine_second_2 > _TIE)
+                    code_9 = _sel(is_static_2 & fine_ok_2, fine_code_6, code_8)
+                    code_10 = _sel((best_6 < min_betp) | (c31_6 > max_ign), c_unknown, code_9)
+                    buf[sbase + np.uint64(8976 + l_4)] = p_f_2
+                    buf[sbase + np.uint64(9248 + l_4)] = p_i_2
+                    buf[sbase + np.uint64(9520 + l_4)] = p_u_2
+                    buf[sbase + np.uint64(9792 + l_4)] = p_s_2
+                    buf[sbase + np.uint64(10064 + l_4)] = p_m_2
+                    buf[sbase + np.uint64(10336 + l_4)] = fo_2
+                    buf[sbase + np.uint64(10608 + l_4)] = of_2
+                    buf[sbase + np.uint64(10880 + l_4)] = other_4
+                    buf[sbase + np.uint64(11152 + l_4)] = code_10
+                    focal_lo_2 = _sel(c0_6 != _0, _P0, _0) + _sel(c1_4 != _0, _P1, _0) + (_sel(c2_4 != _0, _P2, _0) + _sel(c3_3 != _0, _P3, _0)) + (_sel(c4_4 != _0, _P4, _0) + _sel(c5_4 != _0, _P5, _0) + (_sel(c6_3 != _0, _P6, _0) + _sel(c7_3 != _0, _P7, _0))) + (_sel(c8_6 != _0, _P8, _0) + _sel(c9_4 != _0, _P9, _0) + (_sel(c10_3 != _0, _P10, _0) + _sel(c11_3 != _0, _P11, _0)) + (_sel(c12_4 != _0, _P12, _0) + _sel(c13_4 != _0, _P13, _0) + (_sel(c14_6 != _0, _P14, _0) + _sel(c15_4 != _0, _P15, _0))))
+                    focal_hi_2 = _sel(c16_6 != _0, _P0, _0) + _sel(c17_4 != _0, _P1, _0) + (_sel(c18_3 != _0, _P2, _0) + _sel(c19_3 != _0, _P3, _0)) + (_sel(c20_4 != _0, _P4, _0) + _sel(c21_4 != _0, _P5, _0) + (_sel(c22_3 != _0, _P6, _0) + _sel(c23_3 != _0, _P7, _0))) + (_sel(c24_4 != _0, _P8, _0) + _sel(c25_4 != _0, _P9, _0) + (_sel(c26_3 != _0, _P10, _0) + _sel(c27_3 != _0, _P11, _0)) + (_sel(c28_4 != _0, _P12, _0) + _sel(c29_4 != _0, _P13, _0) + (_sel(c30_6 != _0, _P14, _0) + _sel(c31_6 != _0, _P15, _0))))
+                    buf[sbase + np.uint64(11696 + l_4)] = focal_lo_2
+                    buf[sbase + np.uint64(11968 + l_4)] = focal_hi_2
+                    buf[sbase + np.uint64(11424 + l_4)] = _sel((focal_lo_2 == _0) & (focal_hi_2 == _P15) & (c31_6 == _1) & (z_4 == _0), _1, _0)
             new_mask = np.uint32(0)
-            for seg in range(2):
-                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                w = a1 - a0
+            for seg_9 in range(2):
+                a0 = _sel(seg_9 == 0, j0 + l0, max(j0 + l0, wrap))
+                a1_9 = _sel(seg_9 == 0, min(j0 + l1, wrap), j0 + l1)
+                w = a1_9 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_9 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        v = np.uint32(buf[np.uint64((43) * STRIDE + lb) + np.uint64(t)])
-                        v |= np.uint32(buf[np.uint64((44) * STRIDE + lb) + np.uint64(t)]) << np.uint32(16)
-                        fc[sc + np.uint64(t)] = v
-                        new_mask |= v
+                    for t_143 in range(w):
+                        v_1 = np.uint32(buf[np.uint64(43 * STRIDE + lb) + np.uint64(t_143)])
+                        v_2 = v_1 | np.uint32(buf[np.uint64(44 * STRIDE + lb) + np.uint64(t_143)]) << np.uint32(16)
+                        fc[sc + np.uint64(t_143)] = v_2
+                        new_mask |= v_2
             write_mask = old_mask | new_mask
             # planes the body may have left non-zero in some lane of the buffer (all when it ran
             # past l1, on lanes whose stale inputs are not known)
-            dirty |= new_mask if l1 % SUB == 0 else _ALL_PLANES
-            for a in range(32):
-                if (write_mask >> np.uint32(a)) & _ONE:
-                    for seg in range(2):
-                        a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                        a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                        w = a1 - a0
+            dirty |= _sel(l1 % SUB == 0, new_mask, _ALL_PLANES)
+            for a_8 in range(32):
+                if (write_mask >> np.uint32(a_8)) & _ONE:
+                    for seg_10 in range(2):
+                        a0 = _sel(seg_10 == 0, j0 + l0, max(j0 + l0, wrap))
+                        a1_10 = _sel(seg_10 == 0, min(j0 + l1, wrap), j0 + l1)
+                        w = a1_10 - a0
                         if w > 0:
-                            sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                            sc = np.uint64(rb + a0 + _sel(seg_10 == 0, off_c, off_c - cols))
                             lb = a0 - j0
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = buf[np.uint64((0 + a) * STRIDE + lb) + np.uint64(t)]
-            for seg in range(2):
-                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                w = a1 - a0
+                            for t_144 in range(w):
+                                st[np.uint64(a_8), sc + np.uint64(t_144)] = buf[np.uint64((0 + a_8) * STRIDE + lb) + np.uint64(t_144)]
+            for seg_11 in range(2):
+                a0 = _sel(seg_11 == 0, j0 + l0, max(j0 + l0, wrap))
+                a1_11 = _sel(seg_11 == 0, min(j0 + l1, wrap), j0 + l1)
+                w = a1_11 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_11 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        zt[sc + np.uint64(t)] = buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)]
-                    for t in range(w):
-                        fl[sc + np.uint64(t)] = np.uint8(buf[np.uint64((42) * STRIDE + lb) + np.uint64(t)])
-            for k in range(5):
-                for t in range(l1 - l0):
-                    bp[np.uint64(k), wl + np.uint64(t)] = buf[np.uint64((33 + k) * STRIDE + l0) + np.uint64(t)]
-            for k in range(3):
-                for t in range(l1 - l0):
-                    cf[np.uint64(k), wl + np.uint64(t)] = buf[np.uint64((38 + k) * STRIDE + l0) + np.uint64(t)]
-            for t in range(l1 - l0):
-                dc[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * STRIDE + l0) + np.uint64(t)])
+                    for t_145 in range(w):
+                        zt[sc + np.uint64(t_145)] = buf[np.uint64(32 * STRIDE + lb) + np.uint64(t_145)]
+                    for t_146 in range(w):
+                        fl[sc + np.uint64(t_146)] = np.uint8(buf[np.uint64(42 * STRIDE + lb) + np.uint64(t_146)])
+            for k_5 in range(5):
+                for t_147 in range(l1 - l0):
+                    bp[np.uint64(k_5), wl + np.uint64(t_147)] = buf[np.uint64((33 + k_5) * STRIDE + l0) + np.uint64(t_147)]
+            for k_6 in range(3):
+                for t_148 in range(l1 - l0):
+                    cf[np.uint64(k_6), wl + np.uint64(t_148)] = buf[np.uint64((38 + k_6) * STRIDE + l0) + np.uint64(t_148)]
+            for t_149 in range(l1 - l0):
+                dc[wl + np.uint64(t_149)] = np.uint8(buf[np.uint64(41 * STRIDE + l0) + np.uint64(t_149)])
 
 
 @numba.njit(cache=True, nogil=True, fastmath={'ninf', 'nnan'}, error_model="numpy")
@@ -3044,9 +3052,9 @@ def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ
             continue
         if r == chunk * band_rows:  # a chunk's runs start at its room
             pos = np.uint64(32 * cols * r)
-        buf_row = r + off_r
-        buf_row = buf_row - rows if buf_row >= rows else buf_row
-        rb = buf_row * cols
+        buf_row_1 = r + off_r
+        buf_row_2 = _sel(buf_row_1 >= rows, buf_row_1 - rows, buf_row_1)
+        rb = buf_row_2 * cols
         lo = min(max(-dc_, 0), cols)
         hi = max(min(cols - dc_, cols), lo)
         if r + dr < 0 or r + dr >= rows:
@@ -3060,22 +3068,22 @@ def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ
             l0 = 0
             l1 = n
             if may_skip:
-                for t in range(n):
-                    act[t] = 1  # cells entering the window are vacuous
-                for seg in range(2):
-                    a0 = s0 if seg == 0 else max(s0, wrap)
-                    a1 = min(s1, wrap) if seg == 0 else s1
-                    w = a1 - a0
+                for t_1 in range(n):
+                    act[t_1] = 1  # cells entering the window are vacuous
+                for seg_1 in range(2):
+                    a0 = _sel(seg_1 == 0, s0, max(s0, wrap))
+                    a1_1 = _sel(seg_1 == 0, min(s1, wrap), s1)
+                    w = a1_1 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_1 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for t in range(w):
-                            act[np.uint64(lb) + np.uint64(t)] = fl[sc + np.uint64(t)]
-                for t in range(n):
-                    act[t] = act[t] & np.uint8((fr[wb + np.uint64(t)] == _0) & (oc[wb + np.uint64(t)] == _0))
+                        for t_2 in range(w):
+                            act[np.uint64(lb) + np.uint64(t_2)] = fl[sc + np.uint64(t_2)]
+                for t_3 in range(n):
+                    act[t_3] = act[t_3] & np.uint8((fr[wb + np.uint64(t_3)] == _0) & (oc[wb + np.uint64(t_3)] == _0))
                 idle = 0
-                for t in range(n):
-                    idle += np.int32(act[t])
+                for t_4 in range(n):
+                    idle += np.int32(act[t_4])
                 if idle == n:  # the whole block stays vacuous
                     l0 = l1 = n
                 while l0 < n and act[l0] == 1:
@@ -3088,1130 +3096,1130 @@ def step_stored_lean(state, zeta, flags, focal, off_r, off_c, dr, dc_, free, occ
             if l1 <= l0:
                 l0 = l1 = n
             if l0 > 0:
-                for seg in range(2):
-                    a0 = j0 + 0 if seg == 0 else max(j0 + 0, wrap)
-                    a1 = min(min(s0, j0 + l0), wrap) if seg == 0 else min(s0, j0 + l0)
-                    w = a1 - a0
+                for seg_2 in range(2):
+                    a0 = _sel(seg_2 == 0, j0 + 0, max(j0 + 0, wrap))
+                    a1_2 = _sel(seg_2 == 0, min(min(s0, j0 + l0), wrap), min(s0, j0 + l0))
+                    w = a1_2 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_2 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
-                for seg in range(2):
-                    a0 = max(s1, j0 + 0) if seg == 0 else max(max(s1, j0 + 0), wrap)
-                    a1 = min(j0 + l0, wrap) if seg == 0 else j0 + l0
-                    w = a1 - a0
+                        for a_1 in range(31):
+                            for t_5 in range(w):
+                                st[np.uint64(a_1), sc + np.uint64(t_5)] = _0
+                        for t_6 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_6)] = _1
+                        for t_7 in range(w):
+                            zt[sc + np.uint64(t_7)] = _0
+                        for t_8 in range(w):
+                            fl[sc + np.uint64(t_8)] = np.uint8(1)
+                        for t_9 in range(w):
+                            fc[sc + np.uint64(t_9)] = _OMEGA_BIT
+                for seg_3 in range(2):
+                    a0 = _sel(seg_3 == 0, max(s1, j0 + 0), max(max(s1, j0 + 0), wrap))
+                    a1_3 = _sel(seg_3 == 0, min(j0 + l0, wrap), j0 + l0)
+                    w = a1_3 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_3 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                        for a_2 in range(31):
+                            for t_10 in range(w):
+                                st[np.uint64(a_2), sc + np.uint64(t_10)] = _0
+                        for t_11 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_11)] = _1
+                        for t_12 in range(w):
+                            zt[sc + np.uint64(t_12)] = _0
+                        for t_13 in range(w):
+                            fl[sc + np.uint64(t_13)] = np.uint8(1)
+                        for t_14 in range(w):
+                            fc[sc + np.uint64(t_14)] = _OMEGA_BIT
                 ws = wb + np.uint64(0)
-                for k in range(5):
-                    for t in range(l0 - 0):
-                        qb[np.uint64(k), ws + np.uint64(t)] = np.uint8(51)
-                for k in range(3):
-                    for t in range(l0 - 0):
-                        qc[np.uint64(k), ws + np.uint64(t)] = np.uint8(0)
-                for t in range(l0 - 0):
-                    qz[ws + np.uint64(t)] = np.uint8(0)
-                for t in range(l0 - 0):
-                    qd[ws + np.uint64(t)] = vac_code
+                for k_1 in range(5):
+                    for t_15 in range(l0 - 0):
+                        qb[np.uint64(k_1), ws + np.uint64(t_15)] = np.uint8(51)
+                for k_2 in range(3):
+                    for t_16 in range(l0 - 0):
+                        qc[np.uint64(k_2), ws + np.uint64(t_16)] = np.uint8(0)
+                for t_17 in range(l0 - 0):
+                    qz[ws + np.uint64(t_17)] = np.uint8(0)
+                for t_18 in range(l0 - 0):
+                    qd[ws + np.uint64(t_18)] = vac_code
             if l1 < n:
-                for seg in range(2):
-                    a0 = j0 + l1 if seg == 0 else max(j0 + l1, wrap)
-                    a1 = min(min(s0, j0 + n), wrap) if seg == 0 else min(s0, j0 + n)
-                    w = a1 - a0
+                for seg_4 in range(2):
+                    a0 = _sel(seg_4 == 0, j0 + l1, max(j0 + l1, wrap))
+                    a1_4 = _sel(seg_4 == 0, min(min(s0, j0 + n), wrap), min(s0, j0 + n))
+                    w = a1_4 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_4 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
-                for seg in range(2):
-                    a0 = max(s1, j0 + l1) if seg == 0 else max(max(s1, j0 + l1), wrap)
-                    a1 = min(j0 + n, wrap) if seg == 0 else j0 + n
-                    w = a1 - a0
+                        for a_3 in range(31):
+                            for t_19 in range(w):
+                                st[np.uint64(a_3), sc + np.uint64(t_19)] = _0
+                        for t_20 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_20)] = _1
+                        for t_21 in range(w):
+                            zt[sc + np.uint64(t_21)] = _0
+                        for t_22 in range(w):
+                            fl[sc + np.uint64(t_22)] = np.uint8(1)
+                        for t_23 in range(w):
+                            fc[sc + np.uint64(t_23)] = _OMEGA_BIT
+                for seg_5 in range(2):
+                    a0 = _sel(seg_5 == 0, max(s1, j0 + l1), max(max(s1, j0 + l1), wrap))
+                    a1_5 = _sel(seg_5 == 0, min(j0 + n, wrap), j0 + n)
+                    w = a1_5 - a0
                     if w > 0:
-                        sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                        sc = np.uint64(rb + a0 + _sel(seg_5 == 0, off_c, off_c - cols))
                         lb = a0 - j0
-                        for a in range(31):
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            st[np.uint64(31), sc + np.uint64(t)] = _1
-                        for t in range(w):
-                            zt[sc + np.uint64(t)] = _0
-                        for t in range(w):
-                            fl[sc + np.uint64(t)] = np.uint8(1)
-                        for t in range(w):
-                            fc[sc + np.uint64(t)] = _OMEGA_BIT
+                        for a_4 in range(31):
+                            for t_24 in range(w):
+                                st[np.uint64(a_4), sc + np.uint64(t_24)] = _0
+                        for t_25 in range(w):
+                            st[np.uint64(31), sc + np.uint64(t_25)] = _1
+                        for t_26 in range(w):
+                            zt[sc + np.uint64(t_26)] = _0
+                        for t_27 in range(w):
+                            fl[sc + np.uint64(t_27)] = np.uint8(1)
+                        for t_28 in range(w):
+                            fc[sc + np.uint64(t_28)] = _OMEGA_BIT
                 ws = wb + np.uint64(l1)
-                for k in range(5):
-                    for t in range(n - l1):
-                        qb[np.uint64(k), ws + np.uint64(t)] = np.uint8(51)
-                for k in range(3):
-                    for t in range(n - l1):
-                        qc[np.uint64(k), ws + np.uint64(t)] = np.uint8(0)
-                for t in range(n - l1):
-                    qz[ws + np.uint64(t)] = np.uint8(0)
-                for t in range(n - l1):
-                    qd[ws + np.uint64(t)] = vac_code
+                for k_3 in range(5):
+                    for t_29 in range(n - l1):
+                        qb[np.uint64(k_3), ws + np.uint64(t_29)] = np.uint8(51)
+                for k_4 in range(3):
+                    for t_30 in range(n - l1):
+                        qc[np.uint64(k_4), ws + np.uint64(t_30)] = np.uint8(0)
+                for t_31 in range(n - l1):
+                    qz[ws + np.uint64(t_31)] = np.uint8(0)
+                for t_32 in range(n - l1):
+                    qd[ws + np.uint64(t_32)] = vac_code
             if l1 <= l0:
-                for q0 in range(0, n, TILE):
-                    qt[tile + np.uint64(q0 // TILE)] = _OMEGA_BIT
-                for t in range(n):
-                    qr[pos + np.uint64(t)] = np.uint8(255)
+                for q0_1 in range(0, n, TILE):
+                    qt[tile + np.uint64(q0_1 // TILE)] = _OMEGA_BIT
+                for t_33 in range(n):
+                    qr[pos + np.uint64(t_33)] = np.uint8(255)
                 pos += np.uint64(n)
                 continue
             old_mask = np.uint32(0)
-            for seg in range(2):
-                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                w = a1 - a0
+            for seg_6 in range(2):
+                a0 = _sel(seg_6 == 0, j0 + l0, max(j0 + l0, wrap))
+                a1_6 = _sel(seg_6 == 0, min(j0 + l1, wrap), j0 + l1)
+                w = a1_6 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_6 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        old_mask |= fc[sc + np.uint64(t)]
+                    for t_34 in range(w):
+                        old_mask |= fc[sc + np.uint64(t_34)]
             entering = s0 > j0 + l0 or s1 < j0 + l1
             if entering:  # some lanes entered the window: vacuous
-                for a in range(31):
-                    for t in range(l1 - l0):
-                        buf[np.uint64((a) * STRIDE + l0) + np.uint64(t)] = _0
-                for t in range(l1 - l0):
-                    buf[np.uint64((31) * STRIDE + l0) + np.uint64(t)] = _1
-                for t in range(l1 - l0):
-                    buf[np.uint64((32) * STRIDE + l0) + np.uint64(t)] = _0
-            for a in range(32):
-                if (old_mask >> np.uint32(a)) & _ONE:
-                    for seg in range(2):
-                        a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
-                        a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
-                        w = a1 - a0
+                for a_5 in range(31):
+                    for t_35 in range(l1 - l0):
+                        buf[np.uint64(a_5 * STRIDE + l0) + np.uint64(t_35)] = _0
+                for t_36 in range(l1 - l0):
+                    buf[np.uint64(31 * STRIDE + l0) + np.uint64(t_36)] = _1
+                for t_37 in range(l1 - l0):
+                    buf[np.uint64(32 * STRIDE + l0) + np.uint64(t_37)] = _0
+            for a_6 in range(32):
+                if (old_mask >> np.uint32(a_6)) & _ONE:
+                    for seg_7 in range(2):
+                        a0 = _sel(seg_7 == 0, max(s0, j0 + l0), max(max(s0, j0 + l0), wrap))
+                        a1_7 = _sel(seg_7 == 0, min(min(s1, j0 + l1), wrap), min(s1, j0 + l1))
+                        w = a1_7 - a0
                         if w > 0:
-                            sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                            sc = np.uint64(rb + a0 + _sel(seg_7 == 0, off_c, off_c - cols))
                             lb = a0 - j0
-                            for t in range(w):
-                                buf[np.uint64((a) * STRIDE + lb) + np.uint64(t)] = st[np.uint64(a), sc + np.uint64(t)]
-                elif not entering and (dirty >> np.uint32(a)) & _ONE:
-                    for t in range(BLOCK):
-                        buf[np.uint64((a) * STRIDE + 0) + np.uint64(t)] = _0
-                    dirty &= ~(_ONE << np.uint32(a))
+                            for t_38 in range(w):
+                                buf[np.uint64(a_6 * STRIDE + lb) + np.uint64(t_38)] = st[np.uint64(a_6), sc + np.uint64(t_38)]
+                elif not entering and (dirty >> np.uint32(a_6)) & _ONE:
+                    for t_39 in range(BLOCK):
+                        buf[np.uint64(a_6 * STRIDE + 0) + np.uint64(t_39)] = _0
+                    dirty &= ~(_ONE << np.uint32(a_6))
             dirty |= old_mask
-            for seg in range(2):
-                a0 = max(s0, j0 + l0) if seg == 0 else max(max(s0, j0 + l0), wrap)
-                a1 = min(min(s1, j0 + l1), wrap) if seg == 0 else min(s1, j0 + l1)
-                w = a1 - a0
+            for seg_8 in range(2):
+                a0 = _sel(seg_8 == 0, max(s0, j0 + l0), max(max(s0, j0 + l0), wrap))
+                a1_8 = _sel(seg_8 == 0, min(min(s1, j0 + l1), wrap), min(s1, j0 + l1))
+                w = a1_8 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_8 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)] = zt[sc + np.uint64(t)]
+                    for t_40 in range(w):
+                        buf[np.uint64(32 * STRIDE + lb) + np.uint64(t_40)] = zt[sc + np.uint64(t_40)]
             wl = wb + np.uint64(l0)
-            for t in range(l1 - l0):
-                buf[np.uint64((33) * STRIDE + l0) + np.uint64(t)] = fr[wl + np.uint64(t)]
-            for t in range(l1 - l0):
-                buf[np.uint64((34) * STRIDE + l0) + np.uint64(t)] = oc[wl + np.uint64(t)]
-            for t in range(l1 - l0):
-                buf[np.uint64((35) * STRIDE + l0) + np.uint64(t)] = np.float32(lbl[wl + np.uint64(t)])
-            for t in range(l1 - l0):
-                buf[np.uint64((36) * STRIDE + l0) + np.uint64(t)] = np.float32(obs_f[wl + np.uint64(t)])
-            for t in range(l1 - l0):
-                buf[np.uint64((37) * STRIDE + l0) + np.uint64(t)] = np.float32(gate_f[wl + np.uint64(t)])
+            for t_41 in range(l1 - l0):
+                buf[np.uint64(33 * STRIDE + l0) + np.uint64(t_41)] = fr[wl + np.uint64(t_41)]
+            for t_42 in range(l1 - l0):
+                buf[np.uint64(34 * STRIDE + l0) + np.uint64(t_42)] = oc[wl + np.uint64(t_42)]
+            for t_43 in range(l1 - l0):
+                buf[np.uint64(35 * STRIDE + l0) + np.uint64(t_43)] = np.float32(lbl[wl + np.uint64(t_43)])
+            for t_44 in range(l1 - l0):
+                buf[np.uint64(36 * STRIDE + l0) + np.uint64(t_44)] = np.float32(obs_f[wl + np.uint64(t_44)])
+            for t_45 in range(l1 - l0):
+                buf[np.uint64(37 * STRIDE + l0) + np.uint64(t_45)] = np.float32(gate_f[wl + np.uint64(t_45)])
             zero_planes = old_mask & ROAD_ZERO_MASK
             for sub in range(l0 // SUB, (l1 + SUB - 1) // SUB):
                 sbase = np.uint64(sub * SUB)
-                other = np.uint8(0)  # a building lane or mass on ROAD_ZERO
-                for l in range(SUB):
-                    other |= np.uint8(buf[sbase + np.uint64(9520 + l)] == _2)
-                if other == 0 and zero_planes != 0:
-                    for a in range(32):
-                        if (zero_planes >> np.uint32(a)) & _ONE:
-                            for l in range(SUB):
-                                other |= np.uint8(buf[sbase + np.uint64(a) * np.uint64(STRIDE) + np.uint64(l)] != _0)
-                if other == 0:
-                    for l in range(SUB):
-                        m0 = buf[sbase + np.uint64(0 + l)]
-                        m1 = buf[sbase + np.uint64(272 + l)]
-                        m2 = _0
-                        m3 = _0
-                        m4 = buf[sbase + np.uint64(1088 + l)]
-                        m5 = buf[sbase + np.uint64(1360 + l)]
-                        m6 = _0
-                        m7 = _0
-                        m8 = buf[sbase + np.uint64(2176 + l)]
-                        m9 = buf[sbase + np.uint64(2448 + l)]
-                        m10 = _0
-                        m11 = _0
-                        m12 = buf[sbase + np.uint64(3264 + l)]
-                        m13 = buf[sbase + np.uint64(3536 + l)]
-                        m14 = buf[sbase + np.uint64(3808 + l)]
-                        m15 = buf[sbase + np.uint64(4080 + l)]
-                        m16 = buf[sbase + np.uint64(4352 + l)]
-                        m17 = buf[sbase + np.uint64(4624 + l)]
-                        m18 = _0
-                        m19 = _0
-                        m20 = buf[sbase + np.uint64(5440 + l)]
-                        m21 = buf[sbase + np.uint64(5712 + l)]
-                        m22 = _0
-                        m23 = _0
-                        m24 = buf[sbase + np.uint64(6528 + l)]
-                        m25 = buf[sbase + np.uint64(6800 + l)]
-                        m26 = _0
-                        m27 = _0
-                        m28 = buf[sbase + np.uint64(7616 + l)]
-                        m29 = buf[sbase + np.uint64(7888 + l)]
-                        m30 = buf[sbase + np.uint64(8160 + l)]
-                        m31 = buf[sbase + np.uint64(8432 + l)]
-                        z = buf[sbase + np.uint64(8704 + l)]
-                        f = buf[sbase + np.uint64(8976 + l)]
-                        o = buf[sbase + np.uint64(9248 + l)]
-                        u = _1 - f - o
-                        lab = buf[sbase + np.uint64(9520 + l)]
-                        ob = buf[sbase + np.uint64(9792 + l)]
-                        gt = buf[sbase + np.uint64(10064 + l)]
-                        obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
-                        is_b = False
-                        is_r = lab == _1
-                        is_o = lab == _0
-                        beta = beta_b if is_b else (beta_r if is_r else (beta_o if is_o else _0))
-                        beta = beta if (obs | everywhere) else _0
-                        e = beta * f if is_b else _0
-                        kept = _1 - e
-                        total = kept <= tol
-                        beta = _0 if total else beta
-                        e = _0 if total else e
-                        kept = _1 if total else kept
-                        inv_kept = _1 / kept
-                        bb = beta if is_b else _0
-                        br = beta if is_r else _0
-                        bo = beta if is_o else _0
-                        t = a_f * m0
-                        m1 += t
-                        m0 -= t
-                        t = a_f * m4
-                        m5 += t
-                        m4 -= t
-                        t = a_f * m8
-                        m9 += t
-                        m8 -= t
-                        t = a_f * m12
-                        m13 += t
-                        m12 -= t
-                        t = a_f * m14
-                        m15 += t
-                        m14 -= t
-                        t = a_f * m16
-                        m17 += t
-                        m16 -= t
-                        t = a_f * m20
-                        m21 += t
-                        m20 -= t
-                        t = a_f * m24
-                        m25 += t
-                        m24 -= t
-                        t = a_f * m28
-                        m29 += t
-                        m28 -= t
-                        t = a_f * m30
-                        m31 += t
-                        m30 -= t
-                        t = a_u * m0
-                        m4 += t
-                        m0 -= t
-                        t = a_u * m1
-                        m5 += t
-                        m1 -= t
-                        t = a_u * m8
-                        m12 += t
-                        m8 -= t
-                        t = a_u * m9
-                        m13 += t
-                        m9 -= t
-                        t = a_u * m16
-                        m20 += t
-                        m16 -= t
-                        t = a_u * m17
-                        m21 += t
-                        m17 -= t
-                        t = a_u * m24
-                        m28 += t
-                        m24 -= t
-                        t = a_u * m25
-                        m29 += t
-                        m25 -= t
-                        t = a_s * m0
-                        m8 += t
-                        m0 -= t
-                        t = a_s * m1
-                        m9 += t
-                        m1 -= t
-                        t = a_s * m4
-                        m12 += t
-                        m4 -= t
-                        t = a_s * m5
-                        m13 += t
-                        m5 -= t
-                        t = a_s * m16
-                        m24 += t
-                        m16 -= t
-                        t = a_s * m17
-                        m25 += t
-                        m17 -= t
-                        t = a_s * m20
-                        m28 += t
-                        m20 -= t
-                        t = a_s * m21
-                        m29 += t
-                        m21 -= t
-                        t = a_m * m0
-                        m16 += t
-                        m0 -= t
-                        t = a_m * m1
-                        m17 += t
-                        m1 -= t
-                        t = a_m * m4
-                        m20 += t
-                        m4 -= t
-                        t = a_m * m5
-                        m21 += t
-                        m5 -= t
-                        t = a_m * m8
-                        m24 += t
-                        m8 -= t
-                        t = a_m * m9
-                        m25 += t
-                        m9 -= t
-                        t = a_m * m12
-                        m28 += t
-                        m12 -= t
-                        t = a_m * m13
-                        m29 += t
-                        m13 -= t
-                        t = a_m * m14
-                        m30 += t
-                        m14 -= t
-                        t = a_m * m15
-                        m31 += t
-                        m15 -= t
-                        s_f = ((((m1 + m3) + (m5 + m7)) + ((m9 + m11) + (m13 + m15))) + (((m17 + m19) + (m21 + m23)) + ((m25 + m27) + (m29 + m31))))
-                        s_nf = ((((m0 + m2) + (m4 + m6)) + ((m8 + m10) + (m12 + m14))) + (((m16 + m18) + (m20 + m22)) + ((m24 + m26) + (m28 + m30))))
-                        dn0 = u * m0 + o * (m0 + m1)
-                        dn1 = u * m1
-                        d0 = dn0 + f * s_nf
-                        d1 = dn1 + f * s_f
-                        kf = _1 if (gate_off | (gt != _0) | (not faded_o)) else _0
-                        d2 = _0
-                        d3 = _0
-                        d4 = u * m4 + o * (m4 + kf * m5)
-                        d5 = u * m5
-                        d6 = _0
-                        d7 = _0
-                        d8 = u * m8 + o * (m8 + kf * m9)
-                        d9 = u * m9
-                        d10 = _0
-                        d11 = _0
-                        d12 = u * m12 + o * (m12 + kf * m13)
-                        d13 = u * m13
-                        d14 = u * m14 + o * (m14 + kf * m15)
-                        d15 = u * m15
-                        d16 = u * m16 + o * (m16 + kf * m17)
-                        d17 = u * m17
-                        d18 = _0
-                        d19 = _0
-                        d20 = u * m20 + o * (m20 + kf * m21)
-                        d21 = u * m21
-                        d22 = _0
-                        d23 = _0
-                        d24 = u * m24 + o * (m24 + kf * m25)
-                        d25 = u * m25
-                        d26 = _0
-                        d27 = _0
-                        d28 = u * m28 + o * (m28 + kf * m29)
-                        d29 = u * m29
-                        d31 = u * m31
-                        d30 = u * m30 + o * (m30 + m31 + (_1 - kf) * (((m5 + m9) + (m13 + m15)) + ((m17 + m21) + (m25 + m29))))
-                        keep_d = _1 - beta
-                        c0 = (keep_d * d0 + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
-                        c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
-                        c2 = _0
-                        c3 = _0
-                        c4 = (keep_d * d4 + bo * (d4 + d6)) * inv_kept
-                        c5 = (keep_d * d5 + bo * (d5 + d7)) * inv_kept
-                        c6 = _0
-                        c7 = _0
-                        c8 = (keep_d * d8 + br * ((d8 + d10) + (d12 + d14)) + bo * (d8 + d10)) * inv_kept
-                        c9 = (keep_d * d9 + br * ((d9 + d11) + (d13 + d15)) + bo * (d9 + d11)) * inv_kept
-                        c10 = _0
-                        c11 = _0
-                        c12 = (keep_d * d12 + bo * (d12 + d14)) * inv_kept
-                        c13 = (keep_d * d13 + bo * (d13 + d15)) * inv_kept
-                        c14 = (keep_d * d14) * inv_kept
-                        c15 = (keep_d * d15) * inv_kept
-                        c16 = (keep_d * d16 + br * ((d16 + d18) + (d20 + d22)) + bo * (d16 + d18)) * inv_kept
-                        c17 = (keep_d * d17 + br * ((d17 + d19) + (d21 + d23)) + bo * (d17 + d19)) * inv_kept
-                        c18 = _0
-                        c19 = _0
-                        c20 = (keep_d * d20 + bo * (d20 + d22)) * inv_kept
-                        c21 = (keep_d * d21 + bo * (d21 + d23)) * inv_kept
-                        c22 = _0
-                        c23 = _0
-                        c24 = (keep_d * d24 + br * ((d24 + d26) + (d28 + d30)) + bo * (d24 + d26)) * inv_kept
-                        c25 = (keep_d * d25 + br * ((d25 + d27) + (d29 + d31)) + bo * (d25 + d27)) * inv_kept
-                        c26 = _0
-                        c27 = _0
-                        c28 = (keep_d * d28 + bo * (d28 + d30)) * inv_kept
-                        c29 = (keep_d * d29 + bo * (d29 + d31)) * inv_kept
-                        c30 = (keep_d * d30) * inv_kept
-                        c31 = (keep_d * d31) * inv_kept
-                        sg_free = f * (_1 - bb) * inv_kept
-                        sg_bel_o = (o + u * bb) * inv_kept
-                        pg_bel_o = ((((m2 + m4) + (m6 + m8)) + ((m10 + m12) + (m14 + m16))) + (((m18 + m20) + (m22 + m24)) + ((m26 + m28) + m30)))
-                        fo = m1 * sg_bel_o
-                        of = pg_bel_o * sg_free
-                        other = c0 - fo - of
-                        other = other if other > _0 else _0
-                        fo_m = fo if (gate_off | (gt != _0)) else _0
-                        fo_c = _0 if (gate_off | (gt != _0)) else fo
-                        c0 = other if residual == 1 else _0
-                        c16 += fo_m
-                        c30 += fo_c if closed_o else _0
-                        c14 += _0 if closed_o else fo_c
-                        c31 += of + (other if residual == 0 else _0)
-                        bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
-                        dynamic = fo_m + of
-                        z_up = z + inc
-                        z_up = z_up if z_up < _1 else _1
-                        z_down = z - dec
-                        z_down = z_down if z_down > _0 else _0
-                        z = z_up if ((bel_o >= gamma_o) & (dynamic <= gamma_c)) else (z_down if dynamic > gamma_c else z)
-                        g = c17 * z
-                        c17 -= g
-                        c1 += g
-                        g = c20 * z
-                        c20 -= g
-                        c4 += g
-                        g = c21 * z
-                        c21 -= g
-                        c5 += g
-                        g = c24 * z
-                        c24 -= g
-                        c8 += g
-                        g = c25 * z
-                        c25 -= g
-                        c9 += g
-                        g = c28 * z
-                        c28 -= g
-                        c12 += g
-                        g = c29 * z
-                        c29 -= g
-                        c13 += g
-                        g = c30 * z
-                        c30 -= g
-                        c14 += g
-                        g = c31 * z
-                        c31 -= g
-                        c15 += g
-                        g = c16 * z
-                        c16 -= g
-                        c8 += g if to_s else _0
-                        c0 += _0 if to_s else g
-                        buf[sbase + np.uint64(0 + l)] = c0
-                        buf[sbase + np.uint64(272 + l)] = c1
-                        buf[sbase + np.uint64(1088 + l)] = c4
-                        buf[sbase + np.uint64(1360 + l)] = c5
-                        buf[sbase + np.uint64(2176 + l)] = c8
-                        buf[sbase + np.uint64(2448 + l)] = c9
-                        buf[sbase + np.uint64(3264 + l)] = c12
-                        buf[sbase + np.uint64(3536 + l)] = c13
-                        buf[sbase + np.uint64(3808 + l)] = c14
-                        buf[sbase + np.uint64(4080 + l)] = c15
-                        buf[sbase + np.uint64(4352 + l)] = c16
-                        buf[sbase + np.uint64(4624 + l)] = c17
-                        buf[sbase + np.uint64(5440 + l)] = c20
-                        buf[sbase + np.uint64(5712 + l)] = c21
-                        buf[sbase + np.uint64(6528 + l)] = c24
-                        buf[sbase + np.uint64(6800 + l)] = c25
-                        buf[sbase + np.uint64(7616 + l)] = c28
-                        buf[sbase + np.uint64(7888 + l)] = c29
-                        buf[sbase + np.uint64(8160 + l)] = c30
-                        buf[sbase + np.uint64(8432 + l)] = c31
-                        buf[sbase + np.uint64(8704 + l)] = z
-                        norm = (((((c1 + c2) + (c3 + c4)) + ((c5 + c6) + (c7 + c8))) + (((c9 + c10) + (c11 + c12)) + ((c13 + c14) + (c15 + c16)))) + ((((c17 + c18) + (c19 + c20)) + ((c21 + c22) + (c23 + c24))) + (((c25 + c26) + (c27 + c28)) + ((c29 + c30) + c31))))
-                        inv_norm = (_1 / norm) if norm > tol else _0
-                        w1 = c1
-                        w2 = c2
-                        w3 = c3 * _INV2
-                        w4 = c4
-                        w5 = c5 * _INV2
-                        w6 = c6 * _INV2
-                        w7 = c7 * _INV3
-                        w8 = c8
-                        w9 = c9 * _INV2
-                        w10 = c10 * _INV2
-                        w11 = c11 * _INV3
-                        w12 = c12 * _INV2
-                        w13 = c13 * _INV3
-                        w14 = c14 * _INV3
-                        w15 = c15 * _INV4
-                        w16 = c16
-                        w17 = c17 * _INV2
-                        w18 = c18 * _INV2
-                        w19 = c19 * _INV3
-                        w20 = c20 * _INV2
-                        w21 = c21 * _INV3
-                        w22 = c22 * _INV3
-                        w23 = c23 * _INV4
-                        w24 = c24 * _INV2
-                        w25 = c25 * _INV3
-                        w26 = c26 * _INV3
-                        w27 = c27 * _INV4
-                        w28 = c28 * _INV3
-                        w29 = c29 * _INV4
-                        w30 = c30 * _INV4
-                        w31 = c31 * _INV5
-                        p_f = ((((w1 + w3) + (w5 + w7)) + ((w9 + w11) + (w13 + w15))) + (((w17 + w19) + (w21 + w23)) + ((w25 + w27) + (w29 + w31)))) * inv_norm
-                        p_i = ((((w2 + w3) + (w6 + w7)) + ((w10 + w11) + (w14 + w15))) + (((w18 + w19) + (w22 + w23)) + ((w26 + w27) + (w30 + w31)))) * inv_norm
-                        p_u = ((((w4 + w5) + (w6 + w7)) + ((w12 + w13) + (w14 + w15))) + (((w20 + w21) + (w22 + w23)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
-                        p_s = ((((w8 + w9) + (w10 + w11)) + ((w12 + w13) + (w14 + w15))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
-                        p_m = ((((w16 + w17) + (w18 + w19)) + ((w20 + w21) + (w22 + w23))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
-                        static = p_i + p_u + p_s
-                        code = c_free
-                        best = p_f
-                        code = c_moving if p_m > best else code
-                        best = p_m if p_m > best else best
-                        is_static = static > best
-                        code = c_static if is_static else code
-                        best = static if is_static else best
-                        fine_code = c_infra
-                        fine_best = p_i
-                        fine_code = c_unmapped if p_u > fine_best else fine_code
-                        fine_best = p_u if p_u > fine_best else fine_best
-                        fine_code = c_stopped if p_s > fine_best else fine_code
-                        fine_best = p_s if p_s > fine_best else fine_best
-                        least = p_i if p_i < p_u else p_u
-                        least = least if least < p_s else p_s
-                        fine_second = static - fine_best - least
-                        fine_ok = (fine_best >= _HALF) & (fine_best >= _HALF * static) & (fine_best - fine_second > _TIE)
-                        code = fine_code if (is_static & fine_ok) else code
-                        code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code
-                        buf[sbase + np.uint64(8976 + l)] = p_f
-                        buf[sbase + np.uint64(9248 + l)] = p_i
-                        buf[sbase + np.uint64(9520 + l)] = p_u
-                        buf[sbase + np.uint64(9792 + l)] = p_s
-                        buf[sbase + np.uint64(10064 + l)] = p_m
-                        buf[sbase + np.uint64(10336 + l)] = fo
-                        buf[sbase + np.uint64(10608 + l)] = of
-                        buf[sbase + np.uint64(10880 + l)] = other
-                        buf[sbase + np.uint64(11152 + l)] = code
-                        focal_lo = (((((_P0 if c0 != _0 else _0) + (_P1 if c1 != _0 else _0)) + ((_P2 if c2 != _0 else _0) + (_P3 if c3 != _0 else _0))) + (((_P4 if c4 != _0 else _0) + (_P5 if c5 != _0 else _0)) + ((_P6 if c6 != _0 else _0) + (_P7 if c7 != _0 else _0)))) + ((((_P8 if c8 != _0 else _0) + (_P9 if c9 != _0 else _0)) + ((_P10 if c10 != _0 else _0) + (_P11 if c11 != _0 else _0))) + (((_P12 if c12 != _0 else _0) + (_P13 if c13 != _0 else _0)) + ((_P14 if c14 != _0 else _0) + (_P15 if c15 != _0 else _0)))))
-                        focal_hi = (((((_P0 if c16 != _0 else _0) + (_P1 if c17 != _0 else _0)) + ((_P2 if c18 != _0 else _0) + (_P3 if c19 != _0 else _0))) + (((_P4 if c20 != _0 else _0) + (_P5 if c21 != _0 else _0)) + ((_P6 if c22 != _0 else _0) + (_P7 if c23 != _0 else _0)))) + ((((_P8 if c24 != _0 else _0) + (_P9 if c25 != _0 else _0)) + ((_P10 if c26 != _0 else _0) + (_P11 if c27 != _0 else _0))) + (((_P12 if c28 != _0 else _0) + (_P13 if c29 != _0 else _0)) + ((_P14 if c30 != _0 else _0) + (_P15 if c31 != _0 else _0)))))
-                        buf[sbase + np.uint64(11696 + l)] = focal_lo
-                        buf[sbase + np.uint64(11968 + l)] = focal_hi
-                        buf[sbase + np.uint64(11424 + l)] = _1 if ((focal_lo == _0) & (focal_hi == _P15) & (c31 == _1) & (z == _0)) else _0
+                not_road = np.uint8(0)  # a building lane or mass on ROAD_ZERO
+                for l_1 in range(SUB):
+                    not_road |= np.uint8(buf[sbase + np.uint64(9520 + l_1)] == _2)
+                if not_road == 0 and zero_planes != 0:
+                    for a_7 in range(32):
+                        if (zero_planes >> np.uint32(a_7)) & _ONE:
+                            for l_2 in range(SUB):
+                                not_road |= np.uint8(buf[sbase + np.uint64(a_7) * np.uint64(STRIDE) + np.uint64(l_2)] != _0)
+                if not_road == 0:
+                    for l_3 in range(SUB):
+                        m0_1 = buf[sbase + np.uint64(0 + l_3)]
+                        m1_1 = buf[sbase + np.uint64(272 + l_3)]
+                        m2_1 = _0
+                        m3_1 = _0
+                        m4_1 = buf[sbase + np.uint64(1088 + l_3)]
+                        m5_1 = buf[sbase + np.uint64(1360 + l_3)]
+                        m6_1 = _0
+                        m7_1 = _0
+                        m8_1 = buf[sbase + np.uint64(2176 + l_3)]
+                        m9_1 = buf[sbase + np.uint64(2448 + l_3)]
+                        m10_1 = _0
+                        m11_1 = _0
+                        m12_1 = buf[sbase + np.uint64(3264 + l_3)]
+                        m13_1 = buf[sbase + np.uint64(3536 + l_3)]
+                        m14_1 = buf[sbase + np.uint64(3808 + l_3)]
+                        m15_1 = buf[sbase + np.uint64(4080 + l_3)]
+                        m16_1 = buf[sbase + np.uint64(4352 + l_3)]
+                        m17_1 = buf[sbase + np.uint64(4624 + l_3)]
+                        m18_1 = _0
+                        m19_1 = _0
+                        m20_1 = buf[sbase + np.uint64(5440 + l_3)]
+                        m21_1 = buf[sbase + np.uint64(5712 + l_3)]
+                        m22_1 = _0
+                        m23_1 = _0
+                        m24_1 = buf[sbase + np.uint64(6528 + l_3)]
+                        m25_1 = buf[sbase + np.uint64(6800 + l_3)]
+                        m26_1 = _0
+                        m27_1 = _0
+                        m28_1 = buf[sbase + np.uint64(7616 + l_3)]
+                        m29_1 = buf[sbase + np.uint64(7888 + l_3)]
+                        m30_1 = buf[sbase + np.uint64(8160 + l_3)]
+                        m31_1 = buf[sbase + np.uint64(8432 + l_3)]
+                        z_1 = buf[sbase + np.uint64(8704 + l_3)]
+                        f_1 = buf[sbase + np.uint64(8976 + l_3)]
+                        o_1 = buf[sbase + np.uint64(9248 + l_3)]
+                        u_1 = _1 - f_1 - o_1
+                        lab_1 = buf[sbase + np.uint64(9520 + l_3)]
+                        ob_1 = buf[sbase + np.uint64(9792 + l_3)]
+                        gt_1 = buf[sbase + np.uint64(10064 + l_3)]
+                        obs_1 = _sel(derive_obs, (f_1 > _0) | (o_1 > _0), ob_1 != _0)
+                        is_b_1 = False
+                        is_r_1 = lab_1 == _1
+                        is_o_1 = lab_1 == _0
+                        beta_1 = beta_b if is_b_1 else beta_r if is_r_1 else _sel(is_o_1, beta_o, _0)
+                        beta_2 = _sel(obs_1 | everywhere, beta_1, _0)
+                        e_1 = _sel(is_b_1, beta_2 * f_1, _0)
+                        kept_1 = _1 - e_1
+                        total_1 = kept_1 <= tol
+                        beta_3 = _sel(total_1, _0, beta_2)
+                        e_2 = _sel(total_1, _0, e_1)
+                        kept_2 = _sel(total_1, _1, kept_1)
+                        inv_kept_1 = _1 / kept_2
+                        bb_1 = _sel(is_b_1, beta_3, _0)
+                        br_1 = _sel(is_r_1, beta_3, _0)
+                        bo_1 = _sel(is_o_1, beta_3, _0)
+                        t_46 = a_f * m0_1
+                        m1_2 = m1_1 + t_46
+                        m0_2 = m0_1 - t_46
+                        t_47 = a_f * m4_1
+                        m5_2 = m5_1 + t_47
+                        m4_2 = m4_1 - t_47
+                        t_48 = a_f * m8_1
+                        m9_2 = m9_1 + t_48
+                        m8_2 = m8_1 - t_48
+                        t_49 = a_f * m12_1
+                        m13_2 = m13_1 + t_49
+                        m12_2 = m12_1 - t_49
+                        t_50 = a_f * m14_1
+                        m15_2 = m15_1 + t_50
+                        m14_2 = m14_1 - t_50
+                        t_51 = a_f * m16_1
+                        m17_2 = m17_1 + t_51
+                        m16_2 = m16_1 - t_51
+                        t_52 = a_f * m20_1
+                        m21_2 = m21_1 + t_52
+                        m20_2 = m20_1 - t_52
+                        t_53 = a_f * m24_1
+                        m25_2 = m25_1 + t_53
+                        m24_2 = m24_1 - t_53
+                        t_54 = a_f * m28_1
+                        m29_2 = m29_1 + t_54
+                        m28_2 = m28_1 - t_54
+                        t_55 = a_f * m30_1
+                        m31_2 = m31_1 + t_55
+                        m30_2 = m30_1 - t_55
+                        t_56 = a_u * m0_2
+                        m4_3 = m4_2 + t_56
+                        m0_3 = m0_2 - t_56
+                        t_57 = a_u * m1_2
+                        m5_3 = m5_2 + t_57
+                        m1_3 = m1_2 - t_57
+                        t_58 = a_u * m8_2
+                        m12_3 = m12_2 + t_58
+                        m8_3 = m8_2 - t_58
+                        t_59 = a_u * m9_2
+                        m13_3 = m13_2 + t_59
+                        m9_3 = m9_2 - t_59
+                        t_60 = a_u * m16_2
+                        m20_3 = m20_2 + t_60
+                        m16_3 = m16_2 - t_60
+                        t_61 = a_u * m17_2
+                        m21_3 = m21_2 + t_61
+                        m17_3 = m17_2 - t_61
+                        t_62 = a_u * m24_2
+                        m28_3 = m28_2 + t_62
+                        m24_3 = m24_2 - t_62
+                        t_63 = a_u * m25_2
+                        m29_3 = m29_2 + t_63
+                        m25_3 = m25_2 - t_63
+                        t_64 = a_s * m0_3
+                        m8_4 = m8_3 + t_64
+                        m0_4 = m0_3 - t_64
+                        t_65 = a_s * m1_3
+                        m9_4 = m9_3 + t_65
+                        m1_4 = m1_3 - t_65
+                        t_66 = a_s * m4_3
+                        m12_4 = m12_3 + t_66
+                        m4_4 = m4_3 - t_66
+                        t_67 = a_s * m5_3
+                        m13_4 = m13_3 + t_67
+                        m5_4 = m5_3 - t_67
+                        t_68 = a_s * m16_3
+                        m24_4 = m24_3 + t_68
+                        m16_4 = m16_3 - t_68
+                        t_69 = a_s * m17_3
+                        m25_4 = m25_3 + t_69
+                        m17_4 = m17_3 - t_69
+                        t_70 = a_s * m20_3
+                        m28_4 = m28_3 + t_70
+                        m20_4 = m20_3 - t_70
+                        t_71 = a_s * m21_3
+                        m29_4 = m29_3 + t_71
+                        m21_4 = m21_3 - t_71
+                        t_72 = a_m * m0_4
+                        m16_5 = m16_4 + t_72
+                        m0_5 = m0_4 - t_72
+                        t_73 = a_m * m1_4
+                        m17_5 = m17_4 + t_73
+                        m1_5 = m1_4 - t_73
+                        t_74 = a_m * m4_4
+                        m20_5 = m20_4 + t_74
+                        m4_5 = m4_4 - t_74
+                        t_75 = a_m * m5_4
+                        m21_5 = m21_4 + t_75
+                        m5_5 = m5_4 - t_75
+                        t_76 = a_m * m8_4
+                        m24_5 = m24_4 + t_76
+                        m8_5 = m8_4 - t_76
+                        t_77 = a_m * m9_4
+                        m25_5 = m25_4 + t_77
+                        m9_5 = m9_4 - t_77
+                        t_78 = a_m * m12_4
+                        m28_5 = m28_4 + t_78
+                        m12_5 = m12_4 - t_78
+                        t_79 = a_m * m13_4
+                        m29_5 = m29_4 + t_79
+                        m13_5 = m13_4 - t_79
+                        t_80 = a_m * m14_2
+                        m30_3 = m30_2 + t_80
+                        m14_3 = m14_2 - t_80
+                        t_81 = a_m * m15_2
+                        m31_3 = m31_2 + t_81
+                        m15_3 = m15_2 - t_81
+                        s_f_1 = m1_5 + m3_1 + (m5_5 + m7_1) + (m9_5 + m11_1 + (m13_5 + m15_3)) + (m17_5 + m19_1 + (m21_5 + m23_1) + (m25_5 + m27_1 + (m29_5 + m31_3)))
+                        s_nf_1 = m0_5 + m2_1 + (m4_5 + m6_1) + (m8_5 + m10_1 + (m12_5 + m14_3)) + (m16_5 + m18_1 + (m20_5 + m22_1) + (m24_5 + m26_1 + (m28_5 + m30_3)))
+                        dn0_1 = u_1 * m0_5 + o_1 * (m0_5 + m1_5)
+                        dn1_1 = u_1 * m1_5
+                        d0_1 = dn0_1 + f_1 * s_nf_1
+                        d1_1 = dn1_1 + f_1 * s_f_1
+                        kf_1 = _sel(gate_off | (gt_1 != _0) | (not faded_o), _1, _0)
+                        d2_1 = _0
+                        d3_1 = _0
+                        d4_1 = u_1 * m4_5 + o_1 * (m4_5 + kf_1 * m5_5)
+                        d5_1 = u_1 * m5_5
+                        d6_1 = _0
+                        d7_1 = _0
+                        d8_1 = u_1 * m8_5 + o_1 * (m8_5 + kf_1 * m9_5)
+                        d9_1 = u_1 * m9_5
+                        d10_1 = _0
+                        d11_1 = _0
+                        d12_1 = u_1 * m12_5 + o_1 * (m12_5 + kf_1 * m13_5)
+                        d13_1 = u_1 * m13_5
+                        d14_1 = u_1 * m14_3 + o_1 * (m14_3 + kf_1 * m15_3)
+                        d15_1 = u_1 * m15_3
+                        d16_1 = u_1 * m16_5 + o_1 * (m16_5 + kf_1 * m17_5)
+                        d17_1 = u_1 * m17_5
+                        d18_1 = _0
+                        d19_1 = _0
+                        d20_1 = u_1 * m20_5 + o_1 * (m20_5 + kf_1 * m21_5)
+                        d21_1 = u_1 * m21_5
+                        d22_1 = _0
+                        d23_1 = _0
+                        d24_1 = u_1 * m24_5 + o_1 * (m24_5 + kf_1 * m25_5)
+                        d25_1 = u_1 * m25_5
+                        d26_1 = _0
+                        d27_1 = _0
+                        d28_1 = u_1 * m28_5 + o_1 * (m28_5 + kf_1 * m29_5)
+                        d29_1 = u_1 * m29_5
+                        d31_1 = u_1 * m31_3
+                        d30_1 = u_1 * m30_3 + o_1 * (m30_3 + m31_3 + (_1 - kf_1) * (m5_5 + m9_5 + (m13_5 + m15_3) + (m17_5 + m21_5 + (m25_5 + m29_5))))
+                        keep_d_1 = _1 - beta_3
+                        c0_1 = (keep_d_1 * d0_1 + br_1 * (d0_1 + d2_1 + (d4_1 + d6_1)) + bo_1 * (d0_1 + d2_1)) * inv_kept_1
+                        c1_1 = (keep_d_1 * d1_1 + br_1 * (d1_1 + d3_1 + (d5_1 + d7_1)) + bo_1 * (d1_1 + d3_1)) * inv_kept_1
+                        c2_1 = _0
+                        c3_1 = _0
+                        c4_1 = (keep_d_1 * d4_1 + bo_1 * (d4_1 + d6_1)) * inv_kept_1
+                        c5_1 = (keep_d_1 * d5_1 + bo_1 * (d5_1 + d7_1)) * inv_kept_1
+                        c6_1 = _0
+                        c7_1 = _0
+                        c8_1 = (keep_d_1 * d8_1 + br_1 * (d8_1 + d10_1 + (d12_1 + d14_1)) + bo_1 * (d8_1 + d10_1)) * inv_kept_1
+                        c9_1 = (keep_d_1 * d9_1 + br_1 * (d9_1 + d11_1 + (d13_1 + d15_1)) + bo_1 * (d9_1 + d11_1)) * inv_kept_1
+                        c10_1 = _0
+                        c11_1 = _0
+                        c12_1 = (keep_d_1 * d12_1 + bo_1 * (d12_1 + d14_1)) * inv_kept_1
+                        c13_1 = (keep_d_1 * d13_1 + bo_1 * (d13_1 + d15_1)) * inv_kept_1
+                        c14_1 = keep_d_1 * d14_1 * inv_kept_1
+                        c15_1 = keep_d_1 * d15_1 * inv_kept_1
+                        c16_1 = (keep_d_1 * d16_1 + br_1 * (d16_1 + d18_1 + (d20_1 + d22_1)) + bo_1 * (d16_1 + d18_1)) * inv_kept_1
+                        c17_1 = (keep_d_1 * d17_1 + br_1 * (d17_1 + d19_1 + (d21_1 + d23_1)) + bo_1 * (d17_1 + d19_1)) * inv_kept_1
+                        c18_1 = _0
+                        c19_1 = _0
+                        c20_1 = (keep_d_1 * d20_1 + bo_1 * (d20_1 + d22_1)) * inv_kept_1
+                        c21_1 = (keep_d_1 * d21_1 + bo_1 * (d21_1 + d23_1)) * inv_kept_1
+                        c22_1 = _0
+                        c23_1 = _0
+                        c24_1 = (keep_d_1 * d24_1 + br_1 * (d24_1 + d26_1 + (d28_1 + d30_1)) + bo_1 * (d24_1 + d26_1)) * inv_kept_1
+                        c25_1 = (keep_d_1 * d25_1 + br_1 * (d25_1 + d27_1 + (d29_1 + d31_1)) + bo_1 * (d25_1 + d27_1)) * inv_kept_1
+                        c26_1 = _0
+                        c27_1 = _0
+                        c28_1 = (keep_d_1 * d28_1 + bo_1 * (d28_1 + d30_1)) * inv_kept_1
+                        c29_1 = (keep_d_1 * d29_1 + bo_1 * (d29_1 + d31_1)) * inv_kept_1
+                        c30_1 = keep_d_1 * d30_1 * inv_kept_1
+                        c31_1 = keep_d_1 * d31_1 * inv_kept_1
+                        sg_free_1 = f_1 * (_1 - bb_1) * inv_kept_1
+                        sg_bel_o_1 = (o_1 + u_1 * bb_1) * inv_kept_1
+                        pg_bel_o_1 = m2_1 + m4_5 + (m6_1 + m8_5) + (m10_1 + m12_5 + (m14_3 + m16_5)) + (m18_1 + m20_5 + (m22_1 + m24_5) + (m26_1 + m28_5 + m30_3))
+                        fo_1 = m1_5 * sg_bel_o_1
+                        of_1 = pg_bel_o_1 * sg_free_1
+                        other_1 = c0_1 - fo_1 - of_1
+                        other_2 = _sel(other_1 > _0, other_1, _0)
+                        fo_m_1 = _sel(gate_off | (gt_1 != _0), fo_1, _0)
+                        fo_c_1 = _sel(gate_off | (gt_1 != _0), _0, fo_1)
+                        c0_2 = _sel(residual == 1, other_2, _0)
+                        c16_2 = c16_1 + fo_m_1
+                        c30_2 = c30_1 + _sel(closed_o, fo_c_1, _0)
+                        c14_2 = c14_1 + _sel(closed_o, _0, fo_c_1)
+                        c31_2 = c31_1 + (of_1 + _sel(residual == 0, other_2, _0))
+                        bel_o_1 = c2_1 + c4_1 + (c6_1 + c8_1) + (c10_1 + c12_1 + (c14_2 + c16_2)) + (c18_1 + c20_1 + (c22_1 + c24_1) + (c26_1 + c28_1 + c30_2))
+                        dynamic_1 = fo_m_1 + of_1
+                        z_up_1 = z_1 + inc
+                        z_up_2 = _sel(z_up_1 < _1, z_up_1, _1)
+                        z_down_1 = z_1 - dec
+                        z_down_2 = _sel(z_down_1 > _0, z_down_1, _0)
+                        z_2 = z_up_2 if (bel_o_1 >= gamma_o) & (dynamic_1 <= gamma_c) else _sel(dynamic_1 > gamma_c, z_down_2, z_1)
+                        g_1 = c17_1 * z_2
+                        c17_2 = c17_1 - g_1
+                        c1_2 = c1_1 + g_1
+                        g_2 = c20_1 * z_2
+                        c20_2 = c20_1 - g_2
+                        c4_2 = c4_1 + g_2
+                        g_3 = c21_1 * z_2
+                        c21_2 = c21_1 - g_3
+                        c5_2 = c5_1 + g_3
+                        g_4 = c24_1 * z_2
+                        c24_2 = c24_1 - g_4
+                        c8_2 = c8_1 + g_4
+                        g_5 = c25_1 * z_2
+                        c25_2 = c25_1 - g_5
+                        c9_2 = c9_1 + g_5
+                        g_6 = c28_1 * z_2
+                        c28_2 = c28_1 - g_6
+                        c12_2 = c12_1 + g_6
+                        g_7 = c29_1 * z_2
+                        c29_2 = c29_1 - g_7
+                        c13_2 = c13_1 + g_7
+                        g_8 = c30_2 * z_2
+                        c30_3 = c30_2 - g_8
+                        c14_3 = c14_2 + g_8
+                        g_9 = c31_2 * z_2
+                        c31_3 = c31_2 - g_9
+                        c15_2 = c15_1 + g_9
+                        g_10 = c16_2 * z_2
+                        c16_3 = c16_2 - g_10
+                        c8_3 = c8_2 + _sel(to_s, g_10, _0)
+                        c0_3 = c0_2 + _sel(to_s, _0, g_10)
+                        buf[sbase + np.uint64(0 + l_3)] = c0_3
+                        buf[sbase + np.uint64(272 + l_3)] = c1_2
+                        buf[sbase + np.uint64(1088 + l_3)] = c4_2
+                        buf[sbase + np.uint64(1360 + l_3)] = c5_2
+                        buf[sbase + np.uint64(2176 + l_3)] = c8_3
+                        buf[sbase + np.uint64(2448 + l_3)] = c9_2
+                        buf[sbase + np.uint64(3264 + l_3)] = c12_2
+                        buf[sbase + np.uint64(3536 + l_3)] = c13_2
+                        buf[sbase + np.uint64(3808 + l_3)] = c14_3
+                        buf[sbase + np.uint64(4080 + l_3)] = c15_2
+                        buf[sbase + np.uint64(4352 + l_3)] = c16_3
+                        buf[sbase + np.uint64(4624 + l_3)] = c17_2
+                        buf[sbase + np.uint64(5440 + l_3)] = c20_2
+                        buf[sbase + np.uint64(5712 + l_3)] = c21_2
+                        buf[sbase + np.uint64(6528 + l_3)] = c24_2
+                        buf[sbase + np.uint64(6800 + l_3)] = c25_2
+                        buf[sbase + np.uint64(7616 + l_3)] = c28_2
+                        buf[sbase + np.uint64(7888 + l_3)] = c29_2
+                        buf[sbase + np.uint64(8160 + l_3)] = c30_3
+                        buf[sbase + np.uint64(8432 + l_3)] = c31_3
+                        buf[sbase + np.uint64(8704 + l_3)] = z_2
+                        norm_1 = c1_2 + c2_1 + (c3_1 + c4_2) + (c5_2 + c6_1 + (c7_1 + c8_3)) + (c9_2 + c10_1 + (c11_1 + c12_2) + (c13_2 + c14_3 + (c15_2 + c16_3))) + (c17_2 + c18_1 + (c19_1 + c20_2) + (c21_2 + c22_1 + (c23_1 + c24_2)) + (c25_2 + c26_1 + (c27_1 + c28_2) + (c29_2 + c30_3 + c31_3)))
+                        inv_norm_1 = _sel(norm_1 > tol, _1 / norm_1, _0)
+                        w1_1 = c1_2
+                        w2_1 = c2_1
+                        w3_1 = c3_1 * _INV2
+                        w4_1 = c4_2
+                        w5_1 = c5_2 * _INV2
+                        w6_1 = c6_1 * _INV2
+                        w7_1 = c7_1 * _INV3
+                        w8_1 = c8_3
+                        w9_1 = c9_2 * _INV2
+                        w10_1 = c10_1 * _INV2
+                        w11_1 = c11_1 * _INV3
+                        w12_1 = c12_2 * _INV2
+                        w13_1 = c13_2 * _INV3
+                        w14_1 = c14_3 * _INV3
+                        w15_1 = c15_2 * _INV4
+                        w16_1 = c16_3
+                        w17_1 = c17_2 * _INV2
+                        w18_1 = c18_1 * _INV2
+                        w19_1 = c19_1 * _INV3
+                        w20_1 = c20_2 * _INV2
+                        w21_1 = c21_2 * _INV3
+                        w22_1 = c22_1 * _INV3
+                        w23_1 = c23_1 * _INV4
+                        w24_1 = c24_2 * _INV2
+                        w25_1 = c25_2 * _INV3
+                        w26_1 = c26_1 * _INV3
+                        w27_1 = c27_1 * _INV4
+                        w28_1 = c28_2 * _INV3
+                        w29_1 = c29_2 * _INV4
+                        w30_1 = c30_3 * _INV4
+                        w31_1 = c31_3 * _INV5
+                        p_f_1 = (w1_1 + w3_1 + (w5_1 + w7_1) + (w9_1 + w11_1 + (w13_1 + w15_1)) + (w17_1 + w19_1 + (w21_1 + w23_1) + (w25_1 + w27_1 + (w29_1 + w31_1)))) * inv_norm_1
+                        p_i_1 = (w2_1 + w3_1 + (w6_1 + w7_1) + (w10_1 + w11_1 + (w14_1 + w15_1)) + (w18_1 + w19_1 + (w22_1 + w23_1) + (w26_1 + w27_1 + (w30_1 + w31_1)))) * inv_norm_1
+                        p_u_1 = (w4_1 + w5_1 + (w6_1 + w7_1) + (w12_1 + w13_1 + (w14_1 + w15_1)) + (w20_1 + w21_1 + (w22_1 + w23_1) + (w28_1 + w29_1 + (w30_1 + w31_1)))) * inv_norm_1
+                        p_s_1 = (w8_1 + w9_1 + (w10_1 + w11_1) + (w12_1 + w13_1 + (w14_1 + w15_1)) + (w24_1 + w25_1 + (w26_1 + w27_1) + (w28_1 + w29_1 + (w30_1 + w31_1)))) * inv_norm_1
+                        p_m_1 = (w16_1 + w17_1 + (w18_1 + w19_1) + (w20_1 + w21_1 + (w22_1 + w23_1)) + (w24_1 + w25_1 + (w26_1 + w27_1) + (w28_1 + w29_1 + (w30_1 + w31_1)))) * inv_norm_1
+                        static_1 = p_i_1 + p_u_1 + p_s_1
+                        code_1 = c_free
+                        best_1 = p_f_1
+                        code_2 = _sel(p_m_1 > best_1, c_moving, code_1)
+                        best_2 = _sel(p_m_1 > best_1, p_m_1, best_1)
+                        is_static_1 = static_1 > best_2
+                        code_3 = _sel(is_static_1, c_static, code_2)
+                        best_3 = _sel(is_static_1, static_1, best_2)
+                        fine_code_1 = c_infra
+                        fine_best_1 = p_i_1
+                        fine_code_2 = _sel(p_u_1 > fine_best_1, c_unmapped, fine_code_1)
+                        fine_best_2 = _sel(p_u_1 > fine_best_1, p_u_1, fine_best_1)
+                        fine_code_3 = _sel(p_s_1 > fine_best_2, c_stopped, fine_code_2)
+                        fine_best_3 = _sel(p_s_1 > fine_best_2, p_s_1, fine_best_2)
+                        least_1 = _sel(p_i_1 < p_u_1, p_i_1, p_u_1)
+                        least_2 = _sel(least_1 < p_s_1, least_1, p_s_1)
+                        fine_second_1 = static_1 - fine_best_3 - least_2
+                        fine_ok_1 = (fine_best_3 >= _HALF) & (fine_best_3 >= _HALF * static_1) & (fine_best_3 - fine_second_1 > _TIE)
+                        code_4 = _sel(is_static_1 & fine_ok_1, fine_code_3, code_3)
+                        code_5 = _sel((best_3 < min_betp) | (c31_3 > max_ign), c_unknown, code_4)
+                        buf[sbase + np.uint64(8976 + l_3)] = p_f_1
+                        buf[sbase + np.uint64(9248 + l_3)] = p_i_1
+                        buf[sbase + np.uint64(9520 + l_3)] = p_u_1
+                        buf[sbase + np.uint64(9792 + l_3)] = p_s_1
+                        buf[sbase + np.uint64(10064 + l_3)] = p_m_1
+                        buf[sbase + np.uint64(10336 + l_3)] = fo_1
+                        buf[sbase + np.uint64(10608 + l_3)] = of_1
+                        buf[sbase + np.uint64(10880 + l_3)] = other_2
+                        buf[sbase + np.uint64(11152 + l_3)] = code_5
+                        focal_lo_1 = _sel(c0_3 != _0, _P0, _0) + _sel(c1_2 != _0, _P1, _0) + (_sel(c2_1 != _0, _P2, _0) + _sel(c3_1 != _0, _P3, _0)) + (_sel(c4_2 != _0, _P4, _0) + _sel(c5_2 != _0, _P5, _0) + (_sel(c6_1 != _0, _P6, _0) + _sel(c7_1 != _0, _P7, _0))) + (_sel(c8_3 != _0, _P8, _0) + _sel(c9_2 != _0, _P9, _0) + (_sel(c10_1 != _0, _P10, _0) + _sel(c11_1 != _0, _P11, _0)) + (_sel(c12_2 != _0, _P12, _0) + _sel(c13_2 != _0, _P13, _0) + (_sel(c14_3 != _0, _P14, _0) + _sel(c15_2 != _0, _P15, _0))))
+                        focal_hi_1 = _sel(c16_3 != _0, _P0, _0) + _sel(c17_2 != _0, _P1, _0) + (_sel(c18_1 != _0, _P2, _0) + _sel(c19_1 != _0, _P3, _0)) + (_sel(c20_2 != _0, _P4, _0) + _sel(c21_2 != _0, _P5, _0) + (_sel(c22_1 != _0, _P6, _0) + _sel(c23_1 != _0, _P7, _0))) + (_sel(c24_2 != _0, _P8, _0) + _sel(c25_2 != _0, _P9, _0) + (_sel(c26_1 != _0, _P10, _0) + _sel(c27_1 != _0, _P11, _0)) + (_sel(c28_2 != _0, _P12, _0) + _sel(c29_2 != _0, _P13, _0) + (_sel(c30_3 != _0, _P14, _0) + _sel(c31_3 != _0, _P15, _0))))
+                        buf[sbase + np.uint64(11696 + l_3)] = focal_lo_1
+                        buf[sbase + np.uint64(11968 + l_3)] = focal_hi_1
+                        buf[sbase + np.uint64(11424 + l_3)] = _sel((focal_lo_1 == _0) & (focal_hi_1 == _P15) & (c31_3 == _1) & (z_2 == _0), _1, _0)
                     continue
-                for l in range(SUB):
-                    m0 = buf[sbase + np.uint64(0 + l)]
-                    m1 = buf[sbase + np.uint64(272 + l)]
-                    m2 = buf[sbase + np.uint64(544 + l)]
-                    m3 = buf[sbase + np.uint64(816 + l)]
-                    m4 = buf[sbase + np.uint64(1088 + l)]
-                    m5 = buf[sbase + np.uint64(1360 + l)]
-                    m6 = buf[sbase + np.uint64(1632 + l)]
-                    m7 = buf[sbase + np.uint64(1904 + l)]
-                    m8 = buf[sbase + np.uint64(2176 + l)]
-                    m9 = buf[sbase + np.uint64(2448 + l)]
-                    m10 = buf[sbase + np.uint64(2720 + l)]
-                    m11 = buf[sbase + np.uint64(2992 + l)]
-                    m12 = buf[sbase + np.uint64(3264 + l)]
-                    m13 = buf[sbase + np.uint64(3536 + l)]
-                    m14 = buf[sbase + np.uint64(3808 + l)]
-                    m15 = buf[sbase + np.uint64(4080 + l)]
-                    m16 = buf[sbase + np.uint64(4352 + l)]
-                    m17 = buf[sbase + np.uint64(4624 + l)]
-                    m18 = buf[sbase + np.uint64(4896 + l)]
-                    m19 = buf[sbase + np.uint64(5168 + l)]
-                    m20 = buf[sbase + np.uint64(5440 + l)]
-                    m21 = buf[sbase + np.uint64(5712 + l)]
-                    m22 = buf[sbase + np.uint64(5984 + l)]
-                    m23 = buf[sbase + np.uint64(6256 + l)]
-                    m24 = buf[sbase + np.uint64(6528 + l)]
-                    m25 = buf[sbase + np.uint64(6800 + l)]
-                    m26 = buf[sbase + np.uint64(7072 + l)]
-                    m27 = buf[sbase + np.uint64(7344 + l)]
-                    m28 = buf[sbase + np.uint64(7616 + l)]
-                    m29 = buf[sbase + np.uint64(7888 + l)]
-                    m30 = buf[sbase + np.uint64(8160 + l)]
-                    m31 = buf[sbase + np.uint64(8432 + l)]
-                    z = buf[sbase + np.uint64(8704 + l)]
-                    f = buf[sbase + np.uint64(8976 + l)]
-                    o = buf[sbase + np.uint64(9248 + l)]
-                    u = _1 - f - o
-                    lab = buf[sbase + np.uint64(9520 + l)]
-                    ob = buf[sbase + np.uint64(9792 + l)]
-                    gt = buf[sbase + np.uint64(10064 + l)]
-                    obs = ((f > _0) | (o > _0)) if derive_obs else (ob != _0)
-                    is_b = lab == _2
-                    is_r = lab == _1
-                    is_o = lab == _0
-                    beta = beta_b if is_b else (beta_r if is_r else (beta_o if is_o else _0))
-                    beta = beta if (obs | everywhere) else _0
-                    e = beta * f if is_b else _0
-                    kept = _1 - e
-                    total = kept <= tol
-                    beta = _0 if total else beta
-                    e = _0 if total else e
-                    kept = _1 if total else kept
-                    inv_kept = _1 / kept
-                    bb = beta if is_b else _0
-                    br = beta if is_r else _0
-                    bo = beta if is_o else _0
-                    t = a_f * m0
-                    m1 += t
-                    m0 -= t
-                    t = a_f * m2
-                    m3 += t
-                    m2 -= t
-                    t = a_f * m4
-                    m5 += t
-                    m4 -= t
-                    t = a_f * m6
-                    m7 += t
-                    m6 -= t
-                    t = a_f * m8
-                    m9 += t
-                    m8 -= t
-                    t = a_f * m10
-                    m11 += t
-                    m10 -= t
-                    t = a_f * m12
-                    m13 += t
-                    m12 -= t
-                    t = a_f * m14
-                    m15 += t
-                    m14 -= t
-                    t = a_f * m16
-                    m17 += t
-                    m16 -= t
-                    t = a_f * m18
-                    m19 += t
-                    m18 -= t
-                    t = a_f * m20
-                    m21 += t
-                    m20 -= t
-                    t = a_f * m22
-                    m23 += t
-                    m22 -= t
-                    t = a_f * m24
-                    m25 += t
-                    m24 -= t
-                    t = a_f * m26
-                    m27 += t
-                    m26 -= t
-                    t = a_f * m28
-                    m29 += t
-                    m28 -= t
-                    t = a_f * m30
-                    m31 += t
-                    m30 -= t
-                    t = a_u * m0
-                    m4 += t
-                    m0 -= t
-                    t = a_u * m1
-                    m5 += t
-                    m1 -= t
-                    t = a_u * m2
-                    m6 += t
-                    m2 -= t
-                    t = a_u * m3
-                    m7 += t
-                    m3 -= t
-                    t = a_u * m8
-                    m12 += t
-                    m8 -= t
-                    t = a_u * m9
-                    m13 += t
-                    m9 -= t
-                    t = a_u * m10
-                    m14 += t
-                    m10 -= t
-                    t = a_u * m11
-                    m15 += t
-                    m11 -= t
-                    t = a_u * m16
-                    m20 += t
-                    m16 -= t
-                    t = a_u * m17
-                    m21 += t
-                    m17 -= t
-                    t = a_u * m18
-                    m22 += t
-                    m18 -= t
-                    t = a_u * m19
-                    m23 += t
-                    m19 -= t
-                    t = a_u * m24
-                    m28 += t
-                    m24 -= t
-                    t = a_u * m25
-                    m29 += t
-                    m25 -= t
-                    t = a_u * m26
-                    m30 += t
-                    m26 -= t
-                    t = a_u * m27
-                    m31 += t
-                    m27 -= t
-                    t = a_s * m0
-                    m8 += t
-                    m0 -= t
-                    t = a_s * m1
-                    m9 += t
-                    m1 -= t
-                    t = a_s * m2
-                    m10 += t
-                    m2 -= t
-                    t = a_s * m3
-                    m11 += t
-                    m3 -= t
-                    t = a_s * m4
-                    m12 += t
-                    m4 -= t
-                    t = a_s * m5
-                    m13 += t
-                    m5 -= t
-                    t = a_s * m6
-                    m14 += t
-                    m6 -= t
-                    t = a_s * m7
-                    m15 += t
-                    m7 -= t
-                    t = a_s * m16
-                    m24 += t
-                    m16 -= t
-                    t = a_s * m17
-                    m25 += t
-                    m17 -= t
-                    t = a_s * m18
-                    m26 += t
-                    m18 -= t
-                    t = a_s * m19
-                    m27 += t
-                    m19 -= t
-                    t = a_s * m20
-                    m28 += t
-                    m20 -= t
-                    t = a_s * m21
-                    m29 += t
-                    m21 -= t
-                    t = a_s * m22
-                    m30 += t
-                    m22 -= t
-                    t = a_s * m23
-                    m31 += t
-                    m23 -= t
-                    t = a_m * m0
-                    m16 += t
-                    m0 -= t
-                    t = a_m * m1
-                    m17 += t
-                    m1 -= t
-                    t = a_m * m2
-                    m18 += t
-                    m2 -= t
-                    t = a_m * m3
-                    m19 += t
-                    m3 -= t
-                    t = a_m * m4
-                    m20 += t
-                    m4 -= t
-                    t = a_m * m5
-                    m21 += t
-                    m5 -= t
-                    t = a_m * m6
-                    m22 += t
-                    m6 -= t
-                    t = a_m * m7
-                    m23 += t
-                    m7 -= t
-                    t = a_m * m8
-                    m24 += t
-                    m8 -= t
-                    t = a_m * m9
-                    m25 += t
-                    m9 -= t
-                    t = a_m * m10
-                    m26 += t
-                    m10 -= t
-                    t = a_m * m11
-                    m27 += t
-                    m11 -= t
-                    t = a_m * m12
-                    m28 += t
-                    m12 -= t
-                    t = a_m * m13
-                    m29 += t
-                    m13 -= t
-                    t = a_m * m14
-                    m30 += t
-                    m14 -= t
-                    t = a_m * m15
-                    m31 += t
-                    m15 -= t
-                    s_f = ((((m1 + m3) + (m5 + m7)) + ((m9 + m11) + (m13 + m15))) + (((m17 + m19) + (m21 + m23)) + ((m25 + m27) + (m29 + m31))))
-                    s_nf = ((((m0 + m2) + (m4 + m6)) + ((m8 + m10) + (m12 + m14))) + (((m16 + m18) + (m20 + m22)) + ((m24 + m26) + (m28 + m30))))
-                    dn0 = u * m0 + o * (m0 + m1)
-                    dn1 = u * m1
-                    d0 = dn0 + f * s_nf
-                    d1 = dn1 + f * s_f
-                    kf = _1 if (gate_off | (gt != _0) | (not faded_o)) else _0
-                    d2 = u * m2 + o * (m2 + kf * m3)
-                    d3 = u * m3
-                    d4 = u * m4 + o * (m4 + kf * m5)
-                    d5 = u * m5
-                    d6 = u * m6 + o * (m6 + kf * m7)
-                    d7 = u * m7
-                    d8 = u * m8 + o * (m8 + kf * m9)
-                    d9 = u * m9
-                    d10 = u * m10 + o * (m10 + kf * m11)
-                    d11 = u * m11
-                    d12 = u * m12 + o * (m12 + kf * m13)
-                    d13 = u * m13
-                    d14 = u * m14 + o * (m14 + kf * m15)
-                    d15 = u * m15
-                    d16 = u * m16 + o * (m16 + kf * m17)
-                    d17 = u * m17
-                    d18 = u * m18 + o * (m18 + kf * m19)
-                    d19 = u * m19
-                    d20 = u * m20 + o * (m20 + kf * m21)
-                    d21 = u * m21
-                    d22 = u * m22 + o * (m22 + kf * m23)
-                    d23 = u * m23
-                    d24 = u * m24 + o * (m24 + kf * m25)
-                    d25 = u * m25
-                    d26 = u * m26 + o * (m26 + kf * m27)
-                    d27 = u * m27
-                    d28 = u * m28 + o * (m28 + kf * m29)
-                    d29 = u * m29
-                    d31 = u * m31
-                    d30 = u * m30 + o * (m30 + m31 + (_1 - kf) * ((((m3 + m5) + (m7 + m9)) + ((m11 + m13) + (m15 + m17))) + (((m19 + m21) + (m23 + m25)) + (m27 + m29))))
-                    keep_d = _1 - beta
-                    c0 = (keep_d * d0 + bb * ((((dn0 + dn1) + (d4 + d5)) + ((d8 + d9) + (d12 + d13))) + (((d16 + d17) + (d20 + d21)) + ((d24 + d25) + (d28 + d29)))) + br * ((d0 + d2) + (d4 + d6)) + bo * (d0 + d2)) * inv_kept
-                    c1 = (keep_d * d1 + br * ((d1 + d3) + (d5 + d7)) + bo * (d1 + d3)) * inv_kept
-                    c2 = (keep_d * d2 + bb * ((((d2 + d3) + (d6 + d7)) + ((d10 + d11) + (d14 + d15))) + (((d18 + d19) + (d22 + d23)) + ((d26 + d27) + (d30 + d31))))) * inv_kept
-                    c3 = (keep_d * d3) * inv_kept
-                    c4 = (keep_d * d4 + bo * (d4 + d6)) * inv_kept
-                    c5 = (keep_d * d5 + bo * (d5 + d7)) * inv_kept
-                    c6 = (keep_d * d6) * inv_kept
-                    c7 = (keep_d * d7) * inv_kept
-                    c8 = (keep_d * d8 + br * ((d8 + d10) + (d12 + d14)) + bo * (d8 + d10)) * inv_kept
-                    c9 = (keep_d * d9 + br * ((d9 + d11) + (d13 + d15)) + bo * (d9 + d11)) * inv_kept
-                    c10 = (keep_d * d10) * inv_kept
-                    c11 = (keep_d * d11) * inv_kept
-                    c12 = (keep_d * d12 + bo * (d12 + d14)) * inv_kept
-                    c13 = (keep_d * d13 + bo * (d13 + d15)) * inv_kept
-                    c14 = (keep_d * d14) * inv_kept
-                    c15 = (keep_d * d15) * inv_kept
-                    c16 = (keep_d * d16 + br * ((d16 + d18) + (d20 + d22)) + bo * (d16 + d18)) * inv_kept
-                    c17 = (keep_d * d17 + br * ((d17 + d19) + (d21 + d23)) + bo * (d17 + d19)) * inv_kept
-                    c18 = (keep_d * d18) * inv_kept
-                    c19 = (keep_d * d19) * inv_kept
-                    c20 = (keep_d * d20 + bo * (d20 + d22)) * inv_kept
-                    c21 = (keep_d * d21 + bo * (d21 + d23)) * inv_kept
-                    c22 = (keep_d * d22) * inv_kept
-                    c23 = (keep_d * d23) * inv_kept
-                    c24 = (keep_d * d24 + br * ((d24 + d26) + (d28 + d30)) + bo * (d24 + d26)) * inv_kept
-                    c25 = (keep_d * d25 + br * ((d25 + d27) + (d29 + d31)) + bo * (d25 + d27)) * inv_kept
-                    c26 = (keep_d * d26) * inv_kept
-                    c27 = (keep_d * d27) * inv_kept
-                    c28 = (keep_d * d28 + bo * (d28 + d30)) * inv_kept
-                    c29 = (keep_d * d29 + bo * (d29 + d31)) * inv_kept
-                    c30 = (keep_d * d30) * inv_kept
-                    c31 = (keep_d * d31) * inv_kept
-                    sg_free = f * (_1 - bb) * inv_kept
-                    sg_bel_o = (o + u * bb) * inv_kept
-                    pg_bel_o = ((((m2 + m4) + (m6 + m8)) + ((m10 + m12) + (m14 + m16))) + (((m18 + m20) + (m22 + m24)) + ((m26 + m28) + m30)))
-                    fo = m1 * sg_bel_o
-                    of = pg_bel_o * sg_free
-                    other = c0 - fo - of
-                    other = other if other > _0 else _0
-                    in_b = is_b & bld_i
-                    fo_m = _0 if in_b else (fo if (gate_off | (gt != _0)) else _0)
-                    fo_c = _0 if (in_b | gate_off | (gt != _0)) else fo
-                    c2 += fo if in_b else _0
-                    c0 = other if residual == 1 else _0
-                    c16 += fo_m
-                    c30 += fo_c if closed_o else _0
-                    c14 += _0 if closed_o else fo_c
-                    c31 += of + (other if residual == 0 else _0)
-                    bel_o = ((((c2 + c4) + (c6 + c8)) + ((c10 + c12) + (c14 + c16))) + (((c18 + c20) + (c22 + c24)) + ((c26 + c28) + c30)))
-                    dynamic = fo_m + of
-                    z_up = z + inc
-                    z_up = z_up if z_up < _1 else _1
-                    z_down = z - dec
-                    z_down = z_down if z_down > _0 else _0
-                    z = z_up if ((bel_o >= gamma_o) & (dynamic <= gamma_c)) else (z_down if dynamic > gamma_c else z)
-                    g = c17 * z
-                    c17 -= g
-                    c1 += g
-                    g = c18 * z
-                    c18 -= g
-                    c2 += g
-                    g = c19 * z
-                    c19 -= g
-                    c3 += g
-                    g = c20 * z
-                    c20 -= g
-                    c4 += g
-                    g = c21 * z
-                    c21 -= g
-                    c5 += g
-                    g = c22 * z
-                    c22 -= g
-                    c6 += g
-                    g = c23 * z
-                    c23 -= g
-                    c7 += g
-                    g = c24 * z
-                    c24 -= g
-                    c8 += g
-                    g = c25 * z
-                    c25 -= g
-                    c9 += g
-                    g = c26 * z
-                    c26 -= g
-                    c10 += g
-                    g = c27 * z
-                    c27 -= g
-                    c11 += g
-                    g = c28 * z
-                    c28 -= g
-                    c12 += g
-                    g = c29 * z
-                    c29 -= g
-                    c13 += g
-                    g = c30 * z
-                    c30 -= g
-                    c14 += g
-                    g = c31 * z
-                    c31 -= g
-                    c15 += g
-                    g = c16 * z
-                    c16 -= g
-                    c8 += g if to_s else _0
-                    c0 += _0 if to_s else g
-                    buf[sbase + np.uint64(0 + l)] = c0
-                    buf[sbase + np.uint64(272 + l)] = c1
-                    buf[sbase + np.uint64(544 + l)] = c2
-                    buf[sbase + np.uint64(816 + l)] = c3
-                    buf[sbase + np.uint64(1088 + l)] = c4
-                    buf[sbase + np.uint64(1360 + l)] = c5
-                    buf[sbase + np.uint64(1632 + l)] = c6
-                    buf[sbase + np.uint64(1904 + l)] = c7
-                    buf[sbase + np.uint64(2176 + l)] = c8
-                    buf[sbase + np.uint64(2448 + l)] = c9
-                    buf[sbase + np.uint64(2720 + l)] = c10
-                    buf[sbase + np.uint64(2992 + l)] = c11
-                    buf[sbase + np.uint64(3264 + l)] = c12
-                    buf[sbase + np.uint64(3536 + l)] = c13
-                    buf[sbase + np.uint64(3808 + l)] = c14
-                    buf[sbase + np.uint64(4080 + l)] = c15
-                    buf[sbase + np.uint64(4352 + l)] = c16
-                    buf[sbase + np.uint64(4624 + l)] = c17
-                    buf[sbase + np.uint64(4896 + l)] = c18
-                    buf[sbase + np.uint64(5168 + l)] = c19
-                    buf[sbase + np.uint64(5440 + l)] = c20
-                    buf[sbase + np.uint64(5712 + l)] = c21
-                    buf[sbase + np.uint64(5984 + l)] = c22
-                    buf[sbase + np.uint64(6256 + l)] = c23
-                    buf[sbase + np.uint64(6528 + l)] = c24
-                    buf[sbase + np.uint64(6800 + l)] = c25
-                    buf[sbase + np.uint64(7072 + l)] = c26
-                    buf[sbase + np.uint64(7344 + l)] = c27
-                    buf[sbase + np.uint64(7616 + l)] = c28
-                    buf[sbase + np.uint64(7888 + l)] = c29
-                    buf[sbase + np.uint64(8160 + l)] = c30
-                    buf[sbase + np.uint64(8432 + l)] = c31
-                    buf[sbase + np.uint64(8704 + l)] = z
-                    norm = (((((c1 + c2) + (c3 + c4)) + ((c5 + c6) + (c7 + c8))) + (((c9 + c10) + (c11 + c12)) + ((c13 + c14) + (c15 + c16)))) + ((((c17 + c18) + (c19 + c20)) + ((c21 + c22) + (c23 + c24))) + (((c25 + c26) + (c27 + c28)) + ((c29 + c30) + c31))))
-                    inv_norm = (_1 / norm) if norm > tol else _0
-                    w1 = c1
-                    w2 = c2
-                    w3 = c3 * _INV2
-                    w4 = c4
-                    w5 = c5 * _INV2
-                    w6 = c6 * _INV2
-                    w7 = c7 * _INV3
-                    w8 = c8
-                    w9 = c9 * _INV2
-                    w10 = c10 * _INV2
-                    w11 = c11 * _INV3
-                    w12 = c12 * _INV2
-                    w13 = c13 * _INV3
-                    w14 = c14 * _INV3
-                    w15 = c15 * _INV4
-                    w16 = c16
-                    w17 = c17 * _INV2
-                    w18 = c18 * _INV2
-                    w19 = c19 * _INV3
-                    w20 = c20 * _INV2
-                    w21 = c21 * _INV3
-                    w22 = c22 * _INV3
-                    w23 = c23 * _INV4
-                    w24 = c24 * _INV2
-                    w25 = c25 * _INV3
-                    w26 = c26 * _INV3
-                    w27 = c27 * _INV4
-                    w28 = c28 * _INV3
-                    w29 = c29 * _INV4
-                    w30 = c30 * _INV4
-                    w31 = c31 * _INV5
-                    p_f = ((((w1 + w3) + (w5 + w7)) + ((w9 + w11) + (w13 + w15))) + (((w17 + w19) + (w21 + w23)) + ((w25 + w27) + (w29 + w31)))) * inv_norm
-                    p_i = ((((w2 + w3) + (w6 + w7)) + ((w10 + w11) + (w14 + w15))) + (((w18 + w19) + (w22 + w23)) + ((w26 + w27) + (w30 + w31)))) * inv_norm
-                    p_u = ((((w4 + w5) + (w6 + w7)) + ((w12 + w13) + (w14 + w15))) + (((w20 + w21) + (w22 + w23)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
-                    p_s = ((((w8 + w9) + (w10 + w11)) + ((w12 + w13) + (w14 + w15))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
-                    p_m = ((((w16 + w17) + (w18 + w19)) + ((w20 + w21) + (w22 + w23))) + (((w24 + w25) + (w26 + w27)) + ((w28 + w29) + (w30 + w31)))) * inv_norm
-                    static = p_i + p_u + p_s
-                    code = c_free
-                    best = p_f
-                    code = c_moving if p_m > best else code
-                    best = p_m if p_m > best else best
-                    is_static = static > best
-                    code = c_static if is_static else code
-                    best = static if is_static else best
-                    fine_code = c_infra
-                    fine_best = p_i
-                    fine_code = c_unmapped if p_u > fine_best else fine_code
-                    fine_best = p_u if p_u > fine_best else fine_best
-                    fine_code = c_stopped if p_s > fine_best else fine_code
-                    fine_best = p_s if p_s > fine_best else fine_best
-                    least = p_i if p_i < p_u else p_u
-                    least = least if least < p_s else p_s
-                    fine_second = static - fine_best - least
-                    fine_ok = (fine_best >= _HALF) & (fine_best >= _HALF * static) & (fine_best - fine_second > _TIE)
-                    code = fine_code if (is_static & fine_ok) else code
-                    code = c_unknown if ((best < min_betp) | (c31 > max_ign)) else code
-                    buf[sbase + np.uint64(8976 + l)] = p_f
-                    buf[sbase + np.uint64(9248 + l)] = p_i
-                    buf[sbase + np.uint64(9520 + l)] = p_u
-                    buf[sbase + np.uint64(9792 + l)] = p_s
-                    buf[sbase + np.uint64(10064 + l)] = p_m
-                    buf[sbase + np.uint64(10336 + l)] = fo
-                    buf[sbase + np.uint64(10608 + l)] = of
-                    buf[sbase + np.uint64(10880 + l)] = other
-                    buf[sbase + np.uint64(11152 + l)] = code
-                    focal_lo = (((((_P0 if c0 != _0 else _0) + (_P1 if c1 != _0 else _0)) + ((_P2 if c2 != _0 else _0) + (_P3 if c3 != _0 else _0))) + (((_P4 if c4 != _0 else _0) + (_P5 if c5 != _0 else _0)) + ((_P6 if c6 != _0 else _0) + (_P7 if c7 != _0 else _0)))) + ((((_P8 if c8 != _0 else _0) + (_P9 if c9 != _0 else _0)) + ((_P10 if c10 != _0 else _0) + (_P11 if c11 != _0 else _0))) + (((_P12 if c12 != _0 else _0) + (_P13 if c13 != _0 else _0)) + ((_P14 if c14 != _0 else _0) + (_P15 if c15 != _0 else _0)))))
-                    focal_hi = (((((_P0 if c16 != _0 else _0) + (_P1 if c17 != _0 else _0)) + ((_P2 if c18 != _0 else _0) + (_P3 if c19 != _0 else _0))) + (((_P4 if c20 != _0 else _0) + (_P5 if c21 != _0 else _0)) + ((_P6 if c22 != _0 else _0) + (_P7 if c23 != _0 else _0)))) + ((((_P8 if c24 != _0 else _0) + (_P9 if c25 != _0 else _0)) + ((_P10 if c26 != _0 else _0) + (_P11 if c27 != _0 else _0))) + (((_P12 if c28 != _0 else _0) + (_P13 if c29 != _0 else _0)) + ((_P14 if c30 != _0 else _0) + (_P15 if c31 != _0 else _0)))))
-                    buf[sbase + np.uint64(11696 + l)] = focal_lo
-                    buf[sbase + np.uint64(11968 + l)] = focal_hi
-                    buf[sbase + np.uint64(11424 + l)] = _1 if ((focal_lo == _0) & (focal_hi == _P15) & (c31 == _1) & (z == _0)) else _0
+                for l_4 in range(SUB):
+                    m0_6 = buf[sbase + np.uint64(0 + l_4)]
+                    m1_6 = buf[sbase + np.uint64(272 + l_4)]
+                    m2_2 = buf[sbase + np.uint64(544 + l_4)]
+                    m3_2 = buf[sbase + np.uint64(816 + l_4)]
+                    m4_6 = buf[sbase + np.uint64(1088 + l_4)]
+                    m5_6 = buf[sbase + np.uint64(1360 + l_4)]
+                    m6_2 = buf[sbase + np.uint64(1632 + l_4)]
+                    m7_2 = buf[sbase + np.uint64(1904 + l_4)]
+                    m8_6 = buf[sbase + np.uint64(2176 + l_4)]
+                    m9_6 = buf[sbase + np.uint64(2448 + l_4)]
+                    m10_2 = buf[sbase + np.uint64(2720 + l_4)]
+                    m11_2 = buf[sbase + np.uint64(2992 + l_4)]
+                    m12_6 = buf[sbase + np.uint64(3264 + l_4)]
+                    m13_6 = buf[sbase + np.uint64(3536 + l_4)]
+                    m14_4 = buf[sbase + np.uint64(3808 + l_4)]
+                    m15_4 = buf[sbase + np.uint64(4080 + l_4)]
+                    m16_6 = buf[sbase + np.uint64(4352 + l_4)]
+                    m17_6 = buf[sbase + np.uint64(4624 + l_4)]
+                    m18_2 = buf[sbase + np.uint64(4896 + l_4)]
+                    m19_2 = buf[sbase + np.uint64(5168 + l_4)]
+                    m20_6 = buf[sbase + np.uint64(5440 + l_4)]
+                    m21_6 = buf[sbase + np.uint64(5712 + l_4)]
+                    m22_2 = buf[sbase + np.uint64(5984 + l_4)]
+                    m23_2 = buf[sbase + np.uint64(6256 + l_4)]
+                    m24_6 = buf[sbase + np.uint64(6528 + l_4)]
+                    m25_6 = buf[sbase + np.uint64(6800 + l_4)]
+                    m26_2 = buf[sbase + np.uint64(7072 + l_4)]
+                    m27_2 = buf[sbase + np.uint64(7344 + l_4)]
+                    m28_6 = buf[sbase + np.uint64(7616 + l_4)]
+                    m29_6 = buf[sbase + np.uint64(7888 + l_4)]
+                    m30_4 = buf[sbase + np.uint64(8160 + l_4)]
+                    m31_4 = buf[sbase + np.uint64(8432 + l_4)]
+                    z_3 = buf[sbase + np.uint64(8704 + l_4)]
+                    f_2 = buf[sbase + np.uint64(8976 + l_4)]
+                    o_2 = buf[sbase + np.uint64(9248 + l_4)]
+                    u_2 = _1 - f_2 - o_2
+                    lab_2 = buf[sbase + np.uint64(9520 + l_4)]
+                    ob_2 = buf[sbase + np.uint64(9792 + l_4)]
+                    gt_2 = buf[sbase + np.uint64(10064 + l_4)]
+                    obs_2 = _sel(derive_obs, (f_2 > _0) | (o_2 > _0), ob_2 != _0)
+                    is_b_2 = lab_2 == _2
+                    is_r_2 = lab_2 == _1
+                    is_o_2 = lab_2 == _0
+                    beta_4 = beta_b if is_b_2 else beta_r if is_r_2 else _sel(is_o_2, beta_o, _0)
+                    beta_5 = _sel(obs_2 | everywhere, beta_4, _0)
+                    e_3 = _sel(is_b_2, beta_5 * f_2, _0)
+                    kept_3 = _1 - e_3
+                    total_2 = kept_3 <= tol
+                    beta_6 = _sel(total_2, _0, beta_5)
+                    e_4 = _sel(total_2, _0, e_3)
+                    kept_4 = _sel(total_2, _1, kept_3)
+                    inv_kept_2 = _1 / kept_4
+                    bb_2 = _sel(is_b_2, beta_6, _0)
+                    br_2 = _sel(is_r_2, beta_6, _0)
+                    bo_2 = _sel(is_o_2, beta_6, _0)
+                    t_82 = a_f * m0_6
+                    m1_7 = m1_6 + t_82
+                    m0_7 = m0_6 - t_82
+                    t_83 = a_f * m2_2
+                    m3_3 = m3_2 + t_83
+                    m2_3 = m2_2 - t_83
+                    t_84 = a_f * m4_6
+                    m5_7 = m5_6 + t_84
+                    m4_7 = m4_6 - t_84
+                    t_85 = a_f * m6_2
+                    m7_3 = m7_2 + t_85
+                    m6_3 = m6_2 - t_85
+                    t_86 = a_f * m8_6
+                    m9_7 = m9_6 + t_86
+                    m8_7 = m8_6 - t_86
+                    t_87 = a_f * m10_2
+                    m11_3 = m11_2 + t_87
+                    m10_3 = m10_2 - t_87
+                    t_88 = a_f * m12_6
+                    m13_7 = m13_6 + t_88
+                    m12_7 = m12_6 - t_88
+                    t_89 = a_f * m14_4
+                    m15_5 = m15_4 + t_89
+                    m14_5 = m14_4 - t_89
+                    t_90 = a_f * m16_6
+                    m17_7 = m17_6 + t_90
+                    m16_7 = m16_6 - t_90
+                    t_91 = a_f * m18_2
+                    m19_3 = m19_2 + t_91
+                    m18_3 = m18_2 - t_91
+                    t_92 = a_f * m20_6
+                    m21_7 = m21_6 + t_92
+                    m20_7 = m20_6 - t_92
+                    t_93 = a_f * m22_2
+                    m23_3 = m23_2 + t_93
+                    m22_3 = m22_2 - t_93
+                    t_94 = a_f * m24_6
+                    m25_7 = m25_6 + t_94
+                    m24_7 = m24_6 - t_94
+                    t_95 = a_f * m26_2
+                    m27_3 = m27_2 + t_95
+                    m26_3 = m26_2 - t_95
+                    t_96 = a_f * m28_6
+                    m29_7 = m29_6 + t_96
+                    m28_7 = m28_6 - t_96
+                    t_97 = a_f * m30_4
+                    m31_5 = m31_4 + t_97
+                    m30_5 = m30_4 - t_97
+                    t_98 = a_u * m0_7
+                    m4_8 = m4_7 + t_98
+                    m0_8 = m0_7 - t_98
+                    t_99 = a_u * m1_7
+                    m5_8 = m5_7 + t_99
+                    m1_8 = m1_7 - t_99
+                    t_100 = a_u * m2_3
+                    m6_4 = m6_3 + t_100
+                    m2_4 = m2_3 - t_100
+                    t_101 = a_u * m3_3
+                    m7_4 = m7_3 + t_101
+                    m3_4 = m3_3 - t_101
+                    t_102 = a_u * m8_7
+                    m12_8 = m12_7 + t_102
+                    m8_8 = m8_7 - t_102
+                    t_103 = a_u * m9_7
+                    m13_8 = m13_7 + t_103
+                    m9_8 = m9_7 - t_103
+                    t_104 = a_u * m10_3
+                    m14_6 = m14_5 + t_104
+                    m10_4 = m10_3 - t_104
+                    t_105 = a_u * m11_3
+                    m15_6 = m15_5 + t_105
+                    m11_4 = m11_3 - t_105
+                    t_106 = a_u * m16_7
+                    m20_8 = m20_7 + t_106
+                    m16_8 = m16_7 - t_106
+                    t_107 = a_u * m17_7
+                    m21_8 = m21_7 + t_107
+                    m17_8 = m17_7 - t_107
+                    t_108 = a_u * m18_3
+                    m22_4 = m22_3 + t_108
+                    m18_4 = m18_3 - t_108
+                    t_109 = a_u * m19_3
+                    m23_4 = m23_3 + t_109
+                    m19_4 = m19_3 - t_109
+                    t_110 = a_u * m24_7
+                    m28_8 = m28_7 + t_110
+                    m24_8 = m24_7 - t_110
+                    t_111 = a_u * m25_7
+                    m29_8 = m29_7 + t_111
+                    m25_8 = m25_7 - t_111
+                    t_112 = a_u * m26_3
+                    m30_6 = m30_5 + t_112
+                    m26_4 = m26_3 - t_112
+                    t_113 = a_u * m27_3
+                    m31_6 = m31_5 + t_113
+                    m27_4 = m27_3 - t_113
+                    t_114 = a_s * m0_8
+                    m8_9 = m8_8 + t_114
+                    m0_9 = m0_8 - t_114
+                    t_115 = a_s * m1_8
+                    m9_9 = m9_8 + t_115
+                    m1_9 = m1_8 - t_115
+                    t_116 = a_s * m2_4
+                    m10_5 = m10_4 + t_116
+                    m2_5 = m2_4 - t_116
+                    t_117 = a_s * m3_4
+                    m11_5 = m11_4 + t_117
+                    m3_5 = m3_4 - t_117
+                    t_118 = a_s * m4_8
+                    m12_9 = m12_8 + t_118
+                    m4_9 = m4_8 - t_118
+                    t_119 = a_s * m5_8
+                    m13_9 = m13_8 + t_119
+                    m5_9 = m5_8 - t_119
+                    t_120 = a_s * m6_4
+                    m14_7 = m14_6 + t_120
+                    m6_5 = m6_4 - t_120
+                    t_121 = a_s * m7_4
+                    m15_7 = m15_6 + t_121
+                    m7_5 = m7_4 - t_121
+                    t_122 = a_s * m16_8
+                    m24_9 = m24_8 + t_122
+                    m16_9 = m16_8 - t_122
+                    t_123 = a_s * m17_8
+                    m25_9 = m25_8 + t_123
+                    m17_9 = m17_8 - t_123
+                    t_124 = a_s * m18_4
+                    m26_5 = m26_4 + t_124
+                    m18_5 = m18_4 - t_124
+                    t_125 = a_s * m19_4
+                    m27_5 = m27_4 + t_125
+                    m19_5 = m19_4 - t_125
+                    t_126 = a_s * m20_8
+                    m28_9 = m28_8 + t_126
+                    m20_9 = m20_8 - t_126
+                    t_127 = a_s * m21_8
+                    m29_9 = m29_8 + t_127
+                    m21_9 = m21_8 - t_127
+                    t_128 = a_s * m22_4
+                    m30_7 = m30_6 + t_128
+                    m22_5 = m22_4 - t_128
+                    t_129 = a_s * m23_4
+                    m31_7 = m31_6 + t_129
+                    m23_5 = m23_4 - t_129
+                    t_130 = a_m * m0_9
+                    m16_10 = m16_9 + t_130
+                    m0_10 = m0_9 - t_130
+                    t_131 = a_m * m1_9
+                    m17_10 = m17_9 + t_131
+                    m1_10 = m1_9 - t_131
+                    t_132 = a_m * m2_5
+                    m18_6 = m18_5 + t_132
+                    m2_6 = m2_5 - t_132
+                    t_133 = a_m * m3_5
+                    m19_6 = m19_5 + t_133
+                    m3_6 = m3_5 - t_133
+                    t_134 = a_m * m4_9
+                    m20_10 = m20_9 + t_134
+                    m4_10 = m4_9 - t_134
+                    t_135 = a_m * m5_9
+                    m21_10 = m21_9 + t_135
+                    m5_10 = m5_9 - t_135
+                    t_136 = a_m * m6_5
+                    m22_6 = m22_5 + t_136
+                    m6_6 = m6_5 - t_136
+                    t_137 = a_m * m7_5
+                    m23_6 = m23_5 + t_137
+                    m7_6 = m7_5 - t_137
+                    t_138 = a_m * m8_9
+                    m24_10 = m24_9 + t_138
+                    m8_10 = m8_9 - t_138
+                    t_139 = a_m * m9_9
+                    m25_10 = m25_9 + t_139
+                    m9_10 = m9_9 - t_139
+                    t_140 = a_m * m10_5
+                    m26_6 = m26_5 + t_140
+                    m10_6 = m10_5 - t_140
+                    t_141 = a_m * m11_5
+                    m27_6 = m27_5 + t_141
+                    m11_6 = m11_5 - t_141
+                    t_142 = a_m * m12_9
+                    m28_10 = m28_9 + t_142
+                    m12_10 = m12_9 - t_142
+                    t_143 = a_m * m13_9
+                    m29_10 = m29_9 + t_143
+                    m13_10 = m13_9 - t_143
+                    t_144 = a_m * m14_7
+                    m30_8 = m30_7 + t_144
+                    m14_8 = m14_7 - t_144
+                    t_145 = a_m * m15_7
+                    m31_8 = m31_7 + t_145
+                    m15_8 = m15_7 - t_145
+                    s_f_2 = m1_10 + m3_6 + (m5_10 + m7_6) + (m9_10 + m11_6 + (m13_10 + m15_8)) + (m17_10 + m19_6 + (m21_10 + m23_6) + (m25_10 + m27_6 + (m29_10 + m31_8)))
+                    s_nf_2 = m0_10 + m2_6 + (m4_10 + m6_6) + (m8_10 + m10_6 + (m12_10 + m14_8)) + (m16_10 + m18_6 + (m20_10 + m22_6) + (m24_10 + m26_6 + (m28_10 + m30_8)))
+                    dn0_2 = u_2 * m0_10 + o_2 * (m0_10 + m1_10)
+                    dn1_2 = u_2 * m1_10
+                    d0_2 = dn0_2 + f_2 * s_nf_2
+                    d1_2 = dn1_2 + f_2 * s_f_2
+                    kf_2 = _sel(gate_off | (gt_2 != _0) | (not faded_o), _1, _0)
+                    d2_2 = u_2 * m2_6 + o_2 * (m2_6 + kf_2 * m3_6)
+                    d3_2 = u_2 * m3_6
+                    d4_2 = u_2 * m4_10 + o_2 * (m4_10 + kf_2 * m5_10)
+                    d5_2 = u_2 * m5_10
+                    d6_2 = u_2 * m6_6 + o_2 * (m6_6 + kf_2 * m7_6)
+                    d7_2 = u_2 * m7_6
+                    d8_2 = u_2 * m8_10 + o_2 * (m8_10 + kf_2 * m9_10)
+                    d9_2 = u_2 * m9_10
+                    d10_2 = u_2 * m10_6 + o_2 * (m10_6 + kf_2 * m11_6)
+                    d11_2 = u_2 * m11_6
+                    d12_2 = u_2 * m12_10 + o_2 * (m12_10 + kf_2 * m13_10)
+                    d13_2 = u_2 * m13_10
+                    d14_2 = u_2 * m14_8 + o_2 * (m14_8 + kf_2 * m15_8)
+                    d15_2 = u_2 * m15_8
+                    d16_2 = u_2 * m16_10 + o_2 * (m16_10 + kf_2 * m17_10)
+                    d17_2 = u_2 * m17_10
+                    d18_2 = u_2 * m18_6 + o_2 * (m18_6 + kf_2 * m19_6)
+                    d19_2 = u_2 * m19_6
+                    d20_2 = u_2 * m20_10 + o_2 * (m20_10 + kf_2 * m21_10)
+                    d21_2 = u_2 * m21_10
+                    d22_2 = u_2 * m22_6 + o_2 * (m22_6 + kf_2 * m23_6)
+                    d23_2 = u_2 * m23_6
+                    d24_2 = u_2 * m24_10 + o_2 * (m24_10 + kf_2 * m25_10)
+                    d25_2 = u_2 * m25_10
+                    d26_2 = u_2 * m26_6 + o_2 * (m26_6 + kf_2 * m27_6)
+                    d27_2 = u_2 * m27_6
+                    d28_2 = u_2 * m28_10 + o_2 * (m28_10 + kf_2 * m29_10)
+                    d29_2 = u_2 * m29_10
+                    d31_2 = u_2 * m31_8
+                    d30_2 = u_2 * m30_8 + o_2 * (m30_8 + m31_8 + (_1 - kf_2) * (m3_6 + m5_10 + (m7_6 + m9_10) + (m11_6 + m13_10 + (m15_8 + m17_10)) + (m19_6 + m21_10 + (m23_6 + m25_10) + (m27_6 + m29_10))))
+                    keep_d_2 = _1 - beta_6
+                    c0_4 = (keep_d_2 * d0_2 + bb_2 * (dn0_2 + dn1_2 + (d4_2 + d5_2) + (d8_2 + d9_2 + (d12_2 + d13_2)) + (d16_2 + d17_2 + (d20_2 + d21_2) + (d24_2 + d25_2 + (d28_2 + d29_2)))) + br_2 * (d0_2 + d2_2 + (d4_2 + d6_2)) + bo_2 * (d0_2 + d2_2)) * inv_kept_2
+                    c1_3 = (keep_d_2 * d1_2 + br_2 * (d1_2 + d3_2 + (d5_2 + d7_2)) + bo_2 * (d1_2 + d3_2)) * inv_kept_2
+                    c2_2 = (keep_d_2 * d2_2 + bb_2 * (d2_2 + d3_2 + (d6_2 + d7_2) + (d10_2 + d11_2 + (d14_2 + d15_2)) + (d18_2 + d19_2 + (d22_2 + d23_2) + (d26_2 + d27_2 + (d30_2 + d31_2))))) * inv_kept_2
+                    c3_2 = keep_d_2 * d3_2 * inv_kept_2
+                    c4_3 = (keep_d_2 * d4_2 + bo_2 * (d4_2 + d6_2)) * inv_kept_2
+                    c5_3 = (keep_d_2 * d5_2 + bo_2 * (d5_2 + d7_2)) * inv_kept_2
+                    c6_2 = keep_d_2 * d6_2 * inv_kept_2
+                    c7_2 = keep_d_2 * d7_2 * inv_kept_2
+                    c8_4 = (keep_d_2 * d8_2 + br_2 * (d8_2 + d10_2 + (d12_2 + d14_2)) + bo_2 * (d8_2 + d10_2)) * inv_kept_2
+                    c9_3 = (keep_d_2 * d9_2 + br_2 * (d9_2 + d11_2 + (d13_2 + d15_2)) + bo_2 * (d9_2 + d11_2)) * inv_kept_2
+                    c10_2 = keep_d_2 * d10_2 * inv_kept_2
+                    c11_2 = keep_d_2 * d11_2 * inv_kept_2
+                    c12_3 = (keep_d_2 * d12_2 + bo_2 * (d12_2 + d14_2)) * inv_kept_2
+                    c13_3 = (keep_d_2 * d13_2 + bo_2 * (d13_2 + d15_2)) * inv_kept_2
+                    c14_4 = keep_d_2 * d14_2 * inv_kept_2
+                    c15_3 = keep_d_2 * d15_2 * inv_kept_2
+                    c16_4 = (keep_d_2 * d16_2 + br_2 * (d16_2 + d18_2 + (d20_2 + d22_2)) + bo_2 * (d16_2 + d18_2)) * inv_kept_2
+                    c17_3 = (keep_d_2 * d17_2 + br_2 * (d17_2 + d19_2 + (d21_2 + d23_2)) + bo_2 * (d17_2 + d19_2)) * inv_kept_2
+                    c18_2 = keep_d_2 * d18_2 * inv_kept_2
+                    c19_2 = keep_d_2 * d19_2 * inv_kept_2
+                    c20_3 = (keep_d_2 * d20_2 + bo_2 * (d20_2 + d22_2)) * inv_kept_2
+                    c21_3 = (keep_d_2 * d21_2 + bo_2 * (d21_2 + d23_2)) * inv_kept_2
+                    c22_2 = keep_d_2 * d22_2 * inv_kept_2
+                    c23_2 = keep_d_2 * d23_2 * inv_kept_2
+                    c24_3 = (keep_d_2 * d24_2 + br_2 * (d24_2 + d26_2 + (d28_2 + d30_2)) + bo_2 * (d24_2 + d26_2)) * inv_kept_2
+                    c25_3 = (keep_d_2 * d25_2 + br_2 * (d25_2 + d27_2 + (d29_2 + d31_2)) + bo_2 * (d25_2 + d27_2)) * inv_kept_2
+                    c26_2 = keep_d_2 * d26_2 * inv_kept_2
+                    c27_2 = keep_d_2 * d27_2 * inv_kept_2
+                    c28_3 = (keep_d_2 * d28_2 + bo_2 * (d28_2 + d30_2)) * inv_kept_2
+                    c29_3 = (keep_d_2 * d29_2 + bo_2 * (d29_2 + d31_2)) * inv_kept_2
+                    c30_4 = keep_d_2 * d30_2 * inv_kept_2
+                    c31_4 = keep_d_2 * d31_2 * inv_kept_2
+                    sg_free_2 = f_2 * (_1 - bb_2) * inv_kept_2
+                    sg_bel_o_2 = (o_2 + u_2 * bb_2) * inv_kept_2
+                    pg_bel_o_2 = m2_6 + m4_10 + (m6_6 + m8_10) + (m10_6 + m12_10 + (m14_8 + m16_10)) + (m18_6 + m20_10 + (m22_6 + m24_10) + (m26_6 + m28_10 + m30_8))
+                    fo_2 = m1_10 * sg_bel_o_2
+                    of_2 = pg_bel_o_2 * sg_free_2
+                    other_3 = c0_4 - fo_2 - of_2
+                    other_4 = _sel(other_3 > _0, other_3, _0)
+                    in_b = is_b_2 & bld_i
+                    fo_m_2 = _0 if in_b else _sel(gate_off | (gt_2 != _0), fo_2, _0)
+                    fo_c_2 = _sel(in_b | gate_off | (gt_2 != _0), _0, fo_2)
+                    c2_3 = c2_2 + _sel(in_b, fo_2, _0)
+                    c0_5 = _sel(residual == 1, other_4, _0)
+                    c16_5 = c16_4 + fo_m_2
+                    c30_5 = c30_4 + _sel(closed_o, fo_c_2, _0)
+                    c14_5 = c14_4 + _sel(closed_o, _0, fo_c_2)
+                    c31_5 = c31_4 + (of_2 + _sel(residual == 0, other_4, _0))
+                    bel_o_2 = c2_3 + c4_3 + (c6_2 + c8_4) + (c10_2 + c12_3 + (c14_5 + c16_5)) + (c18_2 + c20_3 + (c22_2 + c24_3) + (c26_2 + c28_3 + c30_5))
+                    dynamic_2 = fo_m_2 + of_2
+                    z_up_3 = z_3 + inc
+                    z_up_4 = _sel(z_up_3 < _1, z_up_3, _1)
+                    z_down_3 = z_3 - dec
+                    z_down_4 = _sel(z_down_3 > _0, z_down_3, _0)
+                    z_4 = z_up_4 if (bel_o_2 >= gamma_o) & (dynamic_2 <= gamma_c) else _sel(dynamic_2 > gamma_c, z_down_4, z_3)
+                    g_11 = c17_3 * z_4
+                    c17_4 = c17_3 - g_11
+                    c1_4 = c1_3 + g_11
+                    g_12 = c18_2 * z_4
+                    c18_3 = c18_2 - g_12
+                    c2_4 = c2_3 + g_12
+                    g_13 = c19_2 * z_4
+                    c19_3 = c19_2 - g_13
+                    c3_3 = c3_2 + g_13
+                    g_14 = c20_3 * z_4
+                    c20_4 = c20_3 - g_14
+                    c4_4 = c4_3 + g_14
+                    g_15 = c21_3 * z_4
+                    c21_4 = c21_3 - g_15
+                    c5_4 = c5_3 + g_15
+                    g_16 = c22_2 * z_4
+                    c22_3 = c22_2 - g_16
+                    c6_3 = c6_2 + g_16
+                    g_17 = c23_2 * z_4
+                    c23_3 = c23_2 - g_17
+                    c7_3 = c7_2 + g_17
+                    g_18 = c24_3 * z_4
+                    c24_4 = c24_3 - g_18
+                    c8_5 = c8_4 + g_18
+                    g_19 = c25_3 * z_4
+                    c25_4 = c25_3 - g_19
+                    c9_4 = c9_3 + g_19
+                    g_20 = c26_2 * z_4
+                    c26_3 = c26_2 - g_20
+                    c10_3 = c10_2 + g_20
+                    g_21 = c27_2 * z_4
+                    c27_3 = c27_2 - g_21
+                    c11_3 = c11_2 + g_21
+                    g_22 = c28_3 * z_4
+                    c28_4 = c28_3 - g_22
+                    c12_4 = c12_3 + g_22
+                    g_23 = c29_3 * z_4
+                    c29_4 = c29_3 - g_23
+                    c13_4 = c13_3 + g_23
+                    g_24 = c30_5 * z_4
+                    c30_6 = c30_5 - g_24
+                    c14_6 = c14_5 + g_24
+                    g_25 = c31_5 * z_4
+                    c31_6 = c31_5 - g_25
+                    c15_4 = c15_3 + g_25
+                    g_26 = c16_5 * z_4
+                    c16_6 = c16_5 - g_26
+                    c8_6 = c8_5 + _sel(to_s, g_26, _0)
+                    c0_6 = c0_5 + _sel(to_s, _0, g_26)
+                    buf[sbase + np.uint64(0 + l_4)] = c0_6
+                    buf[sbase + np.uint64(272 + l_4)] = c1_4
+                    buf[sbase + np.uint64(544 + l_4)] = c2_4
+                    buf[sbase + np.uint64(816 + l_4)] = c3_3
+                    buf[sbase + np.uint64(1088 + l_4)] = c4_4
+                    buf[sbase + np.uint64(1360 + l_4)] = c5_4
+                    buf[sbase + np.uint64(1632 + l_4)] = c6_3
+                    buf[sbase + np.uint64(1904 + l_4)] = c7_3
+                    buf[sbase + np.uint64(2176 + l_4)] = c8_6
+                    buf[sbase + np.uint64(2448 + l_4)] = c9_4
+                    buf[sbase + np.uint64(2720 + l_4)] = c10_3
+                    buf[sbase + np.uint64(2992 + l_4)] = c11_3
+                    buf[sbase + np.uint64(3264 + l_4)] = c12_4
+                    buf[sbase + np.uint64(3536 + l_4)] = c13_4
+                    buf[sbase + np.uint64(3808 + l_4)] = c14_6
+                    buf[sbase + np.uint64(4080 + l_4)] = c15_4
+                    buf[sbase + np.uint64(4352 + l_4)] = c16_6
+                    buf[sbase + np.uint64(4624 + l_4)] = c17_4
+                    buf[sbase + np.uint64(4896 + l_4)] = c18_3
+                    buf[sbase + np.uint64(5168 + l_4)] = c19_3
+                    buf[sbase + np.uint64(5440 + l_4)] = c20_4
+                    buf[sbase + np.uint64(5712 + l_4)] = c21_4
+                    buf[sbase + np.uint64(5984 + l_4)] = c22_3
+                    buf[sbase + np.uint64(6256 + l_4)] = c23_3
+                    buf[sbase + np.uint64(6528 + l_4)] = c24_4
+                    buf[sbase + np.uint64(6800 + l_4)] = c25_4
+                    buf[sbase + np.uint64(7072 + l_4)] = c26_3
+                    buf[sbase + np.uint64(7344 + l_4)] = c27_3
+                    buf[sbase + np.uint64(7616 + l_4)] = c28_4
+                    buf[sbase + np.uint64(7888 + l_4)] = c29_4
+                    buf[sbase + np.uint64(8160 + l_4)] = c30_6
+                    buf[sbase + np.uint64(8432 + l_4)] = c31_6
+                    buf[sbase + np.uint64(8704 + l_4)] = z_4
+                    norm_2 = c1_4 + c2_4 + (c3_3 + c4_4) + (c5_4 + c6_3 + (c7_3 + c8_6)) + (c9_4 + c10_3 + (c11_3 + c12_4) + (c13_4 + c14_6 + (c15_4 + c16_6))) + (c17_4 + c18_3 + (c19_3 + c20_4) + (c21_4 + c22_3 + (c23_3 + c24_4)) + (c25_4 + c26_3 + (c27_3 + c28_4) + (c29_4 + c30_6 + c31_6)))
+                    inv_norm_2 = _sel(norm_2 > tol, _1 / norm_2, _0)
+                    w1_2 = c1_4
+                    w2_2 = c2_4
+                    w3_2 = c3_3 * _INV2
+                    w4_2 = c4_4
+                    w5_2 = c5_4 * _INV2
+                    w6_2 = c6_3 * _INV2
+                    w7_2 = c7_3 * _INV3
+                    w8_2 = c8_6
+                    w9_2 = c9_4 * _INV2
+                    w10_2 = c10_3 * _INV2
+                    w11_2 = c11_3 * _INV3
+                    w12_2 = c12_4 * _INV2
+                    w13_2 = c13_4 * _INV3
+                    w14_2 = c14_6 * _INV3
+                    w15_2 = c15_4 * _INV4
+                    w16_2 = c16_6
+                    w17_2 = c17_4 * _INV2
+                    w18_2 = c18_3 * _INV2
+                    w19_2 = c19_3 * _INV3
+                    w20_2 = c20_4 * _INV2
+                    w21_2 = c21_4 * _INV3
+                    w22_2 = c22_3 * _INV3
+                    w23_2 = c23_3 * _INV4
+                    w24_2 = c24_4 * _INV2
+                    w25_2 = c25_4 * _INV3
+                    w26_2 = c26_3 * _INV3
+                    w27_2 = c27_3 * _INV4
+                    w28_2 = c28_4 * _INV3
+                    w29_2 = c29_4 * _INV4
+                    w30_2 = c30_6 * _INV4
+                    w31_2 = c31_6 * _INV5
+                    p_f_2 = (w1_2 + w3_2 + (w5_2 + w7_2) + (w9_2 + w11_2 + (w13_2 + w15_2)) + (w17_2 + w19_2 + (w21_2 + w23_2) + (w25_2 + w27_2 + (w29_2 + w31_2)))) * inv_norm_2
+                    p_i_2 = (w2_2 + w3_2 + (w6_2 + w7_2) + (w10_2 + w11_2 + (w14_2 + w15_2)) + (w18_2 + w19_2 + (w22_2 + w23_2) + (w26_2 + w27_2 + (w30_2 + w31_2)))) * inv_norm_2
+                    p_u_2 = (w4_2 + w5_2 + (w6_2 + w7_2) + (w12_2 + w13_2 + (w14_2 + w15_2)) + (w20_2 + w21_2 + (w22_2 + w23_2) + (w28_2 + w29_2 + (w30_2 + w31_2)))) * inv_norm_2
+                    p_s_2 = (w8_2 + w9_2 + (w10_2 + w11_2) + (w12_2 + w13_2 + (w14_2 + w15_2)) + (w24_2 + w25_2 + (w26_2 + w27_2) + (w28_2 + w29_2 + (w30_2 + w31_2)))) * inv_norm_2
+                    p_m_2 = (w16_2 + w17_2 + (w18_2 + w19_2) + (w20_2 + w21_2 + (w22_2 + w23_2)) + (w24_2 + w25_2 + (w26_2 + w27_2) + (w28_2 + w29_2 + (w30_2 + w31_2)))) * inv_norm_2
+                    static_2 = p_i_2 + p_u_2 + p_s_2
+                    code_6 = c_free
+                    best_4 = p_f_2
+                    code_7 = _sel(p_m_2 > best_4, c_moving, code_6)
+                    best_5 = _sel(p_m_2 > best_4, p_m_2, best_4)
+                    is_static_2 = static_2 > best_5
+                    code_8 = _sel(is_static_2, c_static, code_7)
+                    best_6 = _sel(is_static_2, static_2, best_5)
+                    fine_code_4 = c_infra
+                    fine_best_4 = p_i_2
+                    fine_code_5 = _sel(p_u_2 > fine_best_4, c_unmapped, fine_code_4)
+                    fine_best_5 = _sel(p_u_2 > fine_best_4, p_u_2, fine_best_4)
+                    fine_code_6 = _sel(p_s_2 > fine_best_5, c_stopped, fine_code_5)
+                    fine_best_6 = _sel(p_s_2 > fine_best_5, p_s_2, fine_best_5)
+                    least_3 = _sel(p_i_2 < p_u_2, p_i_2, p_u_2)
+                    least_4 = _sel(least_3 < p_s_2, least_3, p_s_2)
+                    fine_second_2 = static_2 - fine_best_6 - least_4
+                    fine_ok_2 = (fine_best_6 >= _HALF) & (fine_best_6 >= _HALF * static_2) & (fine_best_6 - fine_second_2 > _TIE)
+                    code_9 = _sel(is_static_2 & fine_ok_2, fine_code_6, code_8)
+                    code_10 = _sel((best_6 < min_betp) | (c31_6 > max_ign), c_unknown, code_9)
+                    buf[sbase + np.uint64(8976 + l_4)] = p_f_2
+                    buf[sbase + np.uint64(9248 + l_4)] = p_i_2
+                    buf[sbase + np.uint64(9520 + l_4)] = p_u_2
+                    buf[sbase + np.uint64(9792 + l_4)] = p_s_2
+                    buf[sbase + np.uint64(10064 + l_4)] = p_m_2
+                    buf[sbase + np.uint64(10336 + l_4)] = fo_2
+                    buf[sbase + np.uint64(10608 + l_4)] = of_2
+                    buf[sbase + np.uint64(10880 + l_4)] = other_4
+                    buf[sbase + np.uint64(11152 + l_4)] = code_10
+                    focal_lo_2 = _sel(c0_6 != _0, _P0, _0) + _sel(c1_4 != _0, _P1, _0) + (_sel(c2_4 != _0, _P2, _0) + _sel(c3_3 != _0, _P3, _0)) + (_sel(c4_4 != _0, _P4, _0) + _sel(c5_4 != _0, _P5, _0) + (_sel(c6_3 != _0, _P6, _0) + _sel(c7_3 != _0, _P7, _0))) + (_sel(c8_6 != _0, _P8, _0) + _sel(c9_4 != _0, _P9, _0) + (_sel(c10_3 != _0, _P10, _0) + _sel(c11_3 != _0, _P11, _0)) + (_sel(c12_4 != _0, _P12, _0) + _sel(c13_4 != _0, _P13, _0) + (_sel(c14_6 != _0, _P14, _0) + _sel(c15_4 != _0, _P15, _0))))
+                    focal_hi_2 = _sel(c16_6 != _0, _P0, _0) + _sel(c17_4 != _0, _P1, _0) + (_sel(c18_3 != _0, _P2, _0) + _sel(c19_3 != _0, _P3, _0)) + (_sel(c20_4 != _0, _P4, _0) + _sel(c21_4 != _0, _P5, _0) + (_sel(c22_3 != _0, _P6, _0) + _sel(c23_3 != _0, _P7, _0))) + (_sel(c24_4 != _0, _P8, _0) + _sel(c25_4 != _0, _P9, _0) + (_sel(c26_3 != _0, _P10, _0) + _sel(c27_3 != _0, _P11, _0)) + (_sel(c28_4 != _0, _P12, _0) + _sel(c29_4 != _0, _P13, _0) + (_sel(c30_6 != _0, _P14, _0) + _sel(c31_6 != _0, _P15, _0))))
+                    buf[sbase + np.uint64(11696 + l_4)] = focal_lo_2
+                    buf[sbase + np.uint64(11968 + l_4)] = focal_hi_2
+                    buf[sbase + np.uint64(11424 + l_4)] = _sel((focal_lo_2 == _0) & (focal_hi_2 == _P15) & (c31_6 == _1) & (z_4 == _0), _1, _0)
             new_mask = np.uint32(0)
-            for seg in range(2):
-                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                w = a1 - a0
+            for seg_9 in range(2):
+                a0 = _sel(seg_9 == 0, j0 + l0, max(j0 + l0, wrap))
+                a1_9 = _sel(seg_9 == 0, min(j0 + l1, wrap), j0 + l1)
+                w = a1_9 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_9 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        v = np.uint32(buf[np.uint64((43) * STRIDE + lb) + np.uint64(t)])
-                        v |= np.uint32(buf[np.uint64((44) * STRIDE + lb) + np.uint64(t)]) << np.uint32(16)
-                        fc[sc + np.uint64(t)] = v
-                        new_mask |= v
+                    for t_146 in range(w):
+                        v_1 = np.uint32(buf[np.uint64(43 * STRIDE + lb) + np.uint64(t_146)])
+                        v_2 = v_1 | np.uint32(buf[np.uint64(44 * STRIDE + lb) + np.uint64(t_146)]) << np.uint32(16)
+                        fc[sc + np.uint64(t_146)] = v_2
+                        new_mask |= v_2
             write_mask = old_mask | new_mask
             # planes the body may have left non-zero in some lane of the buffer (all when it ran
             # past l1, on lanes whose stale inputs are not known)
-            dirty |= new_mask if l1 % SUB == 0 else _ALL_PLANES
-            for a in range(32):
-                if (write_mask >> np.uint32(a)) & _ONE:
-                    for seg in range(2):
-                        a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                        a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                        w = a1 - a0
+            dirty |= _sel(l1 % SUB == 0, new_mask, _ALL_PLANES)
+            for a_8 in range(32):
+                if (write_mask >> np.uint32(a_8)) & _ONE:
+                    for seg_10 in range(2):
+                        a0 = _sel(seg_10 == 0, j0 + l0, max(j0 + l0, wrap))
+                        a1_10 = _sel(seg_10 == 0, min(j0 + l1, wrap), j0 + l1)
+                        w = a1_10 - a0
                         if w > 0:
-                            sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                            sc = np.uint64(rb + a0 + _sel(seg_10 == 0, off_c, off_c - cols))
                             lb = a0 - j0
-                            for t in range(w):
-                                st[np.uint64(a), sc + np.uint64(t)] = buf[np.uint64((0 + a) * STRIDE + lb) + np.uint64(t)]
-            for seg in range(2):
-                a0 = j0 + l0 if seg == 0 else max(j0 + l0, wrap)
-                a1 = min(j0 + l1, wrap) if seg == 0 else j0 + l1
-                w = a1 - a0
+                            for t_147 in range(w):
+                                st[np.uint64(a_8), sc + np.uint64(t_147)] = buf[np.uint64((0 + a_8) * STRIDE + lb) + np.uint64(t_147)]
+            for seg_11 in range(2):
+                a0 = _sel(seg_11 == 0, j0 + l0, max(j0 + l0, wrap))
+                a1_11 = _sel(seg_11 == 0, min(j0 + l1, wrap), j0 + l1)
+                w = a1_11 - a0
                 if w > 0:
-                    sc = np.uint64(rb + a0 + (off_c if seg == 0 else off_c - cols))
+                    sc = np.uint64(rb + a0 + _sel(seg_11 == 0, off_c, off_c - cols))
                     lb = a0 - j0
-                    for t in range(w):
-                        zt[sc + np.uint64(t)] = buf[np.uint64((32) * STRIDE + lb) + np.uint64(t)]
-                    for t in range(w):
-                        fl[sc + np.uint64(t)] = np.uint8(buf[np.uint64((42) * STRIDE + lb) + np.uint64(t)])
-            for q0 in range(0, n, TILE):
-                q1 = min(n, q0 + TILE)
-                c0 = min(max(l0, q0), q1)  # [c0, c1): the tile's computed lanes
-                c1 = max(min(l1, q1), c0)
-                tile_mask = _OMEGA_BIT if (c0 > q0 or c1 < q1) else np.uint32(0)
-                for t in range(c0, c1):
-                    tile_mask |= np.uint32(buf[np.uint64((43) * STRIDE + 0) + np.uint64(t)]) | (np.uint32(buf[np.uint64((44) * STRIDE + 0) + np.uint64(t)]) << np.uint32(16))
-                qt[tile + np.uint64(q0 // TILE)] = tile_mask
-                for a in range(32):
-                    if (tile_mask >> np.uint32(a)) & _ONE:
-                        value = np.uint8(255) if a == 31 else np.uint8(0)
-                        for t in range(q0, c0):
-                            qr[pos + np.uint64(t - q0)] = value
-                        pl = pos + np.uint64(c0 - q0)
-                        for t in range(c1 - c0):
-                            v = buf[np.uint64((0 + a) * STRIDE + c0) + np.uint64(t)]
-                            v = v if v > _0 else _0
-                            v = v if v < _1 else _1
-                            qr[pl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
-                        for t in range(c1, q1):
-                            qr[pos + np.uint64(t - q0)] = value
-                        pos += np.uint64(q1 - q0)
-            for k in range(5):
-                for t in range(l1 - l0):
-                    v = buf[np.uint64((33 + k) * STRIDE + l0) + np.uint64(t)]
-                    v = v if v > _0 else _0
-                    v = v if v < _1 else _1
-                    qb[np.uint64(k), wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
-            for k in range(3):
-                for t in range(l1 - l0):
-                    v = buf[np.uint64((38 + k) * STRIDE + l0) + np.uint64(t)]
-                    v = v if v > _0 else _0
-                    v = v if v < _1 else _1
-                    qc[np.uint64(k), wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
-            for t in range(l1 - l0):
-                v = buf[np.uint64((32) * STRIDE + l0) + np.uint64(t)]
-                v = v if v > _0 else _0
-                v = v if v < _1 else _1
-                qz[wl + np.uint64(t)] = np.uint8(np.int32(v * _255 + _HALF))
-            for t in range(l1 - l0):
-                qd[wl + np.uint64(t)] = np.uint8(buf[np.uint64((41) * STRIDE + l0) + np.uint64(t)])
+                    for t_148 in range(w):
+                        zt[sc + np.uint64(t_148)] = buf[np.uint64(32 * STRIDE + lb) + np.uint64(t_148)]
+                    for t_149 in range(w):
+                        fl[sc + np.uint64(t_149)] = np.uint8(buf[np.uint64(42 * STRIDE + lb) + np.uint64(t_149)])
+            for q0_2 in range(0, n, TILE):
+                q1 = min(n, q0_2 + TILE)
+                lane0 = min(max(l0, q0_2), q1)  # [lane0, lane1): the tile's computed lanes
+                lane1 = max(min(l1, q1), lane0)
+                tile_mask = _sel(lane0 > q0_2 or lane1 < q1, _OMEGA_BIT, np.uint32(0))
+                for t_150 in range(lane0, lane1):
+                    tile_mask |= np.uint32(buf[np.uint64(43 * STRIDE + 0) + np.uint64(t_150)]) | np.uint32(buf[np.uint64(44 * STRIDE + 0) + np.uint64(t_150)]) << np.uint32(16)
+                qt[tile + np.uint64(q0_2 // TILE)] = tile_mask
+                for a_9 in range(32):
+                    if (tile_mask >> np.uint32(a_9)) & _ONE:
+                        value = _sel(a_9 == 31, np.uint8(255), np.uint8(0))
+                        for t_151 in range(q0_2, lane0):
+                            qr[pos + np.uint64(t_151 - q0_2)] = value
+                        pl = pos + np.uint64(lane0 - q0_2)
+                        for t_152 in range(lane1 - lane0):
+                            v_3 = buf[np.uint64((0 + a_9) * STRIDE + lane0) + np.uint64(t_152)]
+                            v_4 = _sel(v_3 > _0, v_3, _0)
+                            v_5 = _sel(v_4 < _1, v_4, _1)
+                            qr[pl + np.uint64(t_152)] = np.uint8(np.int32(v_5 * _255 + _HALF))
+                        for t_153 in range(lane1, q1):
+                            qr[pos + np.uint64(t_153 - q0_2)] = value
+                        pos += np.uint64(q1 - q0_2)
+            for k_5 in range(5):
+                for t_154 in range(l1 - l0):
+                    v_6 = buf[np.uint64((33 + k_5) * STRIDE + l0) + np.uint64(t_154)]
+                    v_7 = _sel(v_6 > _0, v_6, _0)
+                    v_8 = _sel(v_7 < _1, v_7, _1)
+                    qb[np.uint64(k_5), wl + np.uint64(t_154)] = np.uint8(np.int32(v_8 * _255 + _HALF))
+            for k_6 in range(3):
+                for t_155 in range(l1 - l0):
+                    v_9 = buf[np.uint64((38 + k_6) * STRIDE + l0) + np.uint64(t_155)]
+                    v_10 = _sel(v_9 > _0, v_9, _0)
+                    v_11 = _sel(v_10 < _1, v_10, _1)
+                    qc[np.uint64(k_6), wl + np.uint64(t_155)] = np.uint8(np.int32(v_11 * _255 + _HALF))
+            for t_156 in range(l1 - l0):
+                v_12 = buf[np.uint64(32 * STRIDE + l0) + np.uint64(t_156)]
+                v_13 = _sel(v_12 > _0, v_12, _0)
+                v_14 = _sel(v_13 < _1, v_13, _1)
+                qz[wl + np.uint64(t_156)] = np.uint8(np.int32(v_14 * _255 + _HALF))
+            for t_157 in range(l1 - l0):
+                qd[wl + np.uint64(t_157)] = np.uint8(buf[np.uint64(41 * STRIDE + l0) + np.uint64(t_157)])
         if r == min(rows, (chunk + 1) * band_rows) - 1:
             chunk_ends[chunk] = np.int64(pos)
     if bands == 1:
