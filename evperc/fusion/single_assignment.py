@@ -118,15 +118,35 @@ class _Owners:
                     self.uses[node.id].fixed = True
 
 
+def _bound_otherwise(fn: ast.FunctionDef) -> set[str]:
+    """Names bound other than by an assignment or a ``for``: parameters, ``:=``, imports,
+    ``global`` / ``nonlocal``, nested definitions, exception handlers. They keep their names."""
+    args = fn.args
+    names = {a.arg for a in (*args.posonlyargs, *args.args, *args.kwonlyargs)}
+    names |= {a.arg for a in (args.vararg, args.kwarg) if a is not None}
+    for node in ast.walk(fn):
+        if isinstance(node, ast.NamedExpr) and isinstance(node.target, ast.Name):
+            names.add(node.target.id)
+        elif isinstance(node, (ast.Global, ast.Nonlocal)):
+            names.update(node.names)
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            names.update((alias.asname or alias.name).split(".")[0] for alias in node.names)
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) \
+                and node is not fn:
+            names.add(node.name)
+        elif isinstance(node, ast.ExceptHandler) and node.name:
+            names.add(node.name)
+    return names
+
+
 def _new_names(fn: ast.FunctionDef) -> tuple[dict[int, str], dict[int, str]]:
     """``id(Name) → new name`` for the references of every variable that may be renamed,
     and ``id(augmented target) → the name it reads``."""
     owners = _Owners()
     owners.visit(fn.body, {})
-    for arg in fn.args.args:
-        owners.uses[arg.arg].fixed = True
-    taken = {n.id for n in ast.walk(fn) if isinstance(n, ast.Name)} | {
-        a.arg for a in fn.args.args}
+    for name in _bound_otherwise(fn):
+        owners.uses[name].fixed = True
+    taken = {n.id for n in ast.walk(fn) if isinstance(n, ast.Name)} | _bound_otherwise(fn)
     new_name: dict[int, str] = {}
     reads: dict[int, str] = {}
     for name, uses in owners.uses.items():

@@ -138,6 +138,29 @@ def test_a_loop_variable_its_body_assigns_keeps_its_name() -> None:
         assert compiled(out)(n) == compiled(source)(n)
 
 
+def test_names_bound_otherwise_keep_their_names() -> None:
+    """``:=`` and ``global`` bind names the rewrite does not follow: left alone."""
+    source = textwrap.dedent("""
+        G = 0
+        def f(a):
+            global G
+            x = 1
+            y = (x := a + 5) + x
+            z = x
+            x = z * 2
+            G = a
+            G = G + 1
+            return x, y, z
+    """)
+    out = rewrite(source)
+    assert stores(out)["x"] == 3 and stores(out)["G"] == 2
+    namespace_in, namespace_out = {}, {}
+    exec(compile(source, "<in>", "exec"), namespace_in)  # noqa: S102 - our own test source
+    exec(compile(out, "<out>", "exec"), namespace_out)  # noqa: S102
+    assert namespace_out["f"](3) == namespace_in["f"](3) == (16, 16, 8)
+    assert namespace_out["G"] == namespace_in["G"] == 4
+
+
 def test_two_statements_on_a_line_are_refused() -> None:
     with pytest.raises(ValueError, match="alone on its line"):
         single_assignment("def f(a):\n    m = a; m += 1\n    return m\n")
