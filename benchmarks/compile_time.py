@@ -7,8 +7,9 @@ Each kernel is compiled in a process of its own with an empty ``NUMBA_CACHE_DIR`
 ``fused_step`` call on a 24 × 300 window), ``PYTHONPATH`` = ``--tree`` (default: this
 repository; e.g. a ``git worktree`` of an older commit), so that trees are compared on one
 machine. KERNEL: ``step_stored_lean`` (what every default run uses), ``step_stored``,
-``step_float_lean``, ``step_float``; default all four. ``--passes``: the eight numba passes
-that took longest, per kernel.
+``step_float_lean``, ``step_float``; default all four. Beside each time, the final LLVM IR's
+select instructions and the calls left to ``_sel`` (evperc.fusion.single_assignment: 0, LLVM
+inlined it). ``--passes``: the eight numba passes that took longest, per kernel.
 """
 
 from __future__ import annotations
@@ -54,19 +55,28 @@ start = time.perf_counter()
 fused_step(pg, zeta, free, occupied, labels, (0.9, 0.9, 0.8), 0.1, params, out=out,
            flags=vacuous_flags(pg, zeta), focal=focal_sets(pg))
 print(f"{time.perf_counter() - start:.1f}")
+from evperc.fusion import kernel
+dispatcher = getattr(kernel, name)
+final_ir = dispatcher.overloads[dispatcher.signatures[0]].library.get_llvm_str()
+left = sum(" call " in line and "_sel" in line for line in final_ir.splitlines())
+print(f"calls_to_select {left}")
+print(f"selects {final_ir.count(' select ')}")
 for pass_name, seconds in totals.most_common(8):
     print(f"{pass_name} {seconds:.1f}")
 """
 
 
-def compile_once(tree: Path, kernel: str) -> tuple[float, list[tuple[str, float]]]:
-    """Seconds of the kernel's first call with an empty cache, and the slowest passes."""
+def compile_once(tree: Path, kernel: str) -> tuple[float, dict[str, int], list[tuple[str, float]]]:
+    """Seconds of the kernel's first call with an empty cache; in the final LLVM IR, the
+    calls left to ``_sel`` (0: inlined) and the select instructions; the slowest passes."""
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache, "PYTHONPATH": str(tree)}
         done = subprocess.run([sys.executable, "-c", CHILD, kernel], env=env, cwd=tree,
                               capture_output=True, text=True, check=True)
-    first, *passes = done.stdout.split("\n")
-    return float(first), [(p.split()[0], float(p.split()[1])) for p in passes if p.strip()]
+    first, calls, selects, *passes = done.stdout.split("\n")
+    counts = {line.split()[0]: int(line.split()[1]) for line in (calls, selects)}
+    return (float(first), counts,
+            [(p.split()[0], float(p.split()[1])) for p in passes if p.strip()])
 
 
 def main() -> None:
@@ -80,9 +90,10 @@ def main() -> None:
         parser.error(f"unknown kernel {unknown[0]}: one of {', '.join(KERNELS)}")
     total = 0.0
     for kernel in args.kernels or KERNELS:
-        seconds, passes = compile_once(args.tree.resolve(), kernel)
+        seconds, counts, passes = compile_once(args.tree.resolve(), kernel)
         total += seconds
-        print(f"{kernel:18s} {seconds:6.1f} s")
+        print(f"{kernel:18s} {seconds:6.1f} s   final IR: {counts['selects']} selects, "
+              f"{counts['calls_to_select']} calls left to _sel")
         if args.passes:
             for name, spent in passes:
                 print(f"    {name:32s} {spent:6.1f} s")

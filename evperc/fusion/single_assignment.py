@@ -6,7 +6,7 @@ passes repeat) costs, per variable assigned more than once, a walk over every ba
 the function, and every conditional expression ``a if c else b`` makes three blocks and one
 such variable. The generated kernels (:mod:`evperc.fusion.codegen`) update 32 masses in
 place through straight-line code and select with conditional expressions: 392 variables
-assigned more than once over 922 blocks in the lean stored kernel, 54 s to compile. Two
+assigned more than once over 922 blocks in the lean stored kernel, 45–49 s to compile. Two
 rewrites of the source, each the same program:
 
 - :func:`single_assignment`: a variable whose every use lies in a straight-line run of simple
@@ -22,8 +22,10 @@ rewrites of the source, each the same program:
   error model does not raise).
 
 Together: 25 variables assigned more than once over 379 blocks, the lean stored kernel
-compiled in 23 s (docs/performance.md § "The kernels' compile time"); the compiled code
-and its bits are unchanged (tests/fusion: the twin, the per-cell reference, the goldens).
+compiled in 20–21 s (docs/performance.md § "The kernels' compile time"; ``python
+benchmarks/compile_time.py``, which also finds no call left to ``_sel`` in the final LLVM
+IR); the step's speed and its bits are unchanged (tests/fusion: the twin, the per-cell
+reference, the goldens).
 """
 
 from __future__ import annotations
