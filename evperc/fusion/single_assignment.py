@@ -15,7 +15,8 @@ rewrites of the source, each the same program:
   ``m3_2 = m3_1 + t_5``). Anything else — a variable read in a nested statement, carried
   round a loop, live on entry or a parameter — keeps its name.
 - :func:`selects`: a conditional expression whose two branches read no array element and
-  call nothing but numeric casts, ``min`` and ``max`` becomes ``_sel(c, a, b)``, a compiled
+  call nothing but numpy's numeric casts and ``min`` / ``max`` of scalars becomes
+  ``_sel(c, a, b)``, a compiled
   function returning ``a if c else b`` that LLVM inlines as the select instruction it had
   made of the branch. Both branches are evaluated: only pure branches qualify (no index
   that the condition guards, no call with effects; float arithmetic under numba's numpy
@@ -37,8 +38,9 @@ from dataclasses import dataclass, field
 #: the function :func:`selects` calls; the generated module defines it (codegen.HEADER)
 SELECT = "_sel"
 _SIMPLE = (ast.Assign, ast.AugAssign, ast.Expr, ast.Pass, ast.Return)
-_PURE_CALLS = frozenset({"float32", "float64", "uint8", "uint32", "uint64", "int64", "min",
-                         "max"})
+#: numpy's numeric casts (``np.float32(x)``), and the builtins of two or more scalars
+_PURE_CASTS = frozenset({"float32", "float64", "uint8", "uint32", "uint64", "int32", "int64"})
+_PURE_BUILTINS = frozenset({"min", "max"})
 
 
 @dataclass
@@ -146,9 +148,10 @@ def _new_names(fn: ast.FunctionDef) -> tuple[dict[int, str], dict[int, str]]:
     and ``id(augmented target) → the name it reads``."""
     owners = _Owners()
     owners.visit(fn.body, {})
-    for name in _bound_otherwise(fn):
+    bound = _bound_otherwise(fn)
+    for name in bound:
         owners.uses[name].fixed = True
-    taken = {n.id for n in ast.walk(fn) if isinstance(n, ast.Name)} | _bound_otherwise(fn)
+    taken = {n.id for n in ast.walk(fn) if isinstance(n, ast.Name)} | bound
     new_name: dict[int, str] = {}
     reads: dict[int, str] = {}
     for name, uses in owners.uses.items():
@@ -225,17 +228,26 @@ def single_assignment(source: str) -> str:
     return "\n".join(lines)
 
 
+def _pure_call(call: ast.Call) -> bool:
+    """``np.<cast>(x)``, or ``min`` / ``max`` of two or more values (one argument would be a
+    sequence, whose minimum may raise)."""
+    func = call.func
+    if call.keywords:
+        return False
+    if isinstance(func, ast.Attribute):
+        return (isinstance(func.value, ast.Name) and func.value.id == "np"
+                and func.attr in _PURE_CASTS and len(call.args) == 1)
+    return isinstance(func, ast.Name) and func.id in _PURE_BUILTINS and len(call.args) >= 2
+
+
 def _pure(expr: ast.expr) -> bool:
-    """Evaluating ``expr`` reads no array element and calls nothing with an effect."""
+    """Evaluating ``expr`` reads no array element and calls nothing that may raise or have
+    an effect."""
     for node in ast.walk(expr):
-        if isinstance(node, (ast.Subscript, ast.Lambda, ast.NamedExpr)):
+        if isinstance(node, (ast.Subscript, ast.Lambda, ast.NamedExpr, ast.Starred)):
             return False
-        if isinstance(node, ast.Call):
-            func = node.func
-            name = (func.attr if isinstance(func, ast.Attribute)
-                    else func.id if isinstance(func, ast.Name) else None)
-            if name not in _PURE_CALLS or node.keywords:
-                return False
+        if isinstance(node, ast.Call) and not _pure_call(node):
+            return False
     return True
 
 

@@ -74,7 +74,9 @@ LOOPS = textwrap.dedent("""
         if n > 2:
             k = n + 1
         x = xs[0] if n > 0 else 0
-        return acc, total, k, x
+        y = max(xs) if n > 0 else 0
+        z = xs.count(0) if n > 0 else 0
+        return acc, total, k, x, y, z
 """)
 
 
@@ -86,7 +88,7 @@ def test_loop_carried_and_nested_names_keep_their_names() -> None:
     counts = stores(out)
     assert counts["acc"] == 3 and counts["total"] == 3 and counts["k"] == 2
     assert "t" not in counts and counts["t_1"] == counts["t_2"] == 1
-    assert f"{SELECT}(" not in out  # xs[0] may not be read when n == 0
+    assert f"{SELECT}(" not in out  # xs[0], max(xs) may not be evaluated when n == 0
     for n in range(0, 7):
         xs = list(range(3, 3 + n))
         assert compiled(out)(n, xs) == compiled(LOOPS)(n, xs)
