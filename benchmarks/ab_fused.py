@@ -43,10 +43,14 @@ SCANS = 10
 CHILD = r"""
 import inspect, json, sys, time
 import numpy as np
-try:
+from pathlib import Path
+import evperc
+# by the tree's files, not by trying the import: the editable install's finder would serve
+# evperc.fusion from this repository to a tree without it
+if (Path(evperc.__file__).parent / "fusion").is_dir():
     from evperc.fusion.fused import FusedOutputs, StoredOutputs, fused_step
     from evperc.fusion.twin import FusionParams
-except ImportError:  # a commit before the evperc/fusion/ layout
+else:  # a commit before the evperc/fusion/ layout
     from evperc.fused import FusedOutputs, StoredOutputs, fused_step
     from evperc.pipeline import FusionParams
 with np.load(sys.argv[1]) as npz:
@@ -82,10 +86,11 @@ print(json.dumps(times[2:]))
 REPLAY_CHILD = r"""
 import json, sys, time
 from pathlib import Path
+import evperc
 from evperc.config import load_config
-try:
+if (Path(evperc.__file__).parent / "fusion").is_dir():  # by the files, as CHILD
     from evperc.fusion.fused import FusedOutputs, StoredOutputs, fused_step
-except ImportError:  # a commit before the evperc/fusion/ layout
+else:  # a commit before the evperc/fusion/ layout
     from evperc.fused import FusedOutputs, StoredOutputs, fused_step
 from evperc.runner import FusionState, Pipeline, RunRequest
 sim = Path(sys.argv[1])
