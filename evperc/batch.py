@@ -326,6 +326,11 @@ def run_batch(request: BatchRequest, client: Any = None, progress: bool = True
             return run_batch(request, own_client, progress)
     from distributed import as_completed
 
+    if request.scheduler is None:  # the workers share this machine's numba cache: fill it
+        # once, on every core, rather than in each worker at once (evperc.warm)
+        from evperc.warm import WarmSpec, compile_kernels
+
+        compile_kernels(WarmSpec(request.config, has_map=request.map_path is not None))
     futures = [client.submit(process_log, task, pure=False) for task in tasks]
     index = {future.key: i for i, future in enumerate(futures)}
     rows: list[dict[str, Any] | None] = [None] * len(tasks)

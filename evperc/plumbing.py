@@ -22,6 +22,7 @@ import ctypes
 import functools
 import logging
 import os
+import pickle
 import queue
 import threading
 import time
@@ -185,15 +186,24 @@ def keep_freed_memory() -> bool:
 
 
 def kernels_cached() -> bool:
-    """Whether numba has cached the fused step's kernels (its index files, ``*.nbi``, in
-    ``NUMBA_CACHE_DIR`` or beside the module): a cheap guess that the next call will not
-    compile for a minute. A cache of an older evperc counts as cached (numba then compiles
-    again, without this warning)."""
+    """Whether numba has cached the default run's fused kernel for this source and this CPU,
+    where numba itself will look for it (``NUMBA_CACHE_DIR``, beside the module, or the
+    user-wide cache when the module's folder is read-only): its cache index, read as numba
+    reads it (empty when missing or written for another version of the source), holds an
+    entry compiled for this CPU model. A cheap test that the next run will not compile for
+    a minute (:mod:`evperc.warm`). Should numba's cache internals change, any index file
+    of the kernel module counts."""
     from evperc.fusion import kernel as fused_kernel
 
-    here = Path(fused_kernel.__file__)
-    folders = [here.parent / "__pycache__"]
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        folders.append(Path(os.environ["NUMBA_CACHE_DIR"]))
-    return any(next(folder.rglob(f"{here.stem}.*.nbi"), None) is not None
-               for folder in folders if folder.is_dir())
+    dispatcher = fused_kernel.step_stored_lean
+    try:
+        index = dispatcher._cache._cache_file._load_index()
+        cpu = dispatcher.targetctx.codegen().magic_tuple()[:2]  # (triple, CPU name)
+        return any(key[1][:2] == cpu for key in index)
+    except (AttributeError, TypeError, IndexError, OSError, EOFError, pickle.UnpicklingError):
+        here = Path(fused_kernel.__file__)
+        folders = [here.parent / "__pycache__"]
+        if os.environ.get("NUMBA_CACHE_DIR"):
+            folders.append(Path(os.environ["NUMBA_CACHE_DIR"]))
+        return any(next(folder.rglob(f"{here.stem}.*.nbi"), None) is not None
+                   for folder in folders if folder.is_dir())

@@ -27,20 +27,15 @@ from evperc.geo.crs import working_crs
 from evperc.geo.maps import MapData, check_overlap, load_map, load_map_cached
 from evperc.geo.prior import CONTEXT_BUILDING, PriorRasteriser
 from evperc.geo.window import Window
-from evperc.gil_kept import warm_up_gil_kept
 from evperc.logs.factory import open_log
 from evperc.logs.kitti import KittiLog
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
 from evperc.objects.backfill import Backfill, HeldFrame, backfill_frames, candidates
-from evperc.objects.backfill import warm_up as warm_up_backfill
 from evperc.objects.boxes import BoxParams, VehicleBoxes
-from evperc.objects.boxes import warm_up as warm_up_boxes
-from evperc.objects.clusters import JOINS_ANY, warm_up_return_centroids
+from evperc.objects.clusters import JOINS_ANY
 from evperc.objects.footprint import FootprintParams, FootprintState, complete_footprints
-from evperc.objects.footprint import warm_up as warm_up_footprints
 from evperc.objects.point_labels import LABELS_DIR, point_labels, write_labels
-from evperc.objects.split import warm_up as warm_up_split
 from evperc.objects.stage import (
     ObjectStage,
     fill_moving,
@@ -52,7 +47,6 @@ from evperc.objects.stage import (
     unfill_unconfirmed,
 )
 from evperc.objects.support import SmallGroupSupport, SupportParams
-from evperc.objects.support import warm_up as warm_up_support
 from evperc.objects.tracking import TrackerState
 from evperc.objects.unmapped import UnmappedCue, UnmappedParams, UnmappedState, unmapped_enabled
 from evperc.output.manifest import read_manifest
@@ -60,10 +54,11 @@ from evperc.output.npz import write_npz
 from evperc.output.objects import OBJECT_STATES, moving_object_cells, record_cells
 from evperc.output.quantise import dequantise, dequantise_planar
 from evperc.output.writer import HeldLayers, RunWriter, check_output_dir
-from evperc.plumbing import fusion_threads, keep_freed_memory, kernels_cached, prefetched
+from evperc.plumbing import fusion_threads, keep_freed_memory, prefetched
 from evperc.progress import bar as progress_bar
 from evperc.sensor import SensorParams, sensor_grid
 from evperc.sensor.pose_fit import PoseFit, check_poses
+from evperc.warm import WarmSpec, warm_up
 
 log = logging.getLogger(__name__)
 
@@ -448,49 +443,10 @@ class Pipeline:
         self._warm_up()
 
     def _warm_up(self) -> None:
-        """Load (or compile, on a fresh install) the numba kernels of the sensor grid and the
-        fused step now, so that start-up is not charged to the first frame."""
-        if not kernels_cached():
-            log.info("compiling evperc's kernels, once (numba: about a minute on a new "
-                     "install; cached for the next runs)")
-        tiny = Window(self.resolution, 2, 2, 0, 0)
-        points = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, -1.5]], np.float32)
-        free, occupied = sensor_grid(points, False, np.eye(4), tiny, self.sensor_params,
-                                     hits_out=np.empty(tiny.shape, np.bool_),
-                                     heights_out=np.empty(tiny.shape, np.float32),
-                                     sums_out=np.zeros((*tiny.shape, 3), np.float32))
-        state = FusionState.fresh(tiny)
-        out = StoredOutputs.empty(tiny.shape)
-        gate = gate_step(state.gate, free, occupied, 0.1, self.params,
-                         closed=np.zeros(tiny.shape, np.bool_))
-        # with a map, labels as the run's (their check's kernel is loaded here, not in frame 1)
-        labels = np.zeros(tiny.shape, np.uint8) if self.rasteriser is not None else None
-        fused_step(state.pg, state.zeta, free, occupied, labels, self.betas, 0.1, self.params,
-                   out=out, flags=state.flags, focal=state.focal, gate=gate)
-        count_codes(out.decision, len(DECISION_CODES))
-        warm_up_gil_kept()
-        if self.objects is not None:
-            ObjectStage(self.request.config, tiny.shape).step(
-                TrackerState(), out.decision, out.betp[4], out.conflict[0], tiny, 0,
-                occupied_now=occupied > 0, near_building=np.ones(tiny.shape, np.bool_))
-            scan_cells(free, occupied, np.zeros(tiny.shape, np.float32))
-            scan_cells(free, occupied, None)
-            warm_up_footprints(self.footprint)
-            warm_up_boxes(self.boxes.params)
-            warm_up_split(self.objects.splitter.params)
-            if self.return_sums:
-                warm_up_return_centroids()
-            if self.objects.moving_min_cells > 0 or self.moving_needs_object:
-                unfill_small(out.decision.copy(), np.zeros(1, np.int64), None)
-            if self.moving_needs_object:
-                unfill_unconfirmed(out.decision.copy(), np.zeros(1, np.int64))
-            if self.support_params.enabled:
-                warm_up_support()
-            if self.backfill_frames > 0:
-                warm_up_backfill()
-        if self.unmapped is not None:
-            UnmappedCue(self.unmapped.params, tiny.shape, self.resolution).step(
-                UnmappedState.fresh(tiny.shape), out.decision, None, 0.1)
+        """Load (or compile, on a fresh install: in several processes) the numba kernels of
+        the frame loop now, so that start-up is not charged to the first frame
+        (:mod:`evperc.warm`)."""
+        warm_up(WarmSpec(self.request.config, has_map=self.rasteriser is not None))
 
     def meta(self) -> dict[str, Any]:
         """Manifest entries that describe the run (docs/output-format.md)."""
