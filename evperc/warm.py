@@ -111,18 +111,21 @@ def _warm_sensor(spec: WarmSpec) -> None:
 def _warm_fusion(spec: WarmSpec) -> None:
     """The fused step (the kernel variant the run's options pick), with labels if mapped."""
     from evperc.fusion.fused import fused_step
-    from evperc.fusion.twin import FusionParams
-    from evperc.runner import FusionState
+    from evperc.fusion.twin import OMEGA, FusionParams
 
     config, tiny = spec.config, _window()
-    state = FusionState.fresh(tiny)
+    # a vacuous state, as runner.FusionState.allocate makes it
+    pg = np.zeros((32, *tiny.shape), np.float32)
+    pg[OMEGA] = 1.0
+    flags = np.ones(tiny.shape, np.uint8)
+    focal = np.full(tiny.shape, 1 << OMEGA, np.uint32)
     free, occupied = _sensor_masses()
     betas = (config["map"]["beta_building"], config["map"]["beta_road"],
              config["map"]["beta_other"])
     labels = np.zeros(tiny.shape, np.uint8) if spec.has_map else None
-    fused_step(state.pg, state.zeta, free, occupied, labels, betas, 0.1,
-               FusionParams.from_config(config), out=_stored_outputs(), flags=state.flags,
-               focal=state.focal, gate=np.ones(tiny.shape, np.uint8))
+    fused_step(pg, np.zeros(tiny.shape, np.float32), free, occupied, labels, betas, 0.1,
+               FusionParams.from_config(config), out=_stored_outputs(), flags=flags,
+               focal=focal, gate=np.ones(tiny.shape, np.uint8))
 
 
 def _warm_objects(spec: WarmSpec) -> None:

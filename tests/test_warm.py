@@ -146,3 +146,16 @@ def test_the_processes_fill_a_new_cache_with_every_kernel_of_the_warm_up(tmp_pat
     assert "cached before True" in second.stdout
     assert "data loaded from" in second.stdout
     assert "data saved to" not in second.stdout
+
+
+def test_kernels_are_not_cached_in_an_empty_cache_and_are_in_this_sessions(tmp_path) -> None:
+    """kernels_cached() asks numba's own index of the fused kernel: a new empty
+    NUMBA_CACHE_DIR has none (a process of its own: numba reads the variable at import);
+    this test session has run the kernel by now, in its own cache (a run first)."""
+    script = "from evperc.plumbing import kernels_cached; print(kernels_cached())"
+    empty = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True,
+                           text=True, timeout=300, check=True,
+                           env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "empty")})
+    assert empty.stdout.strip() == "False"
+    warm.warm_group("fusion", WarmSpec(default_config(), has_map=True))  # compiled or loaded
+    assert warm.kernels_cached()

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-import evperc.fusion.kernel
+import evperc.warm
 from evperc.cli import cli
 
 from .scenes import write_street_drive
@@ -152,9 +152,10 @@ def test_bars_have_totals(drive: Path, run_dir: Path, tmp_path: Path) -> None:
 def test_a_cold_kernel_cache_is_announced(drive: Path, tmp_path: Path, monkeypatch) -> None:
     result = invoke("run", str(drive), "--no-map", "--out", str(tmp_path / "warm"))
     assert "compiling" not in result.output  # cached by now
-    # as on a new install: no numba index beside the kernel module
-    monkeypatch.setattr(evperc.fusion.kernel, "__file__", str(tmp_path / "kernel.py"))
-    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    # as on a new install (kernels_cached on an empty cache: tests/test_warm.py), compiling
+    # in this process
+    monkeypatch.setattr(evperc.warm, "kernels_cached", lambda: False)
+    monkeypatch.setenv("EVPERC_COMPILE_PROCESSES", "1")
     result = invoke("run", str(drive), "--no-map", "--out", str(tmp_path / "cold"))
     assert result.exit_code == 0, result.output
     assert "compiling evperc's kernels, once" in result.output, result.output
