@@ -40,8 +40,9 @@ sample-data: $(STAMP)
 # only on hosts with AVX-512 (on an AVX2 host the main suite already runs 8-float code).
 # The passes run beside the main suite (each compiles its kernels, ~2-3 min of CPU), at a
 # lower priority (nice): the main suite, one process, is the longest path, and the passes
-# take what CPU it leaves, so that on 2 cores the whole stays within 10 minutes (7 m 40 s
-# with the install on a 2-vCPU Xeon, docs/performance.md § "The kernels' compile time").
+# take what CPU it leaves, so that on 2 cores the whole stays within 10 minutes (7 m 11 s
+# with the install on a 2-vCPU Xeon, the main suite's first run compiling in two processes:
+# docs/performance.md § "Compiling in several processes").
 HOST_AVX512 := $(shell grep -qw avx512f /proc/cpuinfo 2>/dev/null && echo yes)
 PLAIN_CPUS ?= $(if $(filter x86_64 amd64,$(shell uname -m)),x86-64 $(if $(HOST_AVX512),haswell,),)
 # the tests that compare code paths bit for bit (where the vector width showed), and the goldens
