@@ -293,10 +293,11 @@ def compile_in_processes(spec: WarmSpec, n: int) -> None:
 
 def compile_kernels(spec: WarmSpec) -> None:
     """If numba has not cached the kernels yet (:func:`kernels_cached`), compile every
-    group into its cache, in :func:`compile_processes` processes (this one among them)."""
+    group into its cache, in :func:`compile_processes` processes (this one among them).
+    ``EVPERC_COMPILE_PROCESSES`` is read (and a bad value refused) either way."""
+    n = compile_processes()
     if kernels_cached():
         return
-    n = compile_processes()
     log.info("compiling evperc's kernels, once%s (numba: about a minute of one core on a new "
              "install; cached for the next runs)", f", in {n} processes" if n > 1 else "")
     try:

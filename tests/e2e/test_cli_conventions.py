@@ -149,6 +149,18 @@ def test_bars_have_totals(drive: Path, run_dir: Path, tmp_path: Path) -> None:
     assert re.search(r"simulate: +\d+%.* \d+/5 \[", result.output), result.output
 
 
+def test_a_bad_compile_process_count_is_refused_in_one_line(drive: Path, tmp_path: Path) -> None:
+    """EVPERC_COMPILE_PROCESSES is read by every run (cached kernels or not): exit 2, one
+    line naming the variable, no output folder left."""
+    result = invoke("run", str(drive), "--no-map", "--out", str(tmp_path / "o"),
+                    env={"EVPERC_COMPILE_PROCESSES": "two"})
+    assert result.exit_code == 2, result.output
+    lines = [line for line in result.output.splitlines() if "EVPERC_COMPILE_PROCESSES" in line]
+    assert len(lines) == 1 and "positive number" in lines[0], result.output
+    assert "Traceback" not in result.output
+    assert not (tmp_path / "o").exists()
+
+
 def test_a_cold_kernel_cache_is_announced(drive: Path, tmp_path: Path, monkeypatch) -> None:
     result = invoke("run", str(drive), "--no-map", "--out", str(tmp_path / "warm"))
     assert "compiling" not in result.output  # cached by now
