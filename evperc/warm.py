@@ -257,7 +257,8 @@ def compile_in_processes(spec: WarmSpec, n: int) -> None:
     """Compile every group into numba's cache with ``n`` processes: this one and ``n − 1``
     children, each with a bucket of :func:`buckets`. A child that cannot start or fails is
     logged (debug) and otherwise ignored: :func:`warm_up` compiles what it left."""
-    lists = buckets(list(GROUPS), n)
+    # no interpreter to start (an embedded Python): everything here
+    lists = buckets(list(GROUPS), n if sys.executable else 1)
     children: list[tuple[subprocess.Popen[bytes], Any]] = []
     try:
         for groups in lists[1:]:

@@ -159,3 +159,15 @@ def test_kernels_are_not_cached_in_an_empty_cache_and_are_in_this_sessions(tmp_p
     assert empty.stdout.strip() == "False"
     warm.warm_group("fusion", WarmSpec(default_config(), has_map=True))  # compiled or loaded
     assert warm.kernels_cached()
+
+
+def test_without_an_interpreter_to_start_this_process_compiles_everything(monkeypatch) -> None:
+    """An embedded Python has no sys.executable: no child is started."""
+    called: list[str] = []
+    monkeypatch.setattr(sys, "executable", "")
+    monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: pytest.fail("a child started"))
+    for name in list(GROUPS):
+        monkeypatch.setitem(GROUPS, name,
+                            (lambda spec, name=name: called.append(name), GROUPS[name][1]))
+    warm.compile_in_processes(WarmSpec(default_config(), has_map=False), 4)
+    assert sorted(called) == sorted(GROUPS)
