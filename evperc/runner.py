@@ -19,9 +19,16 @@ import numpy as np
 
 from evperc.config import layers_hint
 from evperc.errors import GeoreferenceError, OutputError, PoseError
-from evperc.fusion.fused import StoredOutputs, count_codes, focal_sets, fused_step, vacuous_flags
+from evperc.fusion.fused import (
+    StoredOutputs,
+    count_codes,
+    focal_sets,
+    fused_step,
+    vacuous_flags,
+    vacuous_state,
+)
 from evperc.fusion.gate import GateState, gate_step
-from evperc.fusion.twin import CLASSES, DECISION_CODES, OMEGA, FusionParams
+from evperc.fusion.twin import CLASSES, DECISION_CODES, FusionParams
 from evperc.geo import georef as georef_mod
 from evperc.geo.crs import working_crs
 from evperc.geo.maps import MapData, check_overlap, load_map, load_map_cached
@@ -40,6 +47,7 @@ from evperc.objects.stage import (
     ObjectStage,
     fill_moving,
     fills_decision,
+    moving_needs_object,
     objects_enabled,
     scan_cells,
     small_moving_cells,
@@ -266,12 +274,7 @@ class FusionState:
     def allocate(self, shape: tuple[int, int]) -> None:
         """Vacuous buffers for a window of ``shape`` (the first :meth:`move_to` keeps them),
         every page written now: the first frame does not fault 20 MB in (a 200 m window)."""
-        self.pg = np.empty((32, *shape), np.float32)
-        self.pg[:OMEGA] = 0.0
-        self.pg[OMEGA] = 1.0
-        self.zeta = np.zeros(shape, np.float32)
-        self.flags = np.ones(shape, np.uint8)
-        self.focal = np.full(shape, 1 << OMEGA, np.uint32)
+        self.pg, self.zeta, self.flags, self.focal = vacuous_state(shape)
         self.gate = GateState.fresh(shape)
 
     def move_to(self, window: Window) -> tuple[int, int]:
@@ -412,8 +415,7 @@ class Pipeline:
         self.objects = (ObjectStage(config, probe.shape) if objects_enabled(config) else None)
         self.fill_moving = fills_decision(config)
         #: objects.moving_needs_object: a cell stays moving only in a moving object
-        self.moving_needs_object = (objects_enabled(config)
-                                    and bool(config["objects"]["moving_needs_object"]))
+        self.moving_needs_object = moving_needs_object(config)
         self.footprint = FootprintParams.from_config(config)
         #: objects.small_support_frames: small moving groups need company (support.py)
         self.support_params = (SupportParams.from_config(config) if self.moving_needs_object

@@ -54,10 +54,11 @@ class WarmSpec:
     has_map: bool
 
 
-def _window() -> Any:
+def _window(config: dict[str, Any]) -> Any:
+    """A 2 × 2 window at the run's cell size."""
     from evperc.geo.window import Window
 
-    return Window(0.5, 2, 2, 0, 0)
+    return Window(config["grid"]["cell_size_m"], 2, 2, 0, 0)
 
 
 def _sensor_masses() -> tuple[np.ndarray, np.ndarray]:
@@ -86,7 +87,7 @@ def _warm_sensor(spec: WarmSpec) -> None:
     from evperc.objects.unmapped import UnmappedCue, UnmappedParams, UnmappedState, unmapped_enabled
     from evperc.sensor import SensorParams, sensor_grid
 
-    config, tiny = spec.config, _window()
+    config, tiny = spec.config, _window(spec.config)
     points = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, -1.5]], np.float32)
     sensor_grid(points, False, np.eye(4), tiny,
                 SensorParams.from_config(config["sensor"], config["grid"]["cell_size_m"]),
@@ -110,20 +111,16 @@ def _warm_sensor(spec: WarmSpec) -> None:
 
 def _warm_fusion(spec: WarmSpec) -> None:
     """The fused step (the kernel variant the run's options pick), with labels if mapped."""
-    from evperc.fusion.fused import fused_step
-    from evperc.fusion.twin import OMEGA, FusionParams
+    from evperc.fusion.fused import fused_step, vacuous_state
+    from evperc.fusion.twin import FusionParams
 
-    config, tiny = spec.config, _window()
-    # a vacuous state, as runner.FusionState.allocate makes it
-    pg = np.zeros((32, *tiny.shape), np.float32)
-    pg[OMEGA] = 1.0
-    flags = np.ones(tiny.shape, np.uint8)
-    focal = np.full(tiny.shape, 1 << OMEGA, np.uint32)
+    config, tiny = spec.config, _window(spec.config)
+    pg, zeta, flags, focal = vacuous_state(tiny.shape)
     free, occupied = _sensor_masses()
     betas = (config["map"]["beta_building"], config["map"]["beta_road"],
              config["map"]["beta_other"])
     labels = np.zeros(tiny.shape, np.uint8) if spec.has_map else None
-    fused_step(pg, np.zeros(tiny.shape, np.float32), free, occupied, labels, betas, 0.1,
+    fused_step(pg, zeta, free, occupied, labels, betas, 0.1,
                FusionParams.from_config(config), out=_stored_outputs(), flags=flags,
                focal=focal, gate=np.ones(tiny.shape, np.uint8))
 
@@ -134,7 +131,7 @@ def _warm_objects(spec: WarmSpec) -> None:
     from evperc.objects.stage import ObjectStage, objects_enabled
     from evperc.objects.tracking import TrackerState
 
-    config, tiny = spec.config, _window()
+    config, tiny = spec.config, _window(spec.config)
     if not objects_enabled(config):
         return
     stage = ObjectStage(config, tiny.shape)
@@ -159,6 +156,7 @@ def _warm_object_passes(spec: WarmSpec) -> None:
     from evperc.objects.split import warm_up as warm_up_split
     from evperc.objects.stage import (
         moving_min_cluster_cells,
+        moving_needs_object,
         objects_enabled,
         unfill_small,
         unfill_unconfirmed,
@@ -172,7 +170,7 @@ def _warm_object_passes(spec: WarmSpec) -> None:
     warm_up_footprints(FootprintParams.from_config(config))
     warm_up_boxes(BoxParams.from_config(config))
     warm_up_split(SplitParams.from_config(config))
-    needs_object = bool(config["objects"]["moving_needs_object"])
+    needs_object = moving_needs_object(config)
     decision = _stored_outputs().decision
     if moving_min_cluster_cells(config) > 0 or needs_object:
         unfill_small(decision.copy(), np.zeros(1, np.int64), None)

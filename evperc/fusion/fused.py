@@ -321,6 +321,18 @@ def _count(codes: np.ndarray, words: np.ndarray, counts: np.ndarray
     counts[_FREE_WORD & 0xFF] += 8 * free_words
 
 
+def vacuous_state(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                   np.ndarray]:
+    """``(pg, zeta, flags, focal)`` of a window of ``shape`` whose every cell is vacuous:
+    m(Ω) = 1 (float32 ``(32, rows, cols)``), ζ = 0, flagged vacuous, focal set {Ω}; every
+    page written now."""
+    pg = np.empty((32, *shape), np.float32)
+    pg[:_OMEGA] = 0.0
+    pg[_OMEGA] = 1.0
+    return (pg, np.zeros(shape, np.float32), np.ones(shape, np.uint8),
+            np.full(shape, 1 << _OMEGA, np.uint32))
+
+
 def vacuous_flags(pg: np.ndarray, zeta: np.ndarray) -> np.ndarray:
     """uint8 ``(rows, cols)``: 1 where the cell is exactly vacuous (m(Ω) = 1) with ζ = 0."""
     return ((pg[_OMEGA] == 1.0) & ~pg[:_OMEGA].any(axis=0) & (zeta == 0.0)).astype(np.uint8)

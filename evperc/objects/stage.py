@@ -53,6 +53,12 @@ def moving_min_height_m(config: dict[str, Any]) -> float:
     return float(config["objects"].get("moving_min_height_m", 0.0))
 
 
+def moving_needs_object(config: dict[str, Any]) -> bool:
+    """Whether a cell stays ``moving`` only in a moving object (``objects.moving_needs_object``;
+    no: without the object stage)."""
+    return objects_enabled(config) and bool(config["objects"]["moving_needs_object"])
+
+
 def fills_decision(config: dict[str, Any]) -> bool:
     """Whether the moving objects' cells are decided ``moving`` (``objects.fill_moving``)."""
     return objects_enabled(config) and bool(config["objects"].get("fill_moving", False))
