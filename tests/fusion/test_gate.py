@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from evperc.fusion.fused import window_order
-from evperc.fusion.gate import GateState, gate_step
+from evperc.fusion.gate import NEVER, GateState, gate_step
 from evperc.fusion.twin import FusionParams
 
 PARAMS = FusionParams(motion_gate="ever_free", gate_free_s=0.3, gate_revoke_s=0.5,
@@ -83,6 +83,19 @@ class Reference:
         return gate
 
 
+def assert_times_equal(state: GateState, ref: Reference, offset: list[int]) -> None:
+    """The state's three times (window order) against the reference's cells: a free run's
+    length (none: −1), the occupied run's length, the time since the last return (never:
+    NEVER). To 1e-4 s: float32 sums of the same dts against float64 ones (about 1e-6 s apart
+    over these scenes), a tenth of the 1e-3 s slack of every comparison made on them."""
+    times = window_order(state.times, offset)
+    want = np.empty_like(times)
+    for (r, c), cell in ref.cells.items():
+        want[:, r, c] = (-1.0 if cell["run"] is None else cell["run"], cell["occ_run"],
+                         NEVER if cell["last_occ"] is None else cell["last_occ"])
+    np.testing.assert_allclose(times, want, rtol=0, atol=1e-4)
+
+
 @pytest.mark.parametrize("params", [PARAMS, REHIT, REHIT_FREE, REHIT_RECENT],
                          ids=["rehit-off", "rehit-on", "rehit-seen-free", "rehit-recent"])
 @pytest.mark.parametrize("seed", range(4))
@@ -134,6 +147,7 @@ def check_against_reference(seed: int, shape: tuple[int, int], with_closed: bool
                         closed=closed)
         want = ref.step(free, occ, dt, params)
         np.testing.assert_array_equal(window_order(state.ever, offset), want)
+        assert_times_equal(state, ref, offset)
         if closed is not None:
             want = np.where(closed, 0, want)
         np.testing.assert_array_equal(got, want, err_msg=f"frame {frame}")
@@ -316,3 +330,49 @@ def test_rejects_mismatched_grids() -> None:
     state = GateState.fresh((3, 4))
     with pytest.raises(ValueError, match="sensor grid"):
         gate_step(state, np.zeros((3, 3)), np.zeros((3, 3)), 0.1, PARAMS)
+
+
+@pytest.mark.parametrize("params", [PARAMS, REHIT_RECENT], ids=["rehit-off", "rehit-recent"])
+@pytest.mark.parametrize("seed", range(3))
+def test_gate_pass_matches_reference_where_rays_reach_a_moving_part_of_the_window(
+        seed: int, params: FusionParams) -> None:
+    """Untouched cells beside touched ones: the rays reach a disc that wanders over the
+    window (and now and then nothing at all), the window scrolls, so rows hold untouched
+    ends, touched cells beyond the disc, and rows with nothing. Exact against the reference,
+    the times included; the scene has what it is for (rows starting or ending with 32
+    untouched cells: a pass that skipped such cells was measured, docs/performance.md)."""
+    rng = np.random.default_rng(100 + seed)
+    shape = (31, 150)
+    state, ref = GateState.fresh(shape), Reference(shape)
+    offset, centre = [0, 0], np.array([15.0, 10.0])
+    rows, cols = np.mgrid[:shape[0], :shape[1]]
+    opened = revoked = untouched_ends = 0
+    previous = np.zeros(shape, np.uint8)
+    for frame in range(60):
+        shift = (int(rng.integers(-1, 2)), int(rng.integers(-3, 4))) if frame % 5 == 4 \
+            else (0, 0)
+        offset = [(offset[0] + shift[0]) % shape[0], (offset[1] + shift[1]) % shape[1]]
+        ref.scroll(*shift)
+        centre = np.clip(centre + rng.normal(0, 3.0, 2) - shift, 0, np.array(shape) - 1)
+        radius = 0.0 if frame % 13 == 12 else float(rng.uniform(4, 9))
+        seen = (rows - centre[0]) ** 2 + (cols - centre[1]) ** 2 <= radius ** 2
+        kind = np.where(rng.random(shape) < 0.85, 1, 2)  # free, or a return
+        free = np.where(seen & (kind == 1), 0.7, 0.0)
+        occ = np.where(seen & (kind == 2), 0.8, 0.0)
+        closed = rng.random(shape) < 0.1
+        got = gate_step(state, free, occ, 0.1, params, offset=tuple(offset), shift=shift,
+                        closed=closed)
+        want = ref.step(free, occ, 0.1, params)
+        np.testing.assert_array_equal(window_order(state.ever, offset), want)
+        assert_times_equal(state, ref, offset)
+        np.testing.assert_array_equal(got, np.where(closed, 0, want), err_msg=f"frame {frame}")
+        untouched = ~seen & (window_order(state.times[0], offset) < 0) & (
+            window_order(state.times[2], offset) >= 1e9)
+        untouched_ends += int(untouched[:, :32].all(axis=1).sum()
+                            + untouched[:, -32:].all(axis=1).sum())
+        opened += int(((got == 1) & (previous == 0)).sum())
+        revoked += int(((got == 0) & (previous == 1)).sum())
+        previous = got
+    # both transitions happen (23-117 of each over these seeds), and more than a quarter of
+    # the 3,720 row ends start 32 untouched cells (56-62 %)
+    assert opened >= 5 and revoked >= 5 and untouched_ends > 930, (opened, revoked, untouched_ends)
