@@ -115,13 +115,28 @@ def test_gate_pass_matches_reference_thin_windows_and_closed_cells(
                             params=(PARAMS, REHIT, REHIT_FREE, REHIT_RECENT)[seed % 4])
 
 
+def step_both(state: GateState, ref: Reference, free: np.ndarray, occ: np.ndarray, dt: float,
+              params: FusionParams, offset: list[int], shift: tuple[int, int],
+              closed: np.ndarray | None, frame: int) -> np.ndarray:
+    """One scan through :func:`gate_step` and the reference; ``ever`` (unmasked), the times
+    and the gate layer (0 where ``closed``) must agree. Returns the gate layer."""
+    got = gate_step(state, free, occ, dt, params, offset=tuple(offset), shift=shift,
+                    closed=closed)
+    want = ref.step(free, occ, dt, params)
+    np.testing.assert_array_equal(window_order(state.ever, offset), want)
+    assert_times_equal(state, ref, offset)
+    if closed is not None:
+        want = np.where(closed, 0, want)
+    np.testing.assert_array_equal(got, want, err_msg=f"frame {frame}")
+    return got
+
+
 def check_against_reference(seed: int, shape: tuple[int, int], with_closed: bool,
                             params: FusionParams = PARAMS) -> None:
-    """:func:`gate_step` against :class:`Reference` over 40 frames (exact: both evaluate the
-    same float32 comparisons, the reference in float64 on values that are sums of the same
-    dts; the original case has passed so since the gate was written); with ``with_closed``,
-    a random closed mask each frame, which zeroes the gate layer only (``ever`` is
-    compared unmasked)."""
+    """:func:`gate_step` against :class:`Reference` over 40 frames (:func:`step_both`; exact:
+    both evaluate the same float32 comparisons, the reference in float64 on values that are
+    sums of the same dts; the original case has passed so since the gate was written); with
+    ``with_closed``, a random closed mask each frame, which zeroes the gate layer only."""
     rng = np.random.default_rng(seed)
     thin = (shape[0] - 2) * (shape[1] - 2) < 20  # too few inner cells to count transitions
     state = GateState.fresh(shape)
@@ -143,14 +158,7 @@ def check_against_reference(seed: int, shape: tuple[int, int], with_closed: bool
         occ = np.where(kind == 2, 0.8, 0.0)
         dt = float(rng.choice([0.1, 0.1, 0.05, 0.3]))
         closed = rng.random(shape) < 0.2 if with_closed else None
-        got = gate_step(state, free, occ, dt, params, offset=tuple(offset), shift=shift,
-                        closed=closed)
-        want = ref.step(free, occ, dt, params)
-        np.testing.assert_array_equal(window_order(state.ever, offset), want)
-        assert_times_equal(state, ref, offset)
-        if closed is not None:
-            want = np.where(closed, 0, want)
-        np.testing.assert_array_equal(got, want, err_msg=f"frame {frame}")
+        got = step_both(state, ref, free, occ, dt, params, offset, shift, closed, frame)
         opened += int(((got == 1) & (previous == 0)).sum())
         revoked += int(((got == 0) & (previous == 1)).sum())
         previous = got
@@ -360,12 +368,7 @@ def test_gate_pass_matches_reference_where_rays_reach_a_moving_part_of_the_windo
         free = np.where(seen & (kind == 1), 0.7, 0.0)
         occ = np.where(seen & (kind == 2), 0.8, 0.0)
         closed = rng.random(shape) < 0.1
-        got = gate_step(state, free, occ, 0.1, params, offset=tuple(offset), shift=shift,
-                        closed=closed)
-        want = ref.step(free, occ, 0.1, params)
-        np.testing.assert_array_equal(window_order(state.ever, offset), want)
-        assert_times_equal(state, ref, offset)
-        np.testing.assert_array_equal(got, np.where(closed, 0, want), err_msg=f"frame {frame}")
+        got = step_both(state, ref, free, occ, 0.1, params, offset, shift, closed, frame)
         untouched = ~seen & (window_order(state.times[0], offset) < 0) & (
             window_order(state.times[2], offset) >= 1e9)
         untouched_ends += int(untouched[:, :32].all(axis=1).sum()
