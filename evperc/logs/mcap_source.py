@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import base64
 import heapq
+import io
 import json
 import logging
 import struct
+import threading
 import types
 import zlib
 from collections.abc import Callable, Iterable, Iterator
@@ -60,6 +62,64 @@ def _use_isal_crc() -> bool:
 
 
 _use_isal_crc()
+
+#: a read of a decompressed chunk this long or longer is a view of the chunk, not a copy
+VIEW_MIN_BYTES = 1 << 16
+
+
+class _ChunkBytes(io.BytesIO):
+    """The ``BytesIO`` mcap wraps a decompressed chunk in, whose reads of
+    :data:`VIEW_MIN_BYTES` or more return a ``memoryview`` of the chunk instead of a copy:
+    a message's payload (an hdl64 scan's 1.9 MB point cloud) is then read where it lies.
+    Shorter reads (record headers, schema and channel fields) stay ``bytes``, as mcap's
+    parsers expect. Written to (mcap does not), it is a plain ``BytesIO``."""
+
+    def __init__(self, initial_bytes: bytes = b"") -> None:
+        super().__init__(initial_bytes)
+        self._view: memoryview | None = (memoryview(initial_bytes)
+                                         if isinstance(initial_bytes, bytes) else None)
+
+    def read(self, size: int | None = -1) -> bytes | memoryview:  # type: ignore[override]
+        if self._view is None or size is None or size < VIEW_MIN_BYTES:
+            return super().read(size)
+        start = self.tell()
+        data = self._view[start:start + size]
+        self.seek(start + len(data))
+        return data
+
+    def write(self, data: Any) -> int:  # type: ignore[override]
+        self._view = None
+        return super().write(data)
+
+
+#: set in a thread while :meth:`McapSource.iter_raw` reads: mcap's chunk streams are then
+#: :class:`_ChunkBytes` (anyone else's use of mcap in the process gets its ``BytesIO``)
+_views = threading.local()
+
+
+def _chunk_stream(initial_bytes: bytes = b"") -> io.BytesIO:
+    """What ``mcap.stream_reader`` calls for ``BytesIO``: :class:`_ChunkBytes` within
+    :meth:`McapSource.iter_raw`, a plain ``BytesIO`` anywhere else."""
+    if getattr(_views, "on", False):
+        return _ChunkBytes(initial_bytes)
+    return io.BytesIO(initial_bytes)
+
+
+def _read_chunks_without_copies() -> bool:
+    """mcap reads a message out of its decompressed chunk with ``BytesIO.read``, a copy of
+    the payload (0.35 ms of the decode thread a scan of workload (a), 8 % of its reading:
+    docs/performance.md § "Scans read where they lie"); hand ``get_chunk_data_stream`` a
+    ``BytesIO`` whose long reads are views (:func:`_chunk_stream`), for evperc's own reads
+    only. False (mcap's own kept) if mcap no longer makes its chunk streams there."""
+    code = mcap.stream_reader.get_chunk_data_stream.__code__
+    if mcap.stream_reader.BytesIO is not io.BytesIO or "BytesIO" not in code.co_names:
+        log.debug("mcap.stream_reader no longer wraps chunks in BytesIO: payloads are copied")
+        return False
+    mcap.stream_reader.BytesIO = _chunk_stream
+    return True
+
+
+_read_chunks_without_copies()
 
 
 @dataclass
@@ -270,6 +330,7 @@ class McapSource:
             count = 0
             while True:
                 offset = f.tell()  # end of the last record read completely
+                _views.on = True
                 try:
                     schema, channel, message = next(iterator)
                 except StopIteration:
@@ -281,6 +342,8 @@ class McapSource:
                 except Exception as err:  # a broken file ends the stream
                     self._stopped(offset, count, err)
                     return
+                finally:
+                    _views.on = False
                 count += 1
                 yield RawMessage(channel.topic, schema, channel, message)
 
@@ -359,18 +422,26 @@ class McapSource:
         return decoder(raw.message.data)
 
 
+def _as_bytes(decoder: Callable[[bytes], Any]) -> Callable[[bytes | memoryview], Any]:
+    """``decoder`` given ``bytes`` whatever it is handed (a long payload is a view of its
+    chunk, :class:`_ChunkBytes`; mcap-ros1's, mcap-ros2's and json's decoders take bytes)."""
+    def decode(data: bytes | memoryview) -> Any:
+        return decoder(data.tobytes() if isinstance(data, memoryview) else data)
+    return decode
+
+
 def _decoder_for(path: Path, raw: RawMessage) -> Callable[[bytes], Any]:
     encoding = raw.channel.message_encoding
     schema = raw.schema
     if encoding == "json":
-        return json.loads
+        return _as_bytes(json.loads)
     try:
         if encoding == "cdr":
             from mcap_ros2.decoder import DecoderFactory as Ros2Factory
 
             decoder = Ros2Factory().decoder_for(encoding, schema)
             if decoder is not None:
-                decoder = _rosbags_cdr(schema, decoder)
+                decoder = _rosbags_cdr(schema, _as_bytes(decoder))
         elif encoding == "ros1":
             from mcap_ros1.decoder import DecoderFactory as Ros1Factory
 
@@ -389,7 +460,7 @@ def _decoder_for(path: Path, raw: RawMessage) -> Callable[[bytes], Any]:
         raise LogError(f"{path}: topic {raw.topic}: cannot decode message encoding "
                        f"'{encoding}' with {schema_text}; supported: ROS 2 cdr with ros2msg "
                        "schemas, ROS 1 ros1 with ros1msg schemas, protobuf, json")
-    return decoder
+    return decoder if encoding == "cdr" else _as_bytes(decoder)
 
 
 def _rosbags_cdr(schema: Schema | None, fallback: Callable[[bytes], Any]
