@@ -34,6 +34,7 @@ from evperc.geo.crs import working_crs
 from evperc.geo.maps import MapData, check_overlap, load_map, load_map_cached
 from evperc.geo.prior import CONTEXT_BUILDING, PriorRasteriser
 from evperc.geo.window import Window
+from evperc.logs import message_log
 from evperc.logs.factory import open_log
 from evperc.logs.kitti import KittiLog
 from evperc.logs.scan import PosedScan
@@ -156,12 +157,25 @@ def _from_gnss(reader: Any, config: dict[str, Any],
     at their stamps. None if they hold no fix — or, for spans of a long log, fewer usable
     fixes than spans (a GNSS topic too sparse for them: the caller reads every fix)."""
     sampled = len(spans) > 1
-    in_spans = [reader.gnss_fixes(a, b) for a, b in spans]
+    one_read = _read_once(reader, spans)
+    if one_read:  # each span's fixes and poses in one read, placed before the next is read
+        in_spans, placed = [], []
+        antenna = None
+        for a, b in one_read:
+            span = reader.gnss_span(a, b)
+            in_spans.append(span.fixes)
+            if len(span.fixes) and antenna is None:
+                antenna = reader.gnss_antenna_frame()
+            placed.append(span.positions(antenna)[:, :2] if len(span.fixes)
+                          else np.empty((0, 2)))
+    else:
+        in_spans = [reader.gnss_fixes(a, b) for a, b in spans]
     fixes = np.concatenate(in_spans)
     if len(fixes) < len(spans):
         return None
     crs = working_crs(config["map"]["crs"], (float(fixes[0, 2]), float(fixes[0, 1])))
-    world_xy = _fix_positions(reader, in_spans, reader.gnss_antenna_frame())
+    world_xy = (np.concatenate(placed) if one_read
+                else _fix_positions(reader, in_spans, reader.gnss_antenna_frame()))
     if np.isnan(world_xy).all():
         log.info("%s: GNSS frame not reachable through the poses; fitting the fixes to the "
                  "lidar positions", reader.path)
@@ -173,6 +187,25 @@ def _from_gnss(reader: Any, config: dict[str, Any],
         log.info("%s: a long log: its GNSS fixes read in %d spans of %.0f s spread over it",
                  reader.path, len(spans), (spans[0][1] - spans[0][0]) * 1e-9)
     return georef_mod.from_gnss(world_xy[valid], fixes[valid][:, [2, 1]], crs)
+
+
+def _read_once(reader: Any, spans: list[tuple[int | None, int | None]]
+               ) -> list[tuple[int, int]]:
+    """The spans whose fixes and poses :func:`_from_gnss` reads together
+    (``reader.gnss_span``, a few seconds of poses held at a time): a long log's spans, or a
+    whole log no longer than they are together (``[(None, None)]`` of a short log); none (a
+    read of the fixes, then one of the poses around them, streamed) for a long log read
+    whole — a source that cannot seek, or a GNSS topic too sparse for the spans — and for a
+    reader without ``gnss_span`` (a KITTI folder)."""
+    if not callable(getattr(reader, "gnss_span", None)):
+        return []
+    if len(spans) > 1:
+        return [(int(a), int(b)) for a, b in spans]  # type: ignore[arg-type]
+    start, end = reader.start_ns, reader.end_ns
+    if (start is None or end is None
+            or end - start > message_log.GNSS_SPANS * message_log.GNSS_SPAN_S * 1e9):
+        return []
+    return [(int(start), int(end) + 1)]
 
 
 def _fix_positions(reader: Any, in_spans: list[np.ndarray], frame: str | None) -> np.ndarray:

@@ -40,7 +40,8 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +78,35 @@ LAYERS_SAMPLE_SCANS = 3
 GNSS_SPANS = 16
 #: ... of this many seconds each, spread evenly from the log's first message to its last
 GNSS_SPAN_S = 2.0
+
+
+@dataclass
+class GnssSpan:
+    """A span's fixes and the pose messages read with them (:meth:`LogReader.gnss_span`):
+    ``poses`` are those logged in ``[read_from_ns, read_to_ns)``."""
+
+    reader: LogReader
+    fixes: np.ndarray
+    read_from_ns: int
+    read_to_ns: int
+    poses: list[RawLike]
+
+    def positions(self, frame: str | None = None) -> np.ndarray:
+        """:meth:`LogReader.positions_at` the fixes' stamps, from the poses held (and those
+        logged after the span, as far as the last fix needs)."""
+        return self.reader.positions_at(self.fixes[:, 0].astype(np.int64), frame, self._raws)
+
+    def _raws(self, lo: int, hi: int) -> Iterator[RawLike]:
+        """The pose messages logged in ``[lo, hi)``, as the source's ``iter_raw`` yields them."""
+        topics = self.reader.pose_topics[1]
+        if lo < self.read_from_ns:  # a fix stamped before its span's poses: read them all
+            yield from self.reader.source.iter_raw(topics, lo, hi)
+            return
+        for raw in self.poses:
+            if lo <= raw.log_time < hi:
+                yield raw
+        if hi > self.read_to_ns:
+            yield from self.reader.source.iter_raw(topics, self.read_to_ns, hi)
 
 
 def open_message_log(path: str | Path, *, lidar_topic: str | None = None,
@@ -403,11 +433,15 @@ class LogReader:
 
     # --- other queries -------------------------------------------------------------------
 
-    def positions_at(self, stamps_ns: np.ndarray, frame: str | None = None) -> np.ndarray:
+    def positions_at(self, stamps_ns: np.ndarray, frame: str | None = None,
+                     raws: Callable[[int, int], Iterable[RawLike]] | None = None
+                     ) -> np.ndarray:
         """(K, 3) world-frame position of ``frame`` (default: the lidar) at each stamp; NaN
         rows where no pose fits.
 
-        Uses the same pose source and interpolation as :meth:`scans`.
+        Uses the same pose source and interpolation as :meth:`scans`. ``raws(lo, hi)``: the
+        pose messages logged in ``[lo, hi)``, as the source's ``iter_raw`` of the pose topics
+        would yield them (default: that read; :meth:`gnss_span` hands over the ones it read).
         """
         stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
         out = np.full((stamps.size, 3), np.nan)
@@ -421,14 +455,15 @@ class LogReader:
         if quiet:
             self._said.add(("extrinsic", frame))
         try:
-            self._positions(poses, frame, stamps, out)
+            self._positions(poses, frame, stamps, out, raws)
         finally:
             if quiet:
                 self._said.discard(("extrinsic", frame))
         return out
 
     def _positions(self, poses: PoseSource, frame: str, stamps: np.ndarray,
-                   out: np.ndarray) -> None:
+                   out: np.ndarray,
+                   raws: Callable[[int, int], Iterable[RawLike]] | None = None) -> None:
         order = np.argsort(stamps, kind="stable")
         queue = deque(int(i) for i in order)
         margin = self.max_gap_ns + WAIT_SLACK_NS
@@ -442,8 +477,10 @@ class LogReader:
                 if status == OK:
                     out[i] = T[:3, 3]
 
-        for raw in self.source.iter_raw(self.pose_topics[1], int(stamps.min()) - margin,
-                                        int(stamps.max()) + margin):
+        lo, hi = int(stamps.min()) - margin, int(stamps.max()) + margin
+        messages = (self.source.iter_raw(self.pose_topics[1], lo, hi) if raws is None
+                    else raws(lo, hi))
+        for raw in messages:
             poses.add(self._pose_records(raw))
             release(raw.log_time - margin)
             if not queue:  # every stamp placed: the rest of the span is not read
@@ -511,9 +548,39 @@ class LogReader:
         topic = self.gnss_topic
         if topic is None:
             return np.empty((0, 4))
+        return self._fixes(topic, self.source.iter_raw([topic], start_ns, end_ns))
+
+    def gnss_span(self, start_ns: int, end_ns: int) -> GnssSpan:
+        """The fixes logged in ``[start_ns, end_ns)`` (:meth:`gnss_fixes`) and what places
+        them (:meth:`positions_at` at their stamps), from one read of the log: the GNSS and
+        pose topics together from ``max_pose_gap_s`` + 1 s before the span to its end — the
+        messages a separate read of the fixes and then of the poses around them would each
+        take from the same chunks, which hold the scans too (each chunk decompressed once
+        instead of twice: docs/performance.md § "One read a span"). The poses read
+        are kept for :meth:`GnssSpan.positions` (a span's: a few seconds of one topic); the
+        poses after the span are read then, as far as the last fix needs. The same values as
+        the two reads (tested), for fixes whose stamps lie in the span; otherwise
+        :meth:`GnssSpan.positions` reads as :meth:`positions_at` does."""
+        topic = self.gnss_topic
+        if topic is None:
+            return GnssSpan(self, np.empty((0, 4)), start_ns, end_ns, [])
+        margin = self.max_gap_ns + WAIT_SLACK_NS
+        fix_raws: list[RawLike] = []
+        pose_raws: list[RawLike] = []
+        for raw in self.source.iter_raw([topic, *self.pose_topics[1]], start_ns - margin,
+                                        end_ns):
+            if raw.topic != topic:
+                pose_raws.append(raw)
+            elif raw.log_time >= start_ns:
+                fix_raws.append(raw)
+        return GnssSpan(self, self._fixes(topic, fix_raws), start_ns - margin, end_ns,
+                        pose_raws)
+
+    def _fixes(self, topic: str, raws: Iterable[RawLike]) -> np.ndarray:
+        """:meth:`gnss_fixes` of the messages ``raws`` of ``topic``."""
         adapter = GNSS_ADAPTERS[self.source.topics[topic].schema]
         rows = []
-        for raw in self.source.iter_raw([topic], start_ns, end_ns):
+        for raw in raws:
             fix = adapter(self.source.decode(raw), raw.log_time)
             if fix is not None:
                 if self._gnss_frame is None:

@@ -104,7 +104,13 @@ def test_bags_are_geo_referenced_from_their_spans(tmp_path, kind):
     georef = geo_reference(reader, load_config(overrides={"map.crs": UTM35}), need_crs=True)
     assert abs(georef.heading_rad - HEADING) < 1e-7
     np.testing.assert_allclose(georef.T_crs_world[:2, 3], [ORIGIN_E, ORIGIN_N], atol=1e-3)
-    assert counts["/fix"] <= message_log.GNSS_SPANS * (message_log.GNSS_SPAN_S * 5 + 1)
+    assert counts["/fix"] <= message_log.GNSS_SPANS * (_read_s() * 5 + 1)
+
+
+def _read_s() -> float:
+    """Seconds of log one span's read takes (LogReader.gnss_span: the fixes and poses
+    together, from max_pose_gap_s + 1 s of slack before the span to its end)."""
+    return message_log.GNSS_SPAN_S + load_config()["input"]["max_pose_gap_s"] + 1.0
 
 
 def test_a_ros2_bag_with_mcap_storage_is_read_whole(tmp_path):
@@ -131,12 +137,12 @@ def test_long_log_geo_reference_from_its_spans(tmp_path):
     # are far above that (~1e-9 m from pyproj's round trip) and far below a cell
     assert abs(georef.heading_rad - HEADING) < 1e-7
     np.testing.assert_allclose(georef.T_crs_world[:2, 3], [ORIGIN_E, ORIGIN_N], atol=1e-3)
-    # what was read: the fixes of the spans only, and the poses around them (from
-    # max_pose_gap_s + 1 s of slack before a span's first fix to the first pose after its last)
+    # what was read: the spans only — each from max_pose_gap_s + 1 s of slack before it to
+    # its end, fixes and poses in one read, then the poses after it to the first after its
+    # last fix
     spans = message_log.GNSS_SPANS
-    assert counts["/fix"] <= spans * (message_log.GNSS_SPAN_S * 5 + 1)
-    around = message_log.GNSS_SPAN_S + config["input"]["max_pose_gap_s"] + 1.0 + 0.2
-    assert counts["/odom"] <= spans * around * 5 + 1  # + the body frame's first pose
+    assert counts["/fix"] <= spans * (_read_s() * 5 + 1)
+    assert counts["/odom"] <= spans * (_read_s() + 0.2) * 5 + 1  # + the body frame's first
     assert counts["/odom"] < n / 3
 
 
@@ -178,3 +184,55 @@ def test_a_sparse_gnss_topic_falls_back_to_every_fix(tmp_path):
     georef = geo_reference(reader, load_config(overrides={"map.crs": UTM35}), need_crs=True)
     assert abs(georef.heading_rad - HEADING) < 1e-7
     assert counts["/fix"] >= n // 50  # the spans' few, then all of them
+
+
+@pytest.mark.parametrize("seconds", [400.0, 20.0])
+def test_one_read_of_a_span_gives_what_two_reads_give(tmp_path, seconds):
+    """LogReader.gnss_span (the fixes and poses of a span in one read) against the two reads
+    it replaces, gnss_fixes then positions_at (which a long log read whole still takes):
+    the same fixes and the same positions, bit for bit, span by span — a long log's 16
+    spans, and a short log as one span — and when the poses it holds do not reach (a fix
+    stamped before them; none held), it reads the rest as positions_at does."""
+    from dataclasses import replace
+
+    path, _ = _drive(tmp_path, seconds, rate_hz=5.0)
+    reader = open_log(path)
+    spans = reader.gnss_spans()
+    if spans == [(None, None)]:
+        spans = [(reader.start_ns, reader.end_ns + 1)]
+    assert len(spans) == (message_log.GNSS_SPANS if seconds > 40 else 1)
+    for a, b in spans:
+        span = reader.gnss_span(a, b)
+        fixes = reader.gnss_fixes(a, b)
+        assert len(fixes) > 0
+        np.testing.assert_array_equal(span.fixes, fixes)
+        frame = reader.gnss_antenna_frame()
+        want = reader.positions_at(fixes[:, 0].astype(np.int64), frame)
+        assert not np.isnan(want).any()
+        np.testing.assert_array_equal(span.positions(frame), want)
+        late = replace(span, read_from_ns=span.read_from_ns + 10**9)
+        np.testing.assert_array_equal(late.positions(frame), want)
+        empty = replace(span, poses=[], read_to_ns=span.read_from_ns)
+        np.testing.assert_array_equal(empty.positions(frame), want)
+
+
+def test_geo_reference_from_one_read_equals_two_reads(tmp_path):
+    """The placement geo_reference fits from the spans read once each is the one the two
+    reads give (gnss_fixes and positions_at per span, fitted by georef.from_gnss): the same
+    numbers, not within a tolerance."""
+    from evperc.geo import georef as georef_mod
+    from evperc.geo.crs import working_crs
+
+    path, _ = _drive(tmp_path, 400.0, rate_hz=5.0)
+    config = load_config(overrides={"map.crs": UTM35})
+    got = geo_reference(open_log(path), config, need_crs=True)
+    reader = open_log(path)
+    fixes = [reader.gnss_fixes(a, b) for a, b in reader.gnss_spans()]
+    frame = reader.gnss_antenna_frame()
+    xy = np.concatenate([reader.positions_at(f[:, 0].astype(np.int64), frame)[:, :2]
+                         for f in fixes])
+    every = np.concatenate(fixes)
+    crs = working_crs(UTM35, (float(every[0, 2]), float(every[0, 1])))
+    want = georef_mod.from_gnss(xy, every[:, [2, 1]], crs)
+    assert got.heading_rad == want.heading_rad
+    np.testing.assert_array_equal(got.T_crs_world, want.T_crs_world)
