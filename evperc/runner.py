@@ -192,8 +192,9 @@ def _from_gnss(reader: Any, config: dict[str, Any],
 def _read_once(reader: Any, spans: list[tuple[int | None, int | None]]
                ) -> list[tuple[int, int]]:
     """The spans whose fixes and poses :func:`_from_gnss` reads together
-    (``reader.gnss_span``, a few seconds of poses held at a time): a long log's spans, or a
-    whole log no longer than they are together (``[(None, None)]`` of a short log); none (a
+    (``reader.gnss_span``, one span's poses held at a time): a long log's spans (a few
+    seconds each), or a whole log no longer than they are together (``[(None, None)]`` of a
+    log of at most 32 s); none (a
     read of the fixes, then one of the poses around them, streamed) for a long log read
     whole — a source that cannot seek, or a GNSS topic too sparse for the spans — and for a
     reader without ``gnss_span`` (a KITTI folder)."""
