@@ -109,9 +109,9 @@ def _run_map(run: Any) -> tuple[Path | None, Path | None]:
 
 
 def suggest_preset(log_paths: list[Path], preset: str | None, config_path: Path | None) -> None:
-    """`evperc batch` with neither --preset nor --config: name the preset measured better
-    than the defaults for KITTI folders (their kind says the sensor: an HDL-64E; docs/
-    evaluation.md § Real data), one line for all of them. A hint only: the defaults stay the
+    """`evperc batch` with neither --preset nor --config: name the preset tuned for KITTI
+    folders' scanner (their kind says the sensor: an HDL-64E; docs/evaluation.md § Real
+    data), one line for all of them. A hint only: the defaults stay the
     defaults. (`evperc run` says it of any log whose layers it reads: :func:`evperc.runner.
     run`'s ``hint_preset``.)"""
     if preset is not None or config_path is not None:

@@ -36,8 +36,8 @@ PRESETS = ("kurdej2013", "hdl64", "ibeo4", "vlp16")
 #: (16: configs/vlp16.toml; 64 and denser: configs/hdl64.toml); none for fewer than 12 (the
 #: defaults were tuned on 4) nor for 25-47 (no preset was measured on such a scanner)
 LAYER_PRESETS = ((12, 24, "vlp16"), (48, 128, "hdl64"))
-#: the sensor a KITTI folder's scans come from, and the preset measured better than the
-#: defaults on such scans (docs/evaluation.md § Real data)
+#: the sensor a KITTI folder's scans come from, and the preset tuned for such a scanner
+#: (docs/evaluation.md § Real data, § Where evperc stands)
 KITTI_SENSOR = ("a KITTI folder, an HDL-64E's 64 layers", "hdl64")
 
 #: Tables whose keys are free (a user may add classes); values must be numbers.
@@ -117,6 +117,8 @@ RULES: dict[str, tuple] = {
     "objects.cluster_on": ("choice", "first_returns", "all_returns", "all_returns_join"),
     "objects.centroid": ("choice", "cells", "returns"),
     "objects.centroid_max_cells": ("range", 0, 1_000_000, False, False),
+    "objects.centroid_min_returns": ("range", 0, 1_000_000, False, False),
+    "objects.centroid_returns_sigma_m": ("range", 0.0, 100.0, False, False),
     "objects.backfill_candidate_frames": ("range", -1, 1_000_000, False, False),
     "objects.motion_evidence_frames": ("range", 0, 10_000, False, False),
     "objects.conflict_cells": ("range", 1, 1_000_000, False, False),
@@ -193,8 +195,8 @@ def layers_hint(layers: tuple[int, str] | None, kitti: bool = False) -> str | No
     they were read (``LogReader.sensor_layers()``): the preset tuned for it, or None."""
     if kitti:
         sensor, better = KITTI_SENSOR
-        return (f"{sensor}; --preset {better} is measured better than the defaults for such "
-                "a scanner (docs/evaluation.md § Real data)")
+        return (f"{sensor}; --preset {better} is tuned for such a scanner "
+                "(docs/evaluation.md § Real data)")
     better = None if layers is None else preset_for_layers(layers[0])
     if better is None:
         return None

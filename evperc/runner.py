@@ -465,10 +465,13 @@ class Pipeline:
         self.cluster_all_returns = self.cluster_on != "first_returns"
         #: objects.moving_min_height_m / isolated_min_height_m: the sensor grid also gives
         #: each cell's highest return
-        self.top_heights = self.objects is not None and (self.objects.needs_heights
-                                                         or self.boxes.enabled)
-        #: objects.centroid = "returns": the sensor grid also gives each cell's return sums
+        #: objects.centroid = "returns": the sensor grid also gives each cell's return sums,
+        #: with the heights in the same pass (valid where a cell's height is > 0, so the
+        #: sums' block is never cleared: sensor_grid's ``sums_out``)
         self.return_sums = self.objects is not None and self.objects.needs_return_sums
+        self.top_heights = self.objects is not None and (self.objects.needs_heights
+                                                         or self.boxes.enabled
+                                                         or self.return_sums)
         #: the return sums' arrays the object stage is done with, for the next sensor grids
         #: (1.9 MB a frame on a 400 × 400 window: reused, not faulted in afresh each frame);
         #: a deque's append and pop are atomic, and the decode thread pops while the fusion
@@ -618,7 +621,7 @@ class Pipeline:
         kinds = np.empty(len(scan.points), np.uint8) if self.request.point_labels else None
         hits = np.empty(inputs.window.shape, np.bool_) if self.cluster_all_returns else None
         heights = np.empty(inputs.window.shape, np.float32) if self.top_heights else None
-        sums = self._zeroed_sums(inputs.window.shape) if self.return_sums else None
+        sums = self._sums_block(inputs.window.shape) if self.return_sums else None
         free, occupied = sensor_grid(scan.points, scan.planar, inputs.t_crs, inputs.window,
                                      self.sensor_params, kinds_out=kinds, hits_out=hits,
                                      heights_out=heights, sums_out=sums)
@@ -629,16 +632,17 @@ class Pipeline:
                        t_crs=None, labelling=labelling, hits=hits, heights=heights,
                        return_sums=sums, scan_cells=cells)
 
-    def _zeroed_sums(self, shape: tuple[int, int]) -> np.ndarray:
-        """A zeroed float32 ``(*shape, 3)`` array for the sensor grid's return sums: one the
-        object stage has handed back (:meth:`_spare`), else a new one."""
+    def _sums_block(self, shape: tuple[int, int]) -> np.ndarray:
+        """A float32 ``(*shape, 3)`` array for the sensor grid's return sums: one the object
+        stage has handed back (:meth:`_spare`), else a new one. Not cleared: the sensor grid
+        writes the sums of the cells holding a return, with the heights (``sums_out`` with
+        ``heights_out``), and they are read only there."""
         try:
             sums = self._spare_sums.pop()
         except IndexError:
-            return np.zeros((*shape, 3), np.float32)
+            return np.empty((*shape, 3), np.float32)
         if sums.shape != (*shape, 3):
-            return np.zeros((*shape, 3), np.float32)
-        sums.fill(0.0)
+            return np.empty((*shape, 3), np.float32)
         return sums
 
     def _spare(self, sums: np.ndarray | None) -> None:

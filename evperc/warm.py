@@ -89,11 +89,14 @@ def _warm_sensor(spec: WarmSpec) -> None:
 
     config, tiny = spec.config, _window(spec.config)
     points = np.array([[1.0, 0.0, 0.0], [2.0, 1.0, -1.5]], np.float32)
-    sensor_grid(points, False, np.eye(4), tiny,
-                SensorParams.from_config(config["sensor"], config["grid"]["cell_size_m"]),
+    params = SensorParams.from_config(config["sensor"], config["grid"]["cell_size_m"])
+    sensor_grid(points, False, np.eye(4), tiny, params,
                 hits_out=np.empty(tiny.shape, np.bool_),
                 heights_out=np.empty(tiny.shape, np.float32),
                 sums_out=np.zeros((*tiny.shape, 3), np.float32))
+    # the heights without the sums (objects.centroid = "cells"): a pass of their own
+    sensor_grid(points, False, np.eye(4), tiny, params,
+                heights_out=np.empty(tiny.shape, np.float32))
     free, occupied = _sensor_masses()
     gate_step(GateState.fresh(tiny.shape), free, occupied, 0.1, FusionParams.from_config(config),
               closed=np.zeros(tiny.shape, np.bool_))

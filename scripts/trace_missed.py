@@ -136,7 +136,8 @@ def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.nda
                                    conflict_fo)
     if return_sums is not None and self.needs_return_sums:
         clusters = with_return_centroids(clusters, return_sums, window,
-                                         self.cluster_params.centroid_max_cells)
+                                         self.cluster_params.centroid_max_cells,
+                                         self.cluster_params.centroid_min_returns, heights)
     records, cells = track_step(state, clusters, window, stamp_ns, self.tracking_params,
                                 decision, near_building)
     extent = np.maximum(rc.bbox_m[:, 2] - rc.bbox_m[:, 0], rc.bbox_m[:, 3] - rc.bbox_m[:, 1]) \

@@ -165,10 +165,17 @@ def test_packaged_preset_is_the_repo_file(name: str) -> None:
 SENSOR_PRESETS = {
     "hdl64": {("fusion", "gate_rehit_revokes"): "recent_returns",
               ("objects", "centroid"): "returns", ("objects", "centroid_max_cells"): 8,
-              ("objects", "centroid_sigma_m"): 0.1},
+              ("objects", "centroid_sigma_m"): 0.1,
+              # as measured in 2026-12-06 (fifth session): any count of returns, one floor
+              ("objects", "centroid_min_returns"): 0,
+              ("objects", "centroid_returns_sigma_m"): 0.0},
     "ibeo4": {("objects", "moving_min_cluster_cells"): 3,
-              ("objects", "moving_min_height_m"): 0.0},
-    "vlp16": {("objects", "growth_reach_cells"): 1, ("objects", "growth_early"): True},
+              ("objects", "moving_min_height_m"): 0.0,
+              # as measured (2026-12-03): the cell centres' means
+              ("objects", "centroid"): "cells"},
+    "vlp16": {("objects", "growth_reach_cells"): 1, ("objects", "growth_early"): True,
+              # as measured in 2026-12-06 (eleventh session): the cell centres' means
+              ("objects", "centroid"): "cells"},
 }
 
 

@@ -62,10 +62,17 @@ def test_hdl64_config_changes_only_the_rehit_and_the_centroids() -> None:
     defaults = load_config()
     assert config["fusion"]["gate_rehit_revokes"] == "recent_returns"
     assert defaults["fusion"]["gate_rehit_revokes"] == "block"
-    assert config["objects"]["centroid"] == "returns" != defaults["objects"]["centroid"]
-    assert config["objects"]["centroid_max_cells"] == 8
+    # the returns' centroids of small clusters, as measured then: any count of returns, and
+    # one floor of 0.1 m for every centroid (the defaults since 2026-12-07, fifth session,
+    # take the returns' mean of 12 returns or more, with a floor of its own)
+    assert config["objects"]["centroid"] == "returns" == defaults["objects"]["centroid"]
+    assert config["objects"]["centroid_max_cells"] == 8 == defaults["objects"]["centroid_max_cells"]
     assert config["objects"]["centroid_sigma_m"] == 0.1 < defaults["objects"]["centroid_sigma_m"]
+    assert config["objects"]["centroid_min_returns"] == 0 < defaults["objects"][
+        "centroid_min_returns"]
+    assert config["objects"]["centroid_returns_sigma_m"] == 0.0 < defaults["objects"][
+        "centroid_returns_sigma_m"]
     assert changed_keys(config, defaults) == {("fusion", "gate_rehit_revokes"),
-                                              ("objects", "centroid"),
-                                              ("objects", "centroid_max_cells"),
-                                              ("objects", "centroid_sigma_m")}
+                                              ("objects", "centroid_sigma_m"),
+                                              ("objects", "centroid_min_returns"),
+                                              ("objects", "centroid_returns_sigma_m")}

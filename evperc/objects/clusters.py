@@ -123,6 +123,8 @@ class ClusterParams:
     #: objects.centroid_max_cells: with centroid = "returns", only clusters of at most this
     #: many cells take their returns' mean (0: every cluster)
     centroid_max_cells: int = 0
+    #: objects.centroid_min_returns: ... and holding at least this many returns (0: one)
+    centroid_min_returns: int = 0
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> ClusterParams:
@@ -141,7 +143,8 @@ class ClusterParams:
                              off_buildings_max_height_m=float(
                                  o.get("off_buildings_max_height_m", 0.0)),
                              centroid=str(o.get("centroid", "cells")),
-                             centroid_max_cells=int(o.get("centroid_max_cells", 0)))
+                             centroid_max_cells=int(o.get("centroid_max_cells", 0)),
+                             centroid_min_returns=int(o.get("centroid_min_returns", 0)))
 
 
 @dataclass(frozen=True)
@@ -155,6 +158,9 @@ class Clusters:
     bbox_m: np.ndarray      # (n, 4) float64: xmin, ymin, xmax, ymax of the outer cell edges
     seeds: np.ndarray       # (n,) int64: seed cells in the cluster
     mean_betp_moving: np.ndarray  # (n,) float32
+    #: (n,) bool: the centroid is the mean of the cluster's returns
+    #: (:func:`with_return_centroids`); None: every centroid is its cells' mean
+    from_returns: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.seeds)
@@ -523,39 +529,51 @@ def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_e
 
 
 def with_return_centroids(clusters: Clusters, sums: np.ndarray, window: Window,
-                          max_cells: int = 0) -> Clusters:
+                          max_cells: int = 0, min_returns: int = 0,
+                          heights: np.ndarray | None = None) -> Clusters:
     """``clusters`` with each centroid the mean of the scan's obstacle returns in its cells,
 
         c = Σ_cells (n_c · x_c + Σᵢ δᵢ) / Σ_cells n_c,
 
     (``x_c`` a cell's centre, ``n_c`` its returns, ``δᵢ`` their offsets from the centre:
     ``sums`` (rows, cols, 3) float32 of :func:`evperc.sensor.sensor_grid`'s ``sums_out``),
-    where its cells hold a return and it has at most ``max_cells`` cells (0: any size); a
-    cluster holding no return (a track's carried cells only), or a larger one, keeps the
-    mean of its cell centres. A person is one or two 0.5 m cells: the mean of the
-    cell centres moves by half a cell or not at all as the person walks a quarter cell a
+    where its cells hold at least ``min_returns`` returns (and one) and it has at most
+    ``max_cells`` cells (0: any size); a cluster holding fewer (a track's carried cells
+    only, a sparse scanner's few returns), or a larger one, keeps the mean of its cell
+    centres. ``heights`` ((rows, cols) float32, the same scan's ``heights_out``): the sums
+    are read only where it is > 0 — a block the sensor grid wrote with the heights is valid
+    only there —; None: wherever the count is > 0 (a block that was zeros). The result's
+    ``from_returns`` says which clusters took the returns' mean (the tracker's noise floor,
+    ``objects.centroid_returns_sigma_m``). A person is one or two 0.5 m cells: the mean of
+    the cell centres moves by half a cell or not at all as the person walks a quarter cell a
     scan, the mean of the returns moves with the person (docs/method.md §8 "Centroids")."""
     if len(clusters) == 0:
-        return clusters
+        return replace(clusters, from_returns=np.zeros(0, np.bool_))
     flat = sums.reshape(-1, 3)
-    centroid = _return_centroids(clusters.cells, clusters.offsets, clusters.centroid_m, flat,
-                                 window.row0, window.col0, window.cols,
-                                 float(window.resolution_m), max_cells)
-    return replace(clusters, centroid_m=centroid)
+    top = _NO_FLAT_HEIGHTS if heights is None else np.ascontiguousarray(
+        heights, np.float32).reshape(-1)
+    centroid, from_returns = _return_centroids(
+        clusters.cells, clusters.offsets, clusters.centroid_m, flat, top, window.row0,
+        window.col0, window.cols, float(window.resolution_m), max_cells,
+        float(max(min_returns, 1)))
+    return replace(clusters, centroid_m=centroid, from_returns=from_returns)
 
 
 def warm_up_return_centroids() -> None:
     """Load (or compile) :func:`with_return_centroids`' kernel before the first frame."""
-    _return_centroids(np.zeros(1, np.int64), np.array([0, 1], np.int64), np.zeros((1, 2)),
-                      np.ones((1, 3), np.float32), 0, 0, 1, 0.5, 0)
+    for top in (_NO_FLAT_HEIGHTS, np.ones(1, np.float32)):
+        _return_centroids(np.zeros(1, np.int64), np.array([0, 1], np.int64), np.zeros((1, 2)),
+                          np.ones((1, 3), np.float32), top, 0, 0, 1, 0.5, 0, 1.0)
 
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass over the clusters' cells
-def _return_centroids(cells, offsets, cell_centroid, sums, row0, col0, cols, res, max_cells
-                      ):  # pragma: no cover - compiled
-    """See :func:`with_return_centroids`."""
+def _return_centroids(cells, offsets, cell_centroid, sums, top, row0, col0, cols, res,
+                      max_cells, min_returns):  # pragma: no cover - compiled
+    """See :func:`with_return_centroids` (``top`` empty: no heights)."""
     n = offsets.shape[0] - 1
     out = cell_centroid.copy()
+    from_returns = np.zeros(n, np.bool_)
+    checked = top.shape[0] > 0
     for k in range(n):
         if max_cells > 0 and offsets[k + 1] - offsets[k] > max_cells:
             continue
@@ -564,6 +582,8 @@ def _return_centroids(cells, offsets, cell_centroid, sums, row0, col0, cols, res
         count = 0.0
         for q in range(offsets[k], offsets[k + 1]):
             cell = cells[q]
+            if checked and not top[cell] > 0:
+                continue
             m = np.float64(sums[cell, 2])
             if m > 0.0:
                 row = cell // cols
@@ -571,10 +591,11 @@ def _return_centroids(cells, offsets, cell_centroid, sums, row0, col0, cols, res
                 sx += m * ((col0 + col + 0.5) * res) + np.float64(sums[cell, 0])
                 sy += m * ((row0 + row + 0.5) * res) + np.float64(sums[cell, 1])
                 count += m
-        if count > 0.0:
+        if count >= min_returns:
             out[k, 0] = sx / count
             out[k, 1] = sy / count
-    return out
+            from_returns[k] = True
+    return out, from_returns
 
 
 def off_buildings_small(small_m: float, resolution_m: float) -> int:

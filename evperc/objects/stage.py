@@ -113,7 +113,9 @@ class ObjectStage:
         ``map.building_margin_m`` of a mapped building, for
         ``objects.clusters_off_buildings`` (None: no map); ``return_sums``: (rows, cols, 3)
         float32, each cell's returns' offset sums and count (``sensor_grid(sums_out=)``), for
-        ``objects.centroid = "returns"`` (None: the cell centres' mean)."""
+        ``objects.centroid = "returns"`` (None: the cell centres' mean); read only where
+        ``heights`` > 0 when ``heights`` is given (the sensor grid writes the two in one pass
+        and leaves the other cells' sums as they were)."""
         seeds = footprint_seeds(state, window)
         clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds,
                                            occupied_now, heights, near_building)
@@ -122,7 +124,8 @@ class ObjectStage:
                                        betp_moving, conflict_fo)
         if return_sums is not None and self.needs_return_sums:
             clusters = with_return_centroids(clusters, return_sums, window,
-                                             self.cluster_params.centroid_max_cells)
+                                             self.cluster_params.centroid_max_cells,
+                                             self.cluster_params.centroid_min_returns, heights)
         return track_step(state, clusters, window, stamp_ns, self.tracking_params, decision,
                           near_building)
 

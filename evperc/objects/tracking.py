@@ -13,8 +13,10 @@ only, ``tᵢ`` the stamps), the least-squares constant-velocity fit per axis,
 
     v = Σ (tᵢ − t̄)(pᵢ − p̄) / S,   S = Σ (tᵢ − t̄)²,
 
-with the centroid noise σ² = max(σ₀², RSS / (2(n − 2))) (σ₀ = ``centroid_sigma_m``; the
-residuals of both axes pooled, 2(n − 2) degrees of freedom, when n > 2), so each velocity
+with the centroid noise σ² = max(σ₀², RSS / (2(n − 2))) (σ₀ = ``centroid_sigma_m``, or
+``centroid_returns_sigma_m`` when the track's cluster of this frame takes its returns' mean
+(:func:`evperc.objects.clusters.with_return_centroids`: many returns, no cell staircase in
+it); the residuals of both axes pooled, 2(n − 2) degrees of freedom, when n > 2), so each velocity
 component has variance s² = σ² / S and Σ = s² I. The object moves if its speed passes both
 ``|v| ≥ moving_speed_m_per_s`` and the Mahalanobis test ``vᵀ Σ⁻¹ v = |v|² / s² ≥
 motion_test`` (DOGMa's 4: two standard deviations), and the grid has shown motion evidence of
@@ -97,6 +99,9 @@ class TrackingParams:
     motion_test: float = 4.0
     #: objects.centroid_sigma_m: least standard deviation of a cluster centroid per axis
     centroid_sigma_m: float = 0.25
+    #: objects.centroid_returns_sigma_m: ... of a centroid that is the mean of the cluster's
+    #: returns (``Clusters.from_returns``); 0 = ``centroid_sigma_m`` for every centroid
+    centroid_returns_sigma_m: float = 0.0
     #: objects.motion_evidence_frames: frames with conflict evidence, or frames with vacated
     #: evidence, among those whose velocity passed, before the object moves (0: the
     #: velocity test alone)
@@ -162,6 +167,7 @@ class TrackingParams:
             moving_speed_m_per_s=float(o["moving_speed_m_per_s"]),
             motion_test=float(o["motion_test"]),
             centroid_sigma_m=float(o["centroid_sigma_m"]),
+            centroid_returns_sigma_m=float(o.get("centroid_returns_sigma_m", 0.0)),
             motion_evidence_frames=int(o["motion_evidence_frames"]),
             conflict_cells=int(o["conflict_cells"]),
             single_conflict_max_cells=int(o.get("single_conflict_max_cells", 0)),
@@ -624,7 +630,7 @@ def _distances(hist_xy, hist_n, velocity, dt, centroid, gate):  # pragma: no cov
 def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, sigma, fp_n,
                   fp, evidence, past_n, past, dt, cells, offsets, centroid, seeds, row0,
                   col0, rows, cols, decision, has_decision, stamp_ns, next_id, gate,
-                  history, confirm, max_missed, speed2_min, motion_test, sigma0, need,
+                  history, confirm, max_missed, speed2_min, motion_test, sigma0, sigma_c, need,
                   conflict_cells, vacated_frames, share_min, every_frame, arrival_share,
                   arrival_cells, sigma_per_m, clearance2, centre_x, centre_y, expires,
                   near, facade_speed2, single_max, kept_share, growth_more,
@@ -793,10 +799,10 @@ def _track_kernel(ids, hits, missed, flags, hist_n, hist_t, hist_xy, velocity, s
                     t_row[q] = 0.0
                     x_row[q] = 0.0
                     y_row[q] = 0.0
-            s0 = sigma0
+            s0 = sigma_c[c] if sigma_c.shape[0] > 0 else sigma0
             if sigma_per_m > 0:
-                s0 = max(sigma0, sigma_per_m * math.hypot(centroid[c, 0] - centre_x,
-                                                          centroid[c, 1] - centre_y))
+                s0 = max(s0, sigma_per_m * math.hypot(centroid[c, 0] - centre_x,
+                                                      centroid[c, 1] - centre_y))
             vx, vy, sg = _fit(t_row, x_row, y_row, m_new, s0, scratch)
             o_velocity[j, 0] = vx
             o_velocity[j, 1] = vy
@@ -958,6 +964,20 @@ def ego_cell_centre(window: Window) -> tuple[float, float]:
             (window.row0 + window.rows // 2 + 0.5) * window.resolution_m)
 
 
+_NO_SIGMAS = np.zeros(0, np.float64)
+
+
+def cluster_sigmas(clusters: Clusters, params: TrackingParams) -> np.ndarray:
+    """Each cluster's centroid noise floor σ₀ (m): ``centroid_returns_sigma_m`` where its
+    centroid is its returns' mean (``clusters.from_returns``), ``centroid_sigma_m``
+    elsewhere; empty (every floor ``centroid_sigma_m``) with the key 0 or no such
+    clusters' flags."""
+    if params.centroid_returns_sigma_m <= 0 or clusters.from_returns is None:
+        return _NO_SIGMAS
+    return np.where(clusters.from_returns, float(params.centroid_returns_sigma_m),
+                    float(params.centroid_sigma_m))
+
+
 def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns: int,
                params: TrackingParams, decision: np.ndarray | None = None,
                near_building: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -1001,7 +1021,8 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
         float(params.gate_m), int(params.history_frames), int(params.confirm_frames),
         int(params.max_missed_frames), float(params.moving_speed_m_per_s ** 2),
         float(params.motion_test), float(params.centroid_sigma_m),
-        int(params.motion_evidence_frames), int(params.conflict_cells),
+        cluster_sigmas(clusters, params), int(params.motion_evidence_frames),
+        int(params.conflict_cells),
         int(params.vacated_frames), float(params.vacated_share),
         bool(params.evidence_every_frame), float(params.arrival_share),
         int(params.arrival_min_cells),

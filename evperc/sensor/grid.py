@@ -36,6 +36,7 @@ from evperc.sensor.projection import (
     scatter_hits,
     scatter_return_sums,
     scatter_top_heights,
+    scatter_top_heights_and_sums,
     unfree_feet,
 )
 
@@ -87,14 +88,16 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
     not only the first per azimuth bin that the sensor model marks occupied (the object
     stage's ``objects.cluster_on = "all_returns"``; the masses do not depend on it).
     ``heights_out`` (float32 ``window.shape``, optional) is overwritten with the height above
-    the local ground of each cell's highest OBSTACLE point of the scan (0 where none; +inf
-    for a ``planar`` scan's cells with a return: no ground), for
-    ``objects.moving_min_height_m``; the masses do not depend on it either.
-    ``sums_out`` (float32 ``(*window.shape, 3)``, optional; pass zeros: it is added to, not
-    cleared, so that a fresh ``np.zeros`` block is touched only where the scan has returns)
-    receives each cell's sums of its OBSTACLE points' offsets from the cell centre (x, y, m)
-    and their count (:func:`~evperc.sensor.projection.scatter_return_sums`), for
-    ``objects.centroid = "returns"``; the masses do not depend on it.
+    the local ground of each cell's highest OBSTACLE point of the scan (0 where none, at
+    least the smallest positive float32 where one; +inf for a ``planar`` scan's cells with a
+    return: no ground), for ``objects.moving_min_height_m``; the masses do not depend on it
+    either. ``sums_out`` (float32 ``(*window.shape, 3)``, optional) receives each cell's sums
+    of its OBSTACLE points' offsets from the cell centre (x, y, m) and their count, for
+    ``objects.centroid = "returns"``; the masses do not depend on it. Alone it is added to,
+    not cleared (pass zeros; :func:`~evperc.sensor.projection.scatter_return_sums`); with
+    ``heights_out`` the two come from one pass and the sums are written, valid exactly where
+    ``heights_out`` > 0 — any block will do, nothing needs clearing
+    (:func:`~evperc.sensor.projection.scatter_top_heights_and_sums`).
     """
     layout = PolarLayout.build(params.azimuth_resolution_deg,
                                params.range_bin_m or window.resolution_m,
@@ -151,11 +154,16 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
             raise ValueError(f"heights_out must be float32 {window.shape}, got "
                              f"{heights_out.dtype} {heights_out.shape}")
         heights_out.fill(0.0)
-        scatter_top_heights(heights_out, window, sensor_xy, x, y, kind, height)
     if sums_out is not None:
         if sums_out.shape != (*window.shape, 3) or sums_out.dtype != np.float32:
             raise ValueError(f"sums_out must be float32 {(*window.shape, 3)}, got "
                              f"{sums_out.dtype} {sums_out.shape}")
+    if heights_out is not None and sums_out is not None:
+        scatter_top_heights_and_sums(heights_out, sums_out, window, sensor_xy, x, y, kind,
+                                     height)
+    elif heights_out is not None:
+        scatter_top_heights(heights_out, window, sensor_xy, x, y, kind, height)
+    elif sums_out is not None:
         scatter_return_sums(sums_out, window, sensor_xy, x, y, kind)
     if log.isEnabledFor(logging.DEBUG):
         log.debug("sensor grid: %d points kept, %d obstacle", int((az_bin >= 0).sum()),

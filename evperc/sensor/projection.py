@@ -79,9 +79,27 @@ def scatter_top_heights(top: np.ndarray, window: Window, sensor_xy: tuple[float,
     """Raise each cell of ``top`` (float32 ``window.shape``, not cleared here) to the height
     above the local ground of the highest OBSTACLE point in it (``height``:
     :func:`evperc.sensor.ground.classify_points`' per-point ``d``) — every return, not only
-    the first of its azimuth bin. Not part of the sensor grid."""
+    the first of its azimuth bin —, and at least to the smallest positive float32
+    (:data:`TOP_FLOOR`: a return at exactly the threshold of a 0 m ``ground_threshold_m``
+    still marks its cell). Not part of the sensor grid."""
     _scatter_top_heights(top, float(window.resolution_m), window.row0, window.col0,
                          sensor_xy[0], sensor_xy[1], x, y, kind, height)
+
+
+def scatter_top_heights_and_sums(top: np.ndarray, sums: np.ndarray, window: Window,
+                                 sensor_xy: tuple[float, float], x: np.ndarray, y: np.ndarray,
+                                 kind: np.ndarray, height: np.ndarray) -> None:
+    """:func:`scatter_top_heights` and :func:`scatter_return_sums` in one pass over the
+    points, with the sums *written*, not added: a cell's three sums are set to zero at its
+    first OBSTACLE point of the scan — the point that finds its ``top`` still 0 —, so that
+    ``sums`` needs no clearing and holds this scan's sums exactly where ``top`` > 0 after the
+    pass (elsewhere whatever it held: read it only there). ``top`` must be 0 in every cell
+    (the sensor grid fills it) and every OBSTACLE point raises its cell to at least the
+    smallest positive float32 (:func:`scatter_top_heights`), so ``top`` > 0 marks the cells
+    holding one. The same cells, heights and sums as the two passes on a zeroed ``sums``
+    (tested)."""
+    _scatter_top_heights_and_sums(top, sums, float(window.resolution_m), window.row0,
+                                  window.col0, sensor_xy[0], sensor_xy[1], x, y, kind, height)
 
 
 def scatter_return_sums(sums: np.ndarray, window: Window, sensor_xy: tuple[float, float],
@@ -191,16 +209,51 @@ def _scatter_all_hits(mask, res, row0, col0, sx, sy, x, y, kind) -> None:
                   np.uint8(1))
 
 
+#: the least value :func:`scatter_top_heights` leaves in a cell holding an OBSTACLE point
+TOP_FLOOR = np.float32(np.finfo(np.float32).tiny)
+
+
 @numba.njit(cache=True, nogil=True)
 def _scatter_top_heights(top, res, row0, col0, sx, sy, x, y, kind, height) -> None:
     """See :func:`scatter_top_heights` (cells as :func:`_mark`)."""
     rows, cols = top.shape
+    floor = np.float32(1.1754944e-38)  # TOP_FLOOR (the cache freezes module constants)
     for i in range(x.shape[0]):
         if kind[i] == OBSTACLE:
             r = math.floor((sy + np.float64(y[i])) / res) - row0
             c = math.floor((sx + np.float64(x[i])) / res) - col0
-            if 0 <= r < rows and 0 <= c < cols and height[i] > top[r, c]:
-                top[r, c] = height[i]
+            if 0 <= r < rows and 0 <= c < cols:
+                h = max(height[i], floor)
+                if h > top[r, c]:
+                    top[r, c] = h
+
+
+@numba.njit(cache=True, nogil=True)
+def _scatter_top_heights_and_sums(top, sums, res, row0, col0, sx, sy, x, y, kind, height
+                                  ) -> None:
+    """See :func:`scatter_top_heights_and_sums` (cells as :func:`_mark`; the sums' offsets
+    as :func:`_scatter_return_sums`)."""
+    rows, cols = top.shape
+    floor = np.float32(1.1754944e-38)  # TOP_FLOOR
+    for i in range(x.shape[0]):
+        if kind[i] == OBSTACLE:
+            wx = sx + np.float64(x[i])
+            wy = sy + np.float64(y[i])
+            r_abs = math.floor(wy / res)
+            c_abs = math.floor(wx / res)
+            r = r_abs - row0
+            c = c_abs - col0
+            if 0 <= r < rows and 0 <= c < cols:
+                if top[r, c] == 0:  # the cell's first return of the scan
+                    sums[r, c, 0] = np.float32(0.0)
+                    sums[r, c, 1] = np.float32(0.0)
+                    sums[r, c, 2] = np.float32(0.0)
+                h = max(height[i], floor)
+                if h > top[r, c]:
+                    top[r, c] = h
+                sums[r, c, 0] += np.float32(wx - (c_abs + 0.5) * res)
+                sums[r, c, 1] += np.float32(wy - (r_abs + 0.5) * res)
+                sums[r, c, 2] += np.float32(1.0)
 
 
 @numba.njit(cache=True, nogil=True)

@@ -180,12 +180,12 @@ def test_non_finite_points_are_dropped_with_their_index(tmp_path: Path) -> None:
     np.testing.assert_array_equal(scan.points, pts[scan.source_index, :3])
 
 
-HINT = "--preset hdl64 is measured better than the defaults"
+HINT = "--preset hdl64 is tuned for such a scanner"
 
 
 def test_a_kitti_run_names_the_hdl64_preset_and_keeps_the_defaults(tmp_path: Path) -> None:
     # a KITTI folder is an HDL-64E: without --preset or --config the run says which preset
-    # was measured better for it, and runs the defaults (the re-hit revokes the 3 x 3 block)
+    # is tuned for it, and runs the defaults (the re-hit revokes the 3 x 3 block)
     result = CliRunner().invoke(cli, ["run", str(SMALL), "--no-map", "--out",
                                       str(tmp_path / "a")])
     assert result.exit_code == 0, result.output

@@ -391,14 +391,20 @@ def track_step(state: TrackerState, clusters: Clusters, window: Window, stamp_ns
         hist_xy[k, :m] = t.xy
     # one vectorised fit for the frame's tracks (velocity_fit is its per-track reference)
     sigma0 = params.centroid_sigma_m
+    returns_floor = (params.centroid_returns_sigma_m > 0
+                     and getattr(clusters, "from_returns", None) is not None)
+    if returns_floor:  # a centroid that is its returns' mean has a floor of its own
+        sigma0 = np.array([params.centroid_returns_sigma_m if clusters.from_returns[c]
+                           else params.centroid_sigma_m for _, _, c in associated], np.float64)
     if params.centroid_sigma_per_m > 0:  # the noise floor grows with the range from the ego
         # np.hypot is libm's, as numba's math.hypot (Python's own math.hypot rounds otherwise)
         ex = (window.col0 + window.cols // 2 + 0.5) * window.resolution_m
         ey = (window.row0 + window.rows // 2 + 0.5) * window.resolution_m
         sigma0 = np.array([
-            max(params.centroid_sigma_m, params.centroid_sigma_per_m * np.hypot(
-                float(clusters.centroid_m[c, 0]) - ex, float(clusters.centroid_m[c, 1]) - ey))
-            for _, _, c in associated], np.float64)
+            max(float(sigma0[k]) if returns_floor else params.centroid_sigma_m,
+                params.centroid_sigma_per_m * np.hypot(
+                    float(clusters.centroid_m[c, 0]) - ex, float(clusters.centroid_m[c, 1]) - ey))
+            for k, (_, _, c) in enumerate(associated)], np.float64)
     fit_v, fit_sigma = velocity_fits(hist_t, hist_xy, count, sigma0)
     fit_of = {i: k for k, (i, _, _) in enumerate(associated)}
     for i, t in enumerate(tracks):

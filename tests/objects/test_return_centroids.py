@@ -31,11 +31,17 @@ Y = 5.1           # the walker's y: row 10 (5.0-5.5 m)
 BODY = np.array([-0.15, -0.05, 0.05, 0.15])
 
 
-def _walk(centroid: str, frames: int = 12, max_cells: int = 0, sigma_m: float = 0.25
+def _walk(centroid: str, frames: int = 12, max_cells: int = 0, sigma_m: float = 0.25,
+          min_returns: int = 0, returns_sigma_m: float = 0.0, heights: bool = False
           ) -> TrackerState:
+    """The walker through the object stage. ``heights``: the sensor grid's way — the sums
+    written with the heights (valid where a cell's height is > 0), every other cell of the
+    block holding another scan's sums, which must not be read."""
     config = load_config(overrides={"objects.centroid": centroid,
                                     "objects.centroid_max_cells": max_cells,
                                     "objects.centroid_sigma_m": sigma_m,
+                                    "objects.centroid_min_returns": min_returns,
+                                    "objects.centroid_returns_sigma_m": returns_sigma_m,
                                     "objects.min_cluster_cells": 1})
     stage = ObjectStage(config, SHAPE)
     state = TrackerState()
@@ -45,13 +51,22 @@ def _walk(centroid: str, frames: int = 12, max_cells: int = 0, sigma_m: float = 
         decision = np.full(SHAPE, D["free"], np.uint8)
         occupied = np.zeros(SHAPE, np.bool_)
         sums = np.zeros((*SHAPE, 3), np.float32)
+        if heights:  # stale sums of another scan wherever this one has no return
+            sums[:] = (0.2, -0.2, 7.0)
+        top = np.zeros(SHAPE, np.float32)
         for px in x:
             r, c = int(Y // RES), int(px // RES)
             decision[r, c] = D["static"]
             occupied[r, c] = True
+            if top[r, c] == 0:
+                sums[r, c] = 0.0
+            top[r, c] = 1.5  # the walker's head above the ground
             sums[r, c] += (px - (c + 0.5) * RES, Y - (r + 0.5) * RES, 1.0)
+        if heights:  # the cell behind it decided moving, no return of this scan in it: it
+            # joins the walker's cluster (a cell decided moving grows it), its sums are stale
+            decision[int(Y // RES), int((x[0] - RES) // RES)] = D["moving"]
         stage.step(state, decision, zeros, zeros, WINDOW, k * DT_NS, occupied_now=occupied,
-                   return_sums=sums)
+                   heights=top if heights else None, return_sums=sums)
     assert len(state) == 1  # one track followed the walker all along
     return state
 
@@ -90,9 +105,38 @@ def test_clusters_larger_than_max_cells_keep_the_cell_centres():
 
 
 def test_the_stage_asks_for_the_sums_only_for_returns():
-    assert not ObjectStage(load_config(), SHAPE).needs_return_sums
+    assert not ObjectStage(load_config(overrides={"objects.centroid": "cells"}),
+                           SHAPE).needs_return_sums
     assert ObjectStage(load_config(overrides={"objects.centroid": "returns"}),
                        SHAPE).needs_return_sums
+    assert ObjectStage(load_config(), SHAPE).needs_return_sums  # the default since 2026-12-07
+
+
+def test_the_sums_are_read_only_where_a_cell_holds_a_return():
+    # the sensor grid's block: this scan's sums where the height is > 0, another scan's
+    # elsewhere (an uncleared block), and the walker's cluster holds a cell without a return
+    # (decided moving behind it): the fit is the exact speed only if that cell's stale sums
+    # were left alone
+    state = _walk("returns", heights=True)
+    np.testing.assert_allclose(state.velocity[0], [SPEED, 0.0], atol=1e-5)
+
+
+@pytest.mark.parametrize("min_returns, exact", [(4, True), (5, False)])
+def test_clusters_with_fewer_returns_keep_the_cell_centres(min_returns, exact):
+    # the walker holds 4 returns a scan (BODY): a bound of 5 leaves it to the staircase
+    vx = _walk("returns", min_returns=min_returns).velocity[0, 0]
+    assert bool(abs(vx - SPEED) < 1e-5) == exact
+    if not exact:
+        assert vx == pytest.approx(_walk("cells").velocity[0, 0], abs=1e-12)
+
+
+@pytest.mark.parametrize("min_returns, floor_m", [(4, 0.1), (5, 0.25)])
+def test_a_returns_mean_takes_its_own_noise_floor(min_returns, floor_m):
+    # centroid_returns_sigma_m 0.1 for the returns' means, centroid_sigma_m 0.25 for the
+    # cells' means: the fit's noise is the floor of the centroid its track has (the
+    # residuals of both are under the floors, test_the_cell_centres_mean_is_a_staircase)
+    state = _walk("returns", min_returns=min_returns, returns_sigma_m=0.1)
+    assert state.sigma[0] == pytest.approx(_floor(floor_m), rel=1e-6)
 
 
 def test_a_run_hands_the_returns_to_the_tracker(tmp_path):
@@ -103,7 +147,8 @@ def test_a_run_hands_the_returns_to_the_tracker(tmp_path):
     runs = {}
     for name, centroid in (("cells", "cells"), ("returns", "returns")):
         config = tmp_path / f"{name}.toml"
-        config.write_text(f'[objects]\ncentroid = "{centroid}"\ncentroid_sigma_m = 0.1\n')
+        config.write_text(f'[objects]\ncentroid = "{centroid}"\ncentroid_sigma_m = 0.1\n'
+                          'centroid_min_returns = 0\ncentroid_returns_sigma_m = 0.0\n')
         out = tmp_path / name
         result = CliRunner().invoke(cli, ["run", str(SAMPLE / "drive.mcap"), "--map",
                                           str(SAMPLE / "map.geojson"), "--end", "6",

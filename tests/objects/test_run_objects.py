@@ -28,7 +28,9 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
     """Objects on (the defaults), off, and on without ``fill_moving``; without the vehicle
     boxes: the scene's 2 m square "car" is no car a 4.4 m box fits, and a record's
     ``mean_betp_moving`` is over its cluster's cells, which the checks below take to be all
-    its cells (the boxes' run: tests/objects/test_boxes.py)."""
+    its cells (the boxes' run: tests/objects/test_boxes.py); with the cell centres' mean for
+    a centroid, which they check (the returns' mean, the default since 2026-12-07:
+    tests/objects/test_return_centroids.py)."""
     tmp = tmp_path_factory.mktemp("objects")
     drive = write_street_drive(tmp / "street.mcap", n_scans=30)
     out = []
@@ -37,7 +39,8 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
         config = load_config(overrides={"grid.window_size_m": 40.0, "output.chunk_frames": 10,
                                         "objects.enabled": enabled,
                                         "objects.fill_moving": fill,
-                                        "objects.box_length_m": 0.0})
+                                        "objects.box_length_m": 0.0,
+                                        "objects.centroid": "cells"})
 
         def keep_betp(frame: dict) -> None:
             STEP_BETP[int(frame["stamp_ns"])] = frame["betp"]

@@ -107,6 +107,12 @@ def _assert_same_state(new: TrackerState, old: ref.TrackerState) -> None:
 def test_compiled_tracker_equals_the_per_track_reference(seed: int) -> None:
     rng = np.random.default_rng(seed)
     params = _params(rng)
+    # the returns' centroids' own noise floor (objects.centroid_returns_sigma_m), from a
+    # generator of its own so that the drives above are those of the seeds before the key
+    returns_rng = np.random.default_rng(1000 + seed)
+    params = replace(params, centroid_returns_sigma_m=float(
+        returns_rng.choice([0.0, 0.05, 0.1, 0.4])))
+    flag_share = float(returns_rng.choice([0.0, 0.5, 1.0]))
     cparams = ClusterParams(min_cells=int(rng.integers(1, 4)), seeds="occupied",
                             keep_tracked_small=bool(rng.random() < 0.5))
     clusterer = Clusterer(cparams, SHAPE)
@@ -122,6 +128,9 @@ def test_compiled_tracker_equals_the_per_track_reference(seed: int) -> None:
         seeds_old = ref.footprint_seeds(old, window)
         assert seeds_new.tobytes() == seeds_old.tobytes()
         clusters = clusterer.clusters(dec, betp, fo, window, seeds_new, now)
+        if flag_share > 0:  # some centroids are their returns' means
+            clusters = replace(
+                clusters, from_returns=returns_rng.random(len(clusters)) < flag_share)
         decision = dec if with_decision else None
         rn, cn = tracking.track_step(new, clusters, window, stamp, params, decision, near)
         ro, co = ref.track_step(old, clusters, window, stamp, params, decision, near)

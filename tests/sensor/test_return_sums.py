@@ -57,3 +57,56 @@ def test_a_wrong_sums_array_is_refused(params):
     with pytest.raises(ValueError, match="sums_out must be float32"):
         sensor_grid(np.zeros((1, 3), np.float32), False, pose(*SENSOR, 0.0), window, params,
                     sums_out=np.zeros(window.shape, np.float32))
+
+
+@pytest.mark.parametrize("attitude", [{}, {"yaw_deg": 90.0, "pitch_deg": -3.0}])
+def test_with_the_heights_the_sums_are_written_where_a_cell_holds_a_return(params, attitude):
+    """``sums_out`` with ``heights_out`` (the runner's way, one pass): this scan's sums in
+    exactly the cells whose height is > 0 — the same values as the sums-only pass into
+    zeros, written over whatever the block held (another scan's sums) —, every other cell
+    left as it was; the heights the same as without the sums."""
+    t, level_pts, points, window = scene(attitude)
+    want = np.zeros((*window.shape, 3), np.float32)
+    sensor_grid(points, False, t, window, params, sums_out=want)
+    top0 = np.empty(window.shape, np.float32)
+    sensor_grid(points, False, t, window, params, heights_out=top0)
+
+    rng = np.random.default_rng(3)
+    stale = rng.uniform(-5.0, 5.0, (*window.shape, 3)).astype(np.float32)
+    sums, top = stale.copy(), np.full(window.shape, 9.0, np.float32)
+    sensor_grid(points, False, t, window, params, heights_out=top, sums_out=sums)
+    np.testing.assert_array_equal(top, top0)
+    hit = top > 0
+    assert hit.sum() >= 5  # the scene's obstacles: returns in 5 cells
+    np.testing.assert_array_equal(hit, want[..., 2] > 0)  # a return: height > 0
+    np.testing.assert_array_equal(sums[hit], want[hit])   # the same float32 sums, bit for bit
+    np.testing.assert_array_equal(sums[~hit], stale[~hit])  # the rest untouched
+
+
+def test_a_return_at_the_threshold_marks_its_cell(params):
+    """With ``ground_threshold_m`` 0 an obstacle point may lie 0 m above the ground: its
+    cell's height is the least positive float32, not 0, so that it reads as holding a return
+    (the sums' validity, the scan's return cells)."""
+    from evperc.sensor.ground import OBSTACLE
+    from evperc.sensor.projection import (
+        TOP_FLOOR,
+        scatter_top_heights,
+        scatter_top_heights_and_sums,
+    )
+
+    window = Window(RES, 4, 4, 0, 0)
+    x = np.array([0.3, 1.2], np.float32)
+    y = np.array([0.3, 1.2], np.float32)
+    kind = np.array([OBSTACLE, OBSTACLE], np.uint8)
+    height = np.array([0.0, 0.7], np.float32)
+    top = np.zeros(window.shape, np.float32)
+    scatter_top_heights(top, window, (0.0, 0.0), x, y, kind, height)
+    assert top[0, 0] == TOP_FLOOR > 0 and top[2, 2] == np.float32(0.7)
+    assert np.count_nonzero(top) == 2
+    top = np.zeros(window.shape, np.float32)
+    sums = np.full((*window.shape, 3), 4.0, np.float32)
+    scatter_top_heights_and_sums(top, sums, window, (0.0, 0.0), x, y, kind, height)
+    assert top[0, 0] == TOP_FLOOR
+    np.testing.assert_allclose(sums[0, 0], [0.05, 0.05, 1.0], atol=1e-7)
+    np.testing.assert_allclose(sums[2, 2], [-0.05, -0.05, 1.0], atol=1e-7)
+    assert (sums[1, 1] == 4.0).all()
