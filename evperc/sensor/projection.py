@@ -237,12 +237,7 @@ def _scatter_top_heights_and_sums(top, sums, res, row0, col0, sx, sy, x, y, kind
     floor = np.float32(1.1754944e-38)  # TOP_FLOOR
     for i in range(x.shape[0]):
         if kind[i] == OBSTACLE:
-            wx = sx + np.float64(x[i])
-            wy = sy + np.float64(y[i])
-            r_abs = math.floor(wy / res)
-            c_abs = math.floor(wx / res)
-            r = r_abs - row0
-            c = c_abs - col0
+            wx, wy, r_abs, c_abs, r, c = _world_cell(res, row0, col0, sx, sy, x[i], y[i])
             if 0 <= r < rows and 0 <= c < cols:
                 if top[r, c] == 0:  # the cell's first return of the scan
                     sums[r, c, 0] = np.float32(0.0)
@@ -251,9 +246,7 @@ def _scatter_top_heights_and_sums(top, sums, res, row0, col0, sx, sy, x, y, kind
                 h = max(height[i], floor)
                 if h > top[r, c]:
                     top[r, c] = h
-                sums[r, c, 0] += np.float32(wx - (c_abs + 0.5) * res)
-                sums[r, c, 1] += np.float32(wy - (r_abs + 0.5) * res)
-                sums[r, c, 2] += np.float32(1.0)
+                _add_return(sums, r, c, wx, wy, r_abs, c_abs, res)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -262,16 +255,30 @@ def _scatter_return_sums(sums, res, row0, col0, sx, sy, x, y, kind) -> None:
     rows, cols = sums.shape[0], sums.shape[1]
     for i in range(x.shape[0]):
         if kind[i] == OBSTACLE:
-            wx = sx + np.float64(x[i])
-            wy = sy + np.float64(y[i])
-            r_abs = math.floor(wy / res)
-            c_abs = math.floor(wx / res)
-            r = r_abs - row0
-            c = c_abs - col0
+            wx, wy, r_abs, c_abs, r, c = _world_cell(res, row0, col0, sx, sy, x[i], y[i])
             if 0 <= r < rows and 0 <= c < cols:
-                sums[r, c, 0] += np.float32(wx - (c_abs + 0.5) * res)
-                sums[r, c, 1] += np.float32(wy - (r_abs + 0.5) * res)
-                sums[r, c, 2] += np.float32(1.0)
+                _add_return(sums, r, c, wx, wy, r_abs, c_abs, res)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _world_cell(res, row0, col0, sx, sy, x, y):  # pragma: no cover - compiled
+    """A point's world coordinates (float64, from its float32 offsets ``x``, ``y`` from the
+    sensor at ``(sx, sy)``), the lattice row and column holding it, and that cell's row and
+    column in the window whose first cell is ``(row0, col0)``."""
+    wx = sx + np.float64(x)
+    wy = sy + np.float64(y)
+    r_abs = math.floor(wy / res)
+    c_abs = math.floor(wx / res)
+    return wx, wy, r_abs, c_abs, r_abs - row0, c_abs - col0
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _add_return(sums, r, c, wx, wy, r_abs, c_abs, res):  # pragma: no cover - compiled
+    """Add a return at ``(wx, wy)`` to window cell ``(r, c)``'s sums: its offsets from the
+    centre of lattice cell ``(r_abs, c_abs)`` and a count of one."""
+    sums[r, c, 0] += np.float32(wx - (c_abs + 0.5) * res)
+    sums[r, c, 1] += np.float32(wy - (r_abs + 0.5) * res)
+    sums[r, c, 2] += np.float32(1.0)
 
 
 @numba.njit(cache=True, nogil=True)
