@@ -217,15 +217,11 @@ TOP_FLOOR = np.float32(np.finfo(np.float32).tiny)
 def _scatter_top_heights(top, res, row0, col0, sx, sy, x, y, kind, height) -> None:
     """See :func:`scatter_top_heights` (cells as :func:`_mark`)."""
     rows, cols = top.shape
-    floor = np.float32(1.1754944e-38)  # TOP_FLOOR (the cache freezes module constants)
     for i in range(x.shape[0]):
         if kind[i] == OBSTACLE:
-            r = math.floor((sy + np.float64(y[i])) / res) - row0
-            c = math.floor((sx + np.float64(x[i])) / res) - col0
+            _, _, _, _, r, c = _world_cell(res, row0, col0, sx, sy, x[i], y[i])
             if 0 <= r < rows and 0 <= c < cols:
-                h = max(height[i], floor)
-                if h > top[r, c]:
-                    top[r, c] = h
+                _raise_top(top, r, c, height[i])
 
 
 @numba.njit(cache=True, nogil=True)
@@ -234,7 +230,6 @@ def _scatter_top_heights_and_sums(top, sums, res, row0, col0, sx, sy, x, y, kind
     """See :func:`scatter_top_heights_and_sums` (cells as :func:`_mark`; the sums' offsets
     as :func:`_scatter_return_sums`)."""
     rows, cols = top.shape
-    floor = np.float32(1.1754944e-38)  # TOP_FLOOR
     for i in range(x.shape[0]):
         if kind[i] == OBSTACLE:
             wx, wy, r_abs, c_abs, r, c = _world_cell(res, row0, col0, sx, sy, x[i], y[i])
@@ -243,10 +238,17 @@ def _scatter_top_heights_and_sums(top, sums, res, row0, col0, sx, sy, x, y, kind
                     sums[r, c, 0] = np.float32(0.0)
                     sums[r, c, 1] = np.float32(0.0)
                     sums[r, c, 2] = np.float32(0.0)
-                h = max(height[i], floor)
-                if h > top[r, c]:
-                    top[r, c] = h
+                _raise_top(top, r, c, height[i])
                 _add_return(sums, r, c, wx, wy, r_abs, c_abs, res)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _raise_top(top, r, c, height):  # pragma: no cover - compiled
+    """Raise ``top[r, c]`` to a return's height above the ground, and at least to
+    :data:`TOP_FLOOR`."""
+    h = max(height, TOP_FLOOR)
+    if h > top[r, c]:
+        top[r, c] = h
 
 
 @numba.njit(cache=True, nogil=True)
