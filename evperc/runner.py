@@ -463,12 +463,12 @@ class Pipeline:
         self.cluster_on = (config["objects"].get("cluster_on", "first_returns")
                            if self.objects is not None else "first_returns")
         self.cluster_all_returns = self.cluster_on != "first_returns"
-        #: objects.moving_min_height_m / isolated_min_height_m: the sensor grid also gives
-        #: each cell's highest return
         #: objects.centroid = "returns": the sensor grid also gives each cell's return sums,
         #: with the heights in the same pass (valid where a cell's height is > 0, so the
         #: sums' block is never cleared: sensor_grid's ``sums_out``)
         self.return_sums = self.objects is not None and self.objects.needs_return_sums
+        #: objects.moving_min_height_m / isolated_min_height_m, the vehicle boxes and the
+        #: return sums: the sensor grid also gives each cell's highest return
         self.top_heights = self.objects is not None and (self.objects.needs_heights
                                                          or self.boxes.enabled
                                                          or self.return_sums)
@@ -637,13 +637,12 @@ class Pipeline:
         stage has handed back (:meth:`_spare`), else a new one. Not cleared: the sensor grid
         writes the sums of the cells holding a return, with the heights (``sums_out`` with
         ``heights_out``), and they are read only there."""
-        try:
+        try:  # both threads make sensor grids: pop, do not test and pop
             sums = self._spare_sums.pop()
         except IndexError:
-            return np.empty((*shape, 3), np.float32)
-        if sums.shape != (*shape, 3):
-            return np.empty((*shape, 3), np.float32)
-        return sums
+            sums = None
+        return sums if sums is not None and sums.shape == (*shape, 3) else np.empty(
+            (*shape, 3), np.float32)
 
     def _spare(self, sums: np.ndarray | None) -> None:
         """Hand ``sums`` back for the next sensor grids once nothing reads it any more (a
