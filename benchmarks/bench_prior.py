@@ -2,7 +2,10 @@
 
 A 200 m × 200 m window at 0.5 m (400 × 400 cells) with 256-cell tiles: the first call
 (every tile rasterised), the same window again (all tiles from the cache), the window moved
-by one cell (cache), the direct uncached rasterisation of the window, and the map loading.
+by one cell (cache), the direct uncached rasterisation of the window, and the map loading;
+the buildings widened by the default 0.5 m margin (the motion gate's layer, a second
+rasteriser in a run), first time, with every cell of their boxes tested and with the
+prior's building cells taken from its cached tiles (``inner``, as a run does).
 ``run()`` returns one dict per row; ``python benchmarks/bench_prior.py`` prints the table.
 A cold time is measured on a fresh rasteriser each repeat; the best of the repeats is kept.
 """
@@ -10,6 +13,7 @@ A cold time is measured on a fresh rasteriser each repeat; the best of the repea
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -50,12 +54,27 @@ def run() -> list[dict]:
         colds.append(time.perf_counter() - t0)
     tiles = r.stats["tiles_rasterised"]
     labels = r.labels(window)
+    buildings = replace(md, roads=md.roads[:0])
+    margin = cfg["building_margin_m"]
+
+    def widened(inner: PriorRasteriser | None) -> float:
+        wide = PriorRasteriser(buildings, RESOLUTION_M, TILE, building_margin_m=margin,
+                               inner=inner)
+        t0 = time.perf_counter()
+        wide.labels(window)
+        return time.perf_counter() - t0
+
+    wide_tested = min(widened(None) for _ in range(REPEATS))
+    wide_inner = min(widened(r) for _ in range(REPEATS))
     cases = [
         ("load_map (2 GeoJSON files)", load_s, "-"),
         ("labels, first time", min(colds), f"{tiles} tiles rasterised"),
         ("labels, cache hit", best_of(lambda: r.labels(window)), "0 tiles rasterised"),
         ("labels, moved 1 cell", best_of(lambda: r.labels(moved)), "0 tiles rasterised"),
         ("rasterise, uncached window", best_of(lambda: r.rasterise(window)), "-"),
+        (f"widened {margin} m, first time, every cell tested", wide_tested, "buildings only"),
+        (f"widened {margin} m, first time, inner = the prior's", wide_inner,
+         "its building cells untested"),
         ("prior_masses (float32)", best_of(lambda: prior_masses(labels, 0.9, 0.9, 0.8)), "-"),
     ]
     share = np.bincount(labels.ravel(), minlength=3) / cells

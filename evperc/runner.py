@@ -433,7 +433,7 @@ class Pipeline:
             # the prior keeps the mapped outlines
             self.near_rasteriser = (PriorRasteriser(
                 replace(self.map_data, roads=self.map_data.roads[:0]), self.resolution, tile,
-                building_margin_m=margin) if margin > 0 else None)
+                building_margin_m=margin, inner=self.rasteriser) if margin > 0 else None)
         self.betas = (config["map"]["beta_building"], config["map"]["beta_road"],
                       config["map"]["beta_other"])
         self.params = FusionParams.from_config(config)

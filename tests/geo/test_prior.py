@@ -10,6 +10,8 @@ import pyproj
 import pytest
 import shapely
 import shapely.affinity
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from evperc.config import default_config
 from evperc.geo.maps import MapData, load_map
@@ -17,6 +19,7 @@ from evperc.geo.prior import (
     CONTEXT_BUILDING,
     CONTEXT_OTHER,
     CONTEXT_ROAD,
+    MIN_INNER_MARGIN_M,
     PriorRasteriser,
     prior_masses,
 )
@@ -201,3 +204,60 @@ def test_widened_building_covers_cells_within_the_margin() -> None:
     # 20² → 22² cells
     assert int((plain == CONTEXT_BUILDING).sum()) == 400
     assert int((wide == CONTEXT_BUILDING).sum()) == 484
+
+
+def widened_brute_force(md: MapData, margin: float, window: Window) -> np.ndarray:
+    """:func:`brute_force` of the buildings buffered as :func:`widen_buildings` does, without
+    roads (the runner's rasteriser of widened buildings)."""
+    wide = shapely.buffer(md.buildings, margin, quad_segs=4)
+    return brute_force(map_of(list(wide), []), window)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), margin=st.floats(1e-3, 3.0), tile=st.sampled_from([7, 16, 64]),
+       row0=st.integers(-45, -20), col0=st.integers(-45, -20))
+def test_widened_tiles_from_inner_match_brute_force(seed: int, margin: float, tile: int,
+                                                    row0: int, col0: int) -> None:
+    # the rasteriser of widened buildings takes the cells its inner (the prior's) labels
+    # building without testing them: the same labels as testing every cell, checked one
+    # centre at a time against the buffered polygons
+    md = random_map(seed)
+    buildings_only = map_of(list(md.buildings), [])
+    inner = PriorRasteriser(md, 0.5, tile)
+    wide = PriorRasteriser(buildings_only, 0.5, tile, building_margin_m=margin, inner=inner)
+    w = Window(0.5, 50, 60, row0, col0)
+    inner.labels(w)  # as the runner does: the prior's tiles first (wide fetches them anyway)
+    labels = wide.labels(w)
+    assert np.array_equal(labels, widened_brute_force(md, margin, w))
+    assert np.array_equal(labels, PriorRasteriser(buildings_only, 0.5, tile,
+                                                  building_margin_m=margin).labels(w))
+    assert (labels == CONTEXT_BUILDING).any()
+
+
+def test_widened_tiles_take_the_inner_building_cells_untested() -> None:
+    # an inner that labels one more building than the widened rasteriser knows: its cells
+    # come out building (taken, not tested); below the least margin the inner is ignored
+    md = map_of([shapely.box(0.0, 0.0, 4.0, 4.0)], [])
+    extra = map_of([shapely.box(0.0, 0.0, 4.0, 4.0), shapely.box(8.0, 8.0, 10.0, 10.0)], [])
+    inner = PriorRasteriser(extra, 0.5, 16)
+    w = Window(0.5, 30, 30, -5, -5)
+    taken = PriorRasteriser(md, 0.5, 16, building_margin_m=0.5, inner=inner).labels(w)
+    plain = PriorRasteriser(md, 0.5, 16, building_margin_m=0.5).labels(w)
+    extra_cells = inner.labels(w) == CONTEXT_BUILDING
+    extra_cells &= ~(plain == CONTEXT_BUILDING)
+    assert extra_cells.sum() == 16  # the 2 m square's 4 × 4 cells
+    assert (taken[extra_cells] == CONTEXT_BUILDING).all()
+    assert np.array_equal(taken[~extra_cells], plain[~extra_cells])
+    tiny = MIN_INNER_MARGIN_M / 2
+    assert np.array_equal(
+        PriorRasteriser(md, 0.5, 16, building_margin_m=tiny, inner=inner).labels(w),
+        PriorRasteriser(md, 0.5, 16, building_margin_m=tiny).labels(w))
+
+
+@pytest.mark.parametrize("inner_args", [(1.0, 16, 0.0), (0.5, 8, 0.0), (0.5, 16, 0.5)])
+def test_an_inner_of_another_lattice_or_widened_is_refused(inner_args: tuple) -> None:
+    res, tile, margin = inner_args
+    md = random_map(0)
+    inner = PriorRasteriser(md, res, tile, building_margin_m=margin)
+    with pytest.raises(ValueError, match="inner"):
+        PriorRasteriser(md, 0.5, 16, building_margin_m=0.5, inner=inner)
