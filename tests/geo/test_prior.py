@@ -261,3 +261,13 @@ def test_an_inner_of_another_lattice_or_widened_is_refused(inner_args: tuple) ->
     inner = PriorRasteriser(md, res, tile, building_margin_m=margin)
     with pytest.raises(ValueError, match="inner"):
         PriorRasteriser(md, 0.5, 16, building_margin_m=0.5, inner=inner)
+
+
+def test_widened_tiles_of_a_map_without_buildings_are_empty() -> None:
+    # a roads-only map: the inner's tiles hold no building cell, the widened layer none
+    roads_only = map_of([], [shapely.box(-5.0, -1.0, 5.0, 1.0)])
+    inner = PriorRasteriser(roads_only, 0.5, 16)
+    w = Window(0.5, 20, 20, -10, -10)
+    assert (inner.labels(w) == CONTEXT_ROAD).any()
+    wide = PriorRasteriser(map_of([], []), 0.5, 16, building_margin_m=0.5, inner=inner)
+    assert (wide.labels(w) == CONTEXT_OTHER).all()
