@@ -41,6 +41,39 @@ def test_every_rule_names_an_existing_key() -> None:
             node = node[part]
 
 
+def test_every_numeric_key_has_a_range_rule() -> None:
+    # a number outside what a key can mean (a negative count, a negative speed) is a user
+    # mistake named at load time; only the sensor's mounting offsets and angles take any value
+    free = {f"input.extrinsic.{k}" for k in ("x_m", "y_m", "z_m", "roll_deg", "pitch_deg",
+                                              "yaw_deg")}
+    unruled = []
+
+    def walk(node: dict, prefix: str) -> None:
+        for key, value in node.items():
+            dotted = f"{prefix}.{key}" if prefix else key
+            if dotted == "map.road_width_m":  # an open table: its own check
+                continue
+            if isinstance(value, dict):
+                walk(value, dotted)
+            elif (isinstance(value, (int, float)) and not isinstance(value, bool)
+                  and dotted not in RULES and dotted not in free):
+                unruled.append(dotted)
+    walk(default_config(), "")
+    assert unruled == []
+
+
+def test_a_negative_count_or_speed_of_the_split_is_refused(tmp_path: Path) -> None:
+    path = write(tmp_path, "[objects]\nsplit_min_overlap_cells = -1\n"
+                           "split_speed_difference_m_per_s = -0.5\n"
+                           "moving_min_cluster_cells = -2\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    for key in ("split_min_overlap_cells = -1", "split_speed_difference_m_per_s = -0.5",
+                "moving_min_cluster_cells = -2"):
+        assert f"objects.{key} is outside" in message
+
+
 def test_every_default_key_has_a_comment() -> None:
     for line in DEFAULT_PATH.read_text().splitlines():
         if "=" in line and not line.lstrip().startswith("#"):

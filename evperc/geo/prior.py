@@ -2,10 +2,11 @@
 
 Each cell is classified by its centre point ``((ix + 0.5)·r, (iy + 0.5)·r)``: inside a
 building → ``CONTEXT_BUILDING``, else inside a road surface → ``CONTEXT_ROAD``, else
-``CONTEXT_OTHER`` (priority building > road > other where polygons overlap). Buildings may be
-widened first by ``building_margin_m`` (:func:`widen_buildings`, docs/method.md "Widened
-buildings"): a return at a building face then falls in a building cell although the map or the
-pose is off by up to that margin.
+``CONTEXT_OTHER`` (priority building > road > other where polygons overlap). A rasteriser
+may widen its buildings first by ``building_margin_m`` (:func:`widen_buildings`,
+docs/method.md §4a "Widened buildings"): the runner's second rasteriser, whose building cells
+are the layer that holds the motion gate shut where a return at a building face falls
+although the map or the pose is off by up to that margin (the prior keeps the outlines).
 
 Polygons are closed: a centre exactly on a polygon's edge or vertex counts as inside it
 (``intersects``, i.e. ``polygon.covers(point)``; ``contains`` would say outside). So two

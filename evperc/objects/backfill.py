@@ -358,7 +358,7 @@ def fill(held: HeldFrame, track: int, lattice: np.ndarray, age: int,
     decide those cells ``moving``. Records stay in track id order. With ``gap_cells`` > 0,
     cells within that many cells (Chebyshev) of a moving record of the frame join that
     record instead (a fragment of an object already reported there, as the fragment merge
-    joins them, :func:`evperc.objects.footprint.merge_fragments`), unless the joined cells'
+    joins them, :func:`evperc.objects.footprint.complete_footprints`), unless the joined cells'
     box is longer than ``extent_m`` along x or y. ``fill_decision`` false
     (``objects.fill_moving = false``): the record only, the decision as it was."""
     w = held.window

@@ -1,5 +1,6 @@
-"""The fragment merge of the footprint stage (evperc.objects.footprint.merge_fragments) on
-hand-made object lists (0.5 m cells, 10 Hz); expected outcomes worked out in the comments."""
+"""The fragment merge of the footprint stage (evperc.objects.footprint.complete_footprints,
+its _merge pass) on hand-made object lists (0.5 m cells, 10 Hz); expected outcomes worked out
+in the comments."""
 
 from __future__ import annotations
 
