@@ -1,7 +1,7 @@
 """Storage precision of the output: values in [0, 1] as uint8 steps of 1/255, planar.
 
-``q = round(255 · x)``, so a stored value is within 1/510 of the computed one (the output
-format promises 1/255). Layers are stored planar, ``(channels, rows, cols)``: each channel
+``q = round(255 · x)``, so a stored value is within 1/510 of the computed one (as
+docs/output-format.md promises). Layers are stored planar, ``(channels, rows, cols)``: each channel
 is one contiguous plane, which deflates 2–3× better than interleaved channels.
 """
 
