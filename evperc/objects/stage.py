@@ -81,9 +81,11 @@ class ObjectStage:
         #: objects.moving_min_height_m: only the small groups whose highest return of the
         #: scan is lower than this above the local ground are listed; 0 = every small group
         self.moving_min_height = moving_min_height_m(config)
-        #: objects.isolated_min_height_m, where the isolated-cluster rule is on (else 0)
+        #: objects.isolated_min_height_m, where a rule reads it — the isolated clusters' or
+        #: the small conflicting clusters' (docs/method.md §8 step 1) — else 0
         p = self.cluster_params
-        self.isolated_min_height = (p.isolated_min_height_m if p.isolated_min_cells > 0
+        self.isolated_min_height = (p.isolated_min_height_m
+                                    if p.isolated_min_cells > 0 or p.small_conflict_min_cells > 0
                                     else 0.0)
 
     @property

@@ -138,17 +138,22 @@ def test_block_max_at_is_the_largest_of_each_cells_3x3_block() -> None:
 
 def test_the_stage_asks_for_heights_for_any_height_bound():
     """The run computes each cell's highest return (``sensor_grid(heights_out=)``) when
-    the small-group rule, the isolated-cluster rule or the façade rule's small groups
+    the small-group rule, the isolated-cluster rule, the small conflicting clusters' rule
+    (the same ``isolated_min_height_m``) or the façade rule's small groups
     (``off_buildings_max_height_m``) has a height bound, not otherwise."""
     def needs(**overrides):
         keys = {f"objects.{k}": v for k, v in overrides.items()}
         return ObjectStage(load_config(overrides=keys), (4, 4)).needs_heights
     no_facade = {"off_buildings_max_height_m": 0.0}
+    no_small = {"isolated_min_cells": 0, "small_conflict_min_cells": 0}
     assert needs()                                                      # the defaults: all
-    assert needs(moving_min_cluster_cells=0, **no_facade)               # isolated only
-    assert needs(isolated_min_cells=0, **no_facade)                     # small groups only
-    assert needs(moving_min_cluster_cells=0, isolated_min_cells=0)      # the façade rule only
-    assert not needs(moving_min_cluster_cells=0, isolated_min_cells=0,
-                     clusters_off_buildings=False)
+    assert needs(moving_min_cluster_cells=0, small_conflict_min_cells=0,
+                 **no_facade)                                           # isolated only
+    assert needs(moving_min_cluster_cells=0, isolated_min_cells=0,
+                 **no_facade)                                           # small conflicting only
+    assert needs(isolated_min_cells=0, small_conflict_min_cells=0,
+                 **no_facade)                                           # small groups only
+    assert needs(moving_min_cluster_cells=0, **no_small)                # the façade rule only
+    assert not needs(moving_min_cluster_cells=0, clusters_off_buildings=False, **no_small)
     assert not needs(moving_min_cluster_cells=0, isolated_min_height_m=0.0, **no_facade)
-    assert not needs(moving_min_cluster_cells=0, isolated_min_cells=0, **no_facade)
+    assert not needs(moving_min_cluster_cells=0, **no_small, **no_facade)
