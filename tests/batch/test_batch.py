@@ -73,7 +73,7 @@ def request_for(inputs: dict, out_root: Path, logs=None) -> BatchRequest:
 
 def test_batch_equals_direct_runs_then_rerun_skips(client, inputs, direct, tmp_path):
     rows = run_batch(request_for(inputs, tmp_path / "root"), client=client, progress=False)
-    assert [r["status"] for r in rows] == ["ok", "ok", "ok"]
+    assert [r["status"] for r in rows] == ["ok", "ok", "ok"], rows  # a failed row says why
     assert [r["frames"] for r in rows] == [N_SCANS] * 3
     assert [r["error"] for r in rows] == [None] * 3
     assert [Path(r["out"]).name for r in rows] == ["drive--d1", "drive--d2", "street"]

@@ -200,7 +200,8 @@ def test_render_selection_of_no_frame_is_an_error(run_dir: Path, tmp_path: Path)
 def test_batch_overwrite(drive: Path, tmp_path: Path) -> None:
     args = ["batch", str(drive), "--no-map", "--out", str(tmp_path / "b"), "--workers", "1",
             "--json", str(tmp_path / "rows.json")]
-    assert invoke(*args).exit_code == 0
+    first = invoke(*args)
+    assert first.exit_code == 0, first.output  # a failed log's row says why
     result = invoke(*args)
     assert result.exit_code == 2 and "pass --overwrite" in result.output
     result = invoke(*args, "--overwrite")
