@@ -778,7 +778,11 @@ class Pipeline:
                 frame["objects"], frame["object_cells"]), small)
             self.clock.lap("objects")
         # counted after every pass that changes the decision: the counts match the stored one
-        frame["decision_counts"] = counts = count_codes(decision, len(state.decision_counts))
+        try:
+            counts = count_codes(decision, len(state.decision_counts))
+        except ValueError as err:  # a bug, not the input's: say which frame, then stop
+            raise ValueError(f"the frame stamped {frame['stamp_ns']} ns: {err}") from err
+        frame["decision_counts"] = counts
         state.decision_counts += counts
         window = frame.pop("window")
         labelling = frame.pop("labelling", None)

@@ -279,8 +279,19 @@ def count_codes(decision: np.ndarray, n_codes: int) -> np.ndarray:
     codes = np.ascontiguousarray(decision).reshape(-1)
     _count(codes, codes[:codes.size - codes.size % 8].view(np.uint64), counts)
     if counts[n_codes:].any():
-        raise ValueError(f"decision codes beyond {n_codes - 1}")
+        raise ValueError(f"decision codes beyond {n_codes - 1}: {_bad_codes(decision, n_codes)}")
     return counts[:n_codes]
+
+
+def _bad_codes(decision: np.ndarray, n_codes: int) -> str:
+    """Where a decision layer holds no code: how many cells, the rows they are in, the
+    first values — whether a block was left unwritten (whole runs of a row) or single bytes
+    were overwritten."""
+    bad = decision >= n_codes
+    rows = np.flatnonzero(bad.any(axis=-1)) if decision.ndim > 1 else np.zeros(1, np.intp)
+    values = decision[bad][:8].tolist()
+    return (f"{int(bad.sum())} of {decision.size} cells, in rows {rows[:8].tolist()}"
+            f"{' …' if rows.size > 8 else ''} of {decision.shape}, values {values}")
 
 
 #: sub-histograms of :func:`_count`

@@ -341,3 +341,23 @@ def test_warm_up_loads_every_kernel_the_frame_loop_calls(tmp_path: Path,
     gained = {name: count for name, count in signatures().items()
               if count > after_warm_up.get(name, 0)}
     assert not gained, f"compiled in the frame loop, not in the warm-up: {gained}"
+
+
+def test_a_decision_that_holds_no_code_names_its_frame_and_where(tmp_path: Path) -> None:
+    """A frame's decision layer must hold decision codes only; one that does not (a bug: a
+    buffer read before it was written, or written out of bounds) stops the run with the
+    frame's stamp, how many cells, their rows and values — what a batch row then reports."""
+    from evperc.output.objects import empty_objects as no_objects
+    from evperc.runner import FusionState, Pipeline
+
+    root = Path(__file__).resolve().parents[2] / "sample_data"
+    pipeline = Pipeline(RunRequest(log_path=root / "drive.mcap", out_dir=tmp_path / "unused",
+                                   config=load_config()))
+    decision = np.full((4, 6), DECISION_CODES["free"], np.uint8)
+    decision[2, 1:3] = 77
+    frame = {"stamp_ns": 123, "objects": no_objects(), "object_cells": np.zeros(0, np.uint32),
+             "window": None}
+    with pytest.raises(ValueError, match=r"the frame stamped 123 ns: decision codes beyond 6: "
+                                         r"2 of 24 cells, in rows \[2\] of \(4, 6\), "
+                                         r"values \[77, 77\]"):
+        pipeline.finish_frame(FusionState(), frame, decision)

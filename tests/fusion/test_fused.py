@@ -893,6 +893,12 @@ def test_count_codes_equals_bincount() -> None:
     with pytest.raises(ValueError, match="beyond 6"):  # one bad code among whole words
         count_codes(np.concatenate([np.zeros(64, np.uint8), np.array([7], np.uint8),
                                     np.ones(63, np.uint8)]).reshape(8, 16), 7)
+    # the message says where: the cells' count, their rows, the first values
+    layer = np.zeros((10, 12), np.uint8)
+    layer[3, 4:8], layer[7, 0] = 200, 9
+    with pytest.raises(ValueError, match=r"beyond 6: 5 of 120 cells, in rows \[3, 7\] of "
+                                         r"\(10, 12\), values \[200, 200, 200, 200, 9\]"):
+        count_codes(layer, 7)
     with pytest.raises(TypeError, match="uint8"):
         count_codes(np.zeros((8, 8), np.int64), 7)
 
