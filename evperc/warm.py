@@ -70,10 +70,15 @@ def _sensor_masses() -> tuple[np.ndarray, np.ndarray]:
 
 
 def _stored_outputs() -> Any:
-    """A 2 × 2 frame's stored layers, as the fused step leaves them (all unknown)."""
+    """A 2 × 2 frame's stored layers, zeroed: every cell decided ``unknown`` (code 0). The
+    passes that read a layer as data (the decision counts, the unmapped cue, the object
+    stage) must get values it can hold: ``StoredOutputs.empty``'s bytes are whatever the
+    allocator had, and a byte beyond the last decision code stopped a run's start-up
+    ("decision codes beyond 6") when they happened not to be zeros."""
     from evperc.fusion.fused import StoredOutputs
 
-    return StoredOutputs.empty((2, 2))
+    return StoredOutputs(*(np.zeros(shape, dtype)
+                           for shape, dtype in StoredOutputs.layout((2, 2))))
 
 
 def _warm_sensor(spec: WarmSpec) -> None:

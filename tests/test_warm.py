@@ -171,3 +171,26 @@ def test_without_an_interpreter_to_start_this_process_compiles_everything(monkey
                             (lambda spec, name=name: called.append(name), GROUPS[name][1]))
     warm.compile_in_processes(WarmSpec(default_config(), has_map=False), 4)
     assert sorted(called) == sorted(GROUPS)
+
+
+def test_the_warm_up_reads_no_uninitialised_memory(monkeypatch) -> None:
+    """Every group's passes on memory that ``np.empty`` left full of bytes no layer holds
+    (200 in each byte, NaN floats, True bools), as a new process's allocator may: the passes
+    that read a layer as data (the decision counts, the unmapped cue, the object stage) get
+    layers whose values they were written to hold. It failed when the 2 × 2 frame the
+    passes share came from ``np.empty`` (an intermittent "decision codes beyond 6" at a
+    run's start-up, three clean-clone CI runs of 2026-12-07, in batch workers)."""
+    import numpy as np
+
+    real_empty = np.empty
+
+    def garbage(shape, dtype=float, *args, **kwargs):
+        out = real_empty(shape, dtype, *args, **kwargs)
+        kind = np.dtype(dtype).kind
+        out[...] = (np.nan if kind == "f" else True if kind == "b" else 200)
+        return out
+
+    monkeypatch.setattr(np, "empty", garbage)
+    spec = WarmSpec(default_config(), has_map=True)
+    for name in GROUPS:
+        warm.warm_group(name, spec)
