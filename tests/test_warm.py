@@ -179,7 +179,7 @@ def test_the_warm_up_reads_no_uninitialised_memory(monkeypatch) -> None:
     that read a layer as data (the decision counts, the unmapped cue, the object stage) get
     layers whose values they were written to hold. It failed when the 2 × 2 frame the
     passes share came from ``np.empty`` (an intermittent "decision codes beyond 6" at a
-    run's start-up, three clean-clone CI runs of 2026-12-07, in batch workers)."""
+    run's start-up, four clean-clone CI runs of 2026-12-07, in batch workers)."""
     import numpy as np
 
     real_empty = np.empty
