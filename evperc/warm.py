@@ -77,8 +77,7 @@ def _stored_outputs() -> Any:
     ("decision codes beyond 6") when they happened not to be zeros."""
     from evperc.fusion.fused import StoredOutputs
 
-    return StoredOutputs(*(np.zeros(shape, dtype)
-                           for shape, dtype in StoredOutputs.layout((2, 2))))
+    return StoredOutputs.empty((2, 2), np.zeros)
 
 
 def _warm_sensor(spec: WarmSpec) -> None:

@@ -5,6 +5,7 @@ nothing of the fusion."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,8 +35,13 @@ class StoredOutputs:
     decision: np.ndarray  # uint8 (rows, cols)
 
     @staticmethod
-    def empty(shape: tuple[int, int]) -> StoredOutputs:
-        return StoredOutputs(*(np.empty(s, d) for s, d in StoredOutputs.layout(shape)))
+    def empty(shape: tuple[int, int], fill: Callable[..., np.ndarray] | None = None
+              ) -> StoredOutputs:
+        """Layers for a frame of ``shape``, made by ``fill`` (``np.zeros``: every cell
+        decided ``unknown``, code 0; None: ``np.empty``, whatever bytes the allocator had,
+        for buffers a fused step writes whole before anything reads them)."""
+        make = np.empty if fill is None else fill
+        return StoredOutputs(*(make(s, d) for s, d in StoredOutputs.layout(shape)))
 
     @staticmethod
     def layout(shape: tuple[int, int]) -> list[tuple[tuple[int, ...], type]]:
