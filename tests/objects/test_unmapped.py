@@ -65,6 +65,46 @@ def test_straight_fence_width_is_one_cell() -> None:
     assert row[0] == 12 and row[4] == pytest.approx(0.5) and row[5] == pytest.approx(6.0)
 
 
+
+@pytest.mark.parametrize("seed", range(4))
+def test_width_and_length_of_random_blobs_from_every_cell(seed: int) -> None:
+    """Each component's width and length (stats) against the shape test on every one of its
+    cells (scipy's 8-connected labels, numpy's projections) — filled rectangles, diagonal
+    bands and discs, not only the one-cell-thick lines and small blocks of the tests above."""
+    rng = np.random.default_rng(seed)
+    shape = (48, 48)
+    dec = np.full(shape, D["free"], np.uint8)
+    rr, cc = np.mgrid[0:shape[0], 0:shape[1]]
+    for _ in range(6):  # filled rectangles, diagonal bands and discs of 1-6 cells across
+        r, c = (int(v) for v in rng.integers(1, shape[0] - 1, size=2))
+        h, w = (int(v) for v in rng.integers(1, 7, size=2))
+        kind = seed % 3 if _ % 2 else int(rng.integers(0, 3))
+        blob = ((np.abs(rr - r) < h) & (np.abs(cc - c) < w) if kind == 0
+                else (np.abs((rr - r) - (cc - c)) < h) & (np.abs(rr - r) < w + 2) if kind == 1
+                else (rr - r) ** 2 + (cc - c) ** 2 <= h * w)
+        dec[blob] = D["static"] if rng.random() < 0.5 else D["stopped"]
+    labels = np.full(shape, CONTEXT_OTHER, np.uint8)
+    cue = UnmappedCue(PARAMS, shape, RES)
+    cue.step(UnmappedState.fresh(shape), dec.copy(), labels, DT)
+    comp, n = ndimage.label(np.isin(dec, [D["static"], D["stopped"]]),
+                            structure=np.ones((3, 3)))
+    assert cue.components == n and n >= 2
+    theta = np.arange(16) * (math.pi / 16)
+    wide = 0
+    # the components in the order the pass finds them: row-major by their first cell
+    firsts = sorted((int(np.flatnonzero(comp.reshape(-1) == k)[0]), k) for k in range(1, n + 1))
+    for row, (_, k) in zip(cue.stats, firsts, strict=True):
+        rr, cc = np.nonzero(comp == k)
+        p = cc[:, None] * np.cos(theta) + rr[:, None] * np.sin(theta)
+        extent = p.max(axis=0) - p.min(axis=0)
+        thin = int(np.flatnonzero(extent < extent.min() + 1e-9)[0])
+        length = extent[(thin + 8) % 16] + 1.0
+        assert row[0] == len(rr)
+        assert row[5] == pytest.approx(length * RES, abs=1e-9)
+        assert row[4] == pytest.approx(len(rr) / length * RES, abs=1e-9)
+        wide += int(np.ptp(cc) >= 2 and len(rr) > np.ptp(cc) + 1)
+    assert wide >= 1  # a blob with cells inside its rows: filled, not only outlines
+
 def test_parked_car_block_tree_blob_and_l_stay() -> None:
     dec = free_window()
     dec[6:10, 2:11] = D["stopped"]           # a parked car, 4 x 9 cells (2 m x 4.5 m) on the
