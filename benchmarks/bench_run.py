@@ -245,9 +245,12 @@ def numba_startup(sim: Path) -> tuple[float, float]:
 
 
 def sim_pipeline(sim: Path, config_path: Path) -> Pipeline:
-    """The run's pipeline on the simulated log and map in ``sim``, in memory."""
+    """The run's pipeline on the simulated log and map in ``sim``, in memory: as `evperc run
+    --config CONFIG_PATH` makes it, the sensor preset of the log's lidar (hdl64's 64 layers)
+    under the file's keys, so that it replays the stored run's frames."""
     return Pipeline(RunRequest(log_path=sim / "drive.mcap", out_dir=CACHE / "unused",
-                               config=load_config(config_path), map_path=sim / "map.geojson"))
+                               config=load_config(config_path), map_path=sim / "map.geojson",
+                               config_path=config_path, sensor_preset=True))
 
 
 def in_process(sim: Path, config_path: Path, stored: Path) -> dict:

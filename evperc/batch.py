@@ -58,6 +58,11 @@ class BatchRequest:
     scheduler: str | None = None
     #: run every log afresh, replacing its output (else: skip complete, resume interrupted)
     overwrite: bool = False
+    #: as :class:`evperc.runner.RunRequest`'s: the user's --config file, each log's run taking
+    #: the sensor preset for its own lidar under its keys, and the preset ``config`` holds
+    config_path: Path | None = None
+    sensor_preset: bool = False
+    preset: str | None = None
 
 
 def read_log_list(list_path: Path) -> list[Path]:
@@ -124,7 +129,9 @@ def plan(request: BatchRequest) -> list[RunRequest]:
         config = {**config, "fusion": {**config["fusion"], "threads": 1}}
     return [RunRequest(log_path=path, out_dir=root / name, config=config,
                     map_path=_absolute(request.map_path),
-                    roads_path=_absolute(request.roads_path), overwrite=request.overwrite)
+                    roads_path=_absolute(request.roads_path), overwrite=request.overwrite,
+                    config_path=_absolute(request.config_path),
+                    sensor_preset=request.sensor_preset, preset=request.preset)
             for path, name in zip(logs, output_names(logs), strict=True)]
 
 
@@ -203,11 +210,23 @@ def _check_same_inputs(task: RunRequest, manifest: dict[str, Any]) -> None:
         differs.append(f"map {manifest.get('map')}")
     if not _same_path(manifest.get("roads"), task.roads_path):
         differs.append(f"roads {manifest.get('roads')}")
-    if _canonical(manifest.get("config")) != _canonical(task.config):
+    if _canonical(manifest.get("config")) != _canonical(_as_run(task, manifest)):
         differs.append("another config")
     if differs:
         raise OutputError(f"{task.out_dir}: holds a run of other inputs ({', '.join(differs)});"
                           " delete it to redo this log, or choose another --out")
+
+
+def _as_run(task: RunRequest, manifest: dict[str, Any]) -> dict[str, Any]:
+    """The config ``task`` runs with on its log: with ``sensor_preset``, the sensor preset the
+    manifest's run took for the log's lidar (the same log: the same layers, the same
+    preset) under the task's --config keys."""
+    from evperc.config import LAYER_PRESETS, with_preset
+
+    saved = (manifest.get("request") or {}).get("preset")
+    if task.sensor_preset and saved in {name for _, _, name in LAYER_PRESETS}:
+        return with_preset(task.config, saved, task.config_path)
+    return task.config
 
 
 def _same_path(saved: str | None, wanted: Path | None) -> bool:

@@ -16,7 +16,7 @@ from typing import Any
 import click
 
 from evperc import __version__
-from evperc.config import PRESETS, layers_hint, preset_for_layers
+from evperc.config import NO_PRESET, PRESETS, preset_for_layers
 from evperc.errors import EvpercError, OutputError, UsageError
 
 log = logging.getLogger("evperc")
@@ -25,7 +25,9 @@ PRESET_HELP = ("Shipped config applied under --config: kurdej2013 = the paper's 
                "docs/method.md reads it (no conservative free space, widened buildings, motion "
                "gate or object list); hdl64 = for 64-layer scanners (KITTI / SemanticKITTI's "
                "HDL-64E: configs/hdl64.toml); ibeo4 = for 4-layer scanners (configs/ibeo4.toml); "
-               "vlp16 = for 16-layer scanners (configs/vlp16.toml).")
+               "vlp16 = for 16-layer scanners (configs/vlp16.toml); none = the defaults alone.  "
+               "[default: the sensor preset for the log's lidar when it says its layers "
+               "(hdl64 for 48-128, vlp16 for 12-24), else none]")
 
 def _setup_logging(verbose: int, quiet: int) -> None:
     """evperc's own messages from INFO (each -v one level more, each -q one less); other
@@ -108,22 +110,6 @@ def _run_map(run: Any) -> tuple[Path | None, Path | None]:
     return found[0], found[1]
 
 
-def suggest_preset(log_paths: list[Path], preset: str | None, config_path: Path | None) -> None:
-    """`evperc batch` with neither --preset nor --config: name the preset tuned for KITTI
-    folders' scanner (their kind says the sensor: an HDL-64E; docs/evaluation.md § Real
-    data), one line for all of them. A hint only: the defaults stay the
-    defaults. (`evperc run` says it of any log whose layers it reads: :func:`evperc.runner.
-    run`'s ``hint_preset``.)"""
-    if preset is not None or config_path is not None:
-        return
-    from evperc.logs.factory import log_kind
-
-    kitti = [path for path in log_paths if log_kind(path) == "kitti"]
-    if kitti:
-        where = str(kitti[0]) if len(kitti) == 1 else f"{len(kitti)} logs ({kitti[0]}, …)"
-        log.info("%s: %s", where, layers_hint(None, kitti=True))
-
-
 def check_map_options(map_path: Path | None, roads_path: Path | None, no_map: bool) -> None:
     """--map, --roads and --no-map of `run` and `batch`: a map, or explicitly none."""
     if map_path is None and not no_map:
@@ -154,7 +140,8 @@ def cli(ctx: click.Context, verbose: int, quiet: int) -> None:
 @click.option("--no-map", is_flag=True, help="Run without a map (vacuous prior): the baseline.")
 @click.option("--config", "config_path", type=click.Path(path_type=Path),
               help="TOML file overriding configs/default.toml.")
-@click.option("--preset", type=click.Choice(PRESETS), metavar="NAME", help=PRESET_HELP)
+@click.option("--preset", type=click.Choice((*PRESETS, NO_PRESET)), metavar="NAME",
+              help=PRESET_HELP)
 @click.option("--out", "out_dir", type=click.Path(path_type=Path),
               help="Output directory  [default: ./evperc-out/<log stem>/]")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output directory.")
@@ -204,22 +191,22 @@ def run_command(log_path: Path | None, map_path: Path | None, roads_path: Path |
             raise UsageError("give LOG (an MCAP, .bag, ROS 2 bag or KITTI sequence folder) "
                              "or --resume DIR")
         check_map_options(map_path, roads_path, no_map)
-        config = load_config(config_path, preset=preset)
+        named = preset if preset != NO_PRESET else None
+        config = load_config(config_path, preset=named)
         out_dir = out_dir or Path("evperc-out") / log_path.stem
         request = RunRequest(log_path=log_path, out_dir=out_dir, config=config,
                              map_path=map_path, roads_path=roads_path, overwrite=overwrite,
                              start_s=start_s, end_s=end_s, every=every,
                              lidar_topic=lidar_topic, pose_topic=pose_topic,
-                             point_labels=point_labels)
+                             point_labels=point_labels, config_path=config_path,
+                             sensor_preset=preset is None, preset=named)
     on_frame = None
     if render_dir is not None:
         from evperc.render.live import LiveRenderer
 
         on_frame = LiveRenderer(render_dir, request)
     try:
-        summary = run(request, resume=resume_dir is not None, on_frame=on_frame,
-                      hint_preset=resume_dir is None and preset is None
-                      and config_path is None)
+        summary = run(request, resume=resume_dir is not None, on_frame=on_frame)
     except KeyboardInterrupt:
         if (out_dir / "manifest.json").is_file():
             click.echo(f"evperc: interrupted; the frames written so far are kept, continue "
@@ -282,7 +269,8 @@ def info_command(log_path: Path, lidar_topic: str | None, pose_topic: str | None
         layers = info["lidar_layers"]
         better = preset_for_layers(layers["count"])
         click.echo(f"lidar layers: {layers['count']} ({layers['from']})"
-                   + (f"; --preset {better} is tuned for such scanners" if better else ""))
+                   + (f"; `evperc run` takes --preset {better}'s keys, tuned for such "
+                      "scanners" if better else ""))
     for k, (from_s, fit) in enumerate(fits):
         where = "" if k == 0 else f" from {from_s:.1f} s"
         if fit is None:
@@ -560,7 +548,8 @@ def _check_same_frames(out_dir: Path, metrics: dict[str, Any], compare_dir: Path
                    "outputs, resume interrupted ones).")
 @click.option("--config", "config_path", type=click.Path(path_type=Path),
               help="TOML file overriding configs/default.toml (same for every log).")
-@click.option("--preset", type=click.Choice(PRESETS), metavar="NAME", help=PRESET_HELP)
+@click.option("--preset", type=click.Choice((*PRESETS, NO_PRESET)), metavar="NAME",
+              help=PRESET_HELP)
 @click.option("--workers", type=click.IntRange(min=1),
               help="Worker processes of the local cluster  [default: number of cores]")
 @click.option("--scheduler", metavar="ADDR",
@@ -593,11 +582,12 @@ def batch_command(logs: tuple[Path, ...], list_path: Path | None, map_path: Path
         raise UsageError("--workers sizes the local cluster; the cluster at --scheduler has "
                          "its own workers, give one of the two")
     all_logs = list(logs) + (read_log_list(list_path) if list_path is not None else [])
+    named = preset if preset != NO_PRESET else None
     request = BatchRequest(logs=tuple(all_logs), out_root=out_root,
-                           config=load_config(config_path, preset=preset), map_path=map_path,
+                           config=load_config(config_path, preset=named), map_path=map_path,
                            roads_path=roads_path, workers=workers or os.cpu_count() or 1,
-                           scheduler=scheduler, overwrite=overwrite)
-    suggest_preset(all_logs, preset, config_path)
+                           scheduler=scheduler, overwrite=overwrite, config_path=config_path,
+                           sensor_preset=preset is None, preset=named)
     if json_path is not None and json_path.exists() and not overwrite:
         raise OutputError(f"{json_path}: exists; pass --overwrite to replace it")
     t0 = time.perf_counter()

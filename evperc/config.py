@@ -32,13 +32,14 @@ PRESET_DIR = Path(__file__).with_name("presets")
 
 #: shipped presets (``evperc run --preset NAME``), each ``PRESET_DIR/NAME.toml``
 PRESETS = ("kurdej2013", "hdl64", "ibeo4", "vlp16")
+#: ``--preset none``: configs/default.toml's values alone, whatever the lidar (no sensor
+#: preset chosen from its layers)
+NO_PRESET = "none"
 #: (fewest, most layers, preset): the shipped preset tuned for a lidar of so many layers
-#: (16: configs/vlp16.toml; 64 and denser: configs/hdl64.toml); none for fewer than 12 (the
+#: (16: configs/vlp16.toml; 64 and denser: configs/hdl64.toml), which `evperc run` and
+#: `evperc batch` take without --preset (:func:`with_preset`); none for fewer than 12 (the
 #: defaults were tuned on 4) nor for 25-47 (no preset was measured on such a scanner)
 LAYER_PRESETS = ((12, 24, "vlp16"), (48, 128, "hdl64"))
-#: the sensor a KITTI folder's scans come from, and the preset tuned for such a scanner
-#: (docs/evaluation.md § Real data, § Where evperc stands)
-KITTI_SENSOR = ("a KITTI folder, an HDL-64E's 64 layers", "hdl64")
 
 #: Tables whose keys are free (a user may add classes); values must be numbers.
 OPEN_TABLES = {"map.road_width_m"}
@@ -193,18 +194,48 @@ def preset_for_layers(layers: int) -> str | None:
     return next((p for lo, hi, p in LAYER_PRESETS if lo <= layers <= hi), None)
 
 
-def layers_hint(layers: tuple[int, str] | None, kitti: bool = False) -> str | None:
-    """What a run without --preset or --config says of its lidar, given its layers and how
-    they were read (``LogReader.sensor_layers()``): the preset tuned for it, or None."""
-    if kitti:
-        sensor, better = KITTI_SENSOR
-        return (f"{sensor}; --preset {better} is tuned for such a scanner "
-                "(docs/evaluation.md § Real data)")
-    better = None if layers is None else preset_for_layers(layers[0])
-    if better is None:
-        return None
-    return (f"a {layers[0]}-layer lidar ({layers[1]}); --preset {better} is tuned for such "
-            "scanners (docs/evaluation.md § Where evperc stands)")
+def sensor_preset(layers: tuple[int, str] | None) -> str | None:
+    """The shipped preset tuned for a lidar of ``layers`` (``LogReader.sensor_layers()``: its
+    layer count and how it was read, :data:`LAYER_PRESETS`); None when the layers are
+    unknown or no preset is tuned for them."""
+    return None if layers is None else preset_for_layers(layers[0])
+
+
+def with_preset(config: dict[str, Any], preset: str, user_path: str | Path | None = None
+                ) -> dict[str, Any]:
+    """``config`` — the defaults under the user's file at ``user_path`` (None: no file), as
+    :func:`load_config` made it, perhaps adjusted since — with the keys of the shipped preset
+    ``preset`` between the two: each key the preset sets takes the preset's value unless the
+    user's file sets it. Equal to ``load_config(user_path, preset=preset)`` for a
+    ``config`` that is ``load_config(user_path)``; keys changed after loading that neither
+    file sets are kept (``evperc batch``'s ``fusion.threads``). A new dict."""
+    out = copy.deepcopy(config)
+    user = _flat(_read_toml(Path(user_path))) if user_path is not None else {}
+    for dotted, value in _flat(_read_toml(preset_path(preset))).items():
+        if dotted in user:
+            continue
+        *tables, key = dotted.split(".")
+        node = out
+        for t in tables:
+            node = node.setdefault(t, {})
+        node[key] = copy.deepcopy(value)
+    problems = validate(out)
+    if problems:
+        raise ConfigError(f"{preset_path(preset)}: " + "; ".join(problems))
+    return out
+
+
+def _flat(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A TOML document's values by dotted key (``objects.centroid``; an open table's, such
+    as ``map.road_width_m.footway``, one by one, as :func:`_merge` sets them)."""
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        dotted = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(_flat(value, f"{dotted}."))
+        else:
+            out[dotted] = value
+    return out
 
 
 def preset_path(name: str) -> Path:

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from evperc.config import layers_hint
+from evperc.config import sensor_preset, with_preset
 from evperc.errors import GeoreferenceError, OutputError, PoseError
 from evperc.fusion.fused import (
     StoredOutputs,
@@ -36,7 +36,6 @@ from evperc.geo.prior import CONTEXT_BUILDING, PriorRasteriser
 from evperc.geo.window import Window
 from evperc.logs import message_log
 from evperc.logs.factory import open_log
-from evperc.logs.kitti import KittiLog
 from evperc.logs.scan import PosedScan
 from evperc.logs.transforms import extrinsic_matrix
 from evperc.objects.backfill import Backfill, HeldFrame, backfill_frames, candidates
@@ -88,6 +87,16 @@ class RunRequest:
     lidar_topic: str | None = None
     pose_topic: str | None = None
     point_labels: bool = False  # also write OUT/labels/NNNNNN.label (objects.point_labels)
+    #: the user's --config file, under whose keys a sensor preset goes (``sensor_preset``)
+    config_path: Path | None = None
+    #: take the shipped preset tuned for the log's lidar (its layers as the reader reads
+    #: them, :func:`evperc.config.sensor_preset`) under ``config_path``'s keys, once the log
+    #: is open (`evperc run` and `evperc batch` without --preset); the pipeline's request has
+    #: it done (False, ``config`` and ``preset`` set)
+    sensor_preset: bool = False
+    #: the shipped preset whose keys ``config`` holds (given with --preset, or chosen from the
+    #: lidar's layers); None: none
+    preset: str | None = None
 
 
 @dataclass(frozen=True)
@@ -406,7 +415,6 @@ class Pipeline:
 
     def __init__(self, request: RunRequest, reuse_map: bool = False) -> None:
         config = request.config
-        self.request = request
         self.reader = open_log(
             request.log_path,
             lidar_topic=request.lidar_topic or config["input"]["lidar_topic"] or None,
@@ -415,6 +423,9 @@ class Pipeline:
             world_frame=config["input"]["world_frame"] or None,
             extrinsic=extrinsic_matrix(**config["input"]["extrinsic"]),
             max_pose_gap_s=config["input"]["max_pose_gap_s"])
+        #: the request as run: with ``sensor_preset``, its config holds the preset's keys
+        self.request = request = self._sensor_preset(request)
+        config = request.config
         self.georef = geo_reference(self.reader, config, need_crs=request.map_path is not None)
         self.crs_name = self.georef.crs.to_string() if self.georef is not None else "local"
         self.resolution = config["grid"]["cell_size_m"]
@@ -496,7 +507,7 @@ class Pipeline:
         # absolute input paths: `evperc run --resume` and `render` work from any directory
         # (the output directory itself is where the manifest is found, so it may move)
         request.pop("out_dir")
-        for key in ("log_path", "map_path", "roads_path"):
+        for key in ("log_path", "map_path", "roads_path", "config_path"):
             if request[key] is not None:
                 request[key] = Path(request[key]).absolute()
         return {"decision_codes": DECISION_CODES, "classes": list(CLASSES),
@@ -538,16 +549,26 @@ class Pipeline:
             log.warning("%s", message)
         return self.pose_fit
 
-    def hint_preset(self) -> str | None:
-        """Log (and return) the one line naming the preset tuned for the log's lidar
-        (:func:`evperc.config.layers_hint`): its layers as the log's reader reads them (a
-        KITTI folder's HDL-64E, a message log's ``ring`` field or organised rows); nothing
-        when they are unknown or no preset is tuned for them. The reader is the run's own, so
-        what opening the log logs is said once."""
-        hint = layers_hint(self.reader.sensor_layers(), kitti=isinstance(self.reader, KittiLog))
-        if hint is not None:
-            log.info("%s: %s", self.request.log_path, hint)
-        return hint
+    def _sensor_preset(self, request: RunRequest) -> RunRequest:
+        """``request`` with ``sensor_preset`` done: the shipped preset tuned for the log's
+        lidar (:func:`evperc.config.sensor_preset`: its layers as the log's reader reads them —
+        a KITTI folder's HDL-64E, a message log's ``ring`` field or organised rows) put under
+        the user's --config keys, and said in one line; the config unchanged when the layers
+        are unknown or no preset is tuned for them. Read from the run's own reader, before any
+        key beyond ``[input]`` (which no sensor preset sets) is read."""
+        if not request.sensor_preset:
+            return request
+        layers = self.reader.sensor_layers()
+        name = sensor_preset(layers)
+        if name is None:
+            return replace(request, sensor_preset=False)
+        under = (f", under {request.config_path}'s keys" if request.config_path is not None
+                 else "")
+        log.info("%s: a %d-layer lidar (%s): running with --preset %s, tuned for such "
+                 "scanners%s (--preset none: the defaults alone)", request.log_path,
+                 layers[0], layers[1], name, under)
+        return replace(request, sensor_preset=False, preset=name,
+                       config=with_preset(request.config, name, request.config_path))
 
     def warm_up_inputs(self) -> bool:
         """Read and prepare the first scan of the requested span, and drop it: the one-off
@@ -838,21 +859,21 @@ def frame_arrays(out: StoredOutputs) -> dict[str, np.ndarray]:
 
 def run(request: RunRequest, resume: bool = False,
         on_frame: Callable[[dict[str, Any]], None] | None = None,
-        progress: bool | None = None, reuse_map: bool = False,
-        hint_preset: bool = False) -> dict[str, Any]:
+        progress: bool | None = None, reuse_map: bool = False) -> dict[str, Any]:
     """Run the whole pipeline (or continue an interrupted run); returns the summary written
     into the manifest. ``on_frame`` sees every frame's arrays (e.g. to render as it goes);
     ``progress``: show the per-frame bar (``None``: only on a terminal); ``reuse_map``: take
     the map read by the previous run in this process if it is the same
-    (:func:`evperc.geo.maps.load_map_cached`; ``evperc batch`` workers); ``hint_preset``:
-    name the preset tuned for the log's lidar, if its layers are known
-    (:meth:`Pipeline.hint_preset`; `evperc run` without --preset or --config)."""
+    (:func:`evperc.geo.maps.load_map_cached`; ``evperc batch`` workers). With
+    ``request.sensor_preset`` the config the run writes and uses is the pipeline's (the
+    preset tuned for the log's lidar under ``request.config_path``'s keys)."""
     started = time.perf_counter()
     keep_freed_memory()
     out_dir = request.out_dir
     if not resume:  # an existing output is refused before any slow work
         check_output_dir(out_dir, request.overwrite)
     pipeline = Pipeline(request, reuse_map=reuse_map)
+    request = pipeline.request  # with the sensor preset's keys, if one was chosen
     state = FusionState()
     # the inputs are checked (the first scan read, posed, placed on the map) before the
     # output is created: a run that stops on an input error leaves nothing
@@ -864,8 +885,6 @@ def run(request: RunRequest, resume: bool = False,
         if done:
             state = FusionState.load(checkpoint_path(out_dir, done))
     else:
-        if hint_preset:
-            pipeline.hint_preset()
         pipeline.check_poses()  # may stop the run before its output exists
         writer = RunWriter(out_dir, request.config, pipeline.meta(), overwrite=request.overwrite)
 
@@ -1076,6 +1095,7 @@ def request_from_manifest(out_dir: Path) -> RunRequest:
     if saved is None:
         raise OutputError(f"{out_dir}: manifest has no request to resume from")
     paths = {k: (Path(v) if v is not None else None)
-             for k, v in saved.items() if k in ("log_path", "map_path", "roads_path")}
+             for k, v in saved.items() if k in ("log_path", "map_path", "roads_path",
+                                                  "config_path")}
     rest = {k: v for k, v in saved.items() if k not in paths and k != "out_dir"}
     return RunRequest(out_dir=out_dir, config=manifest["config"], **paths, **rest)

@@ -229,6 +229,51 @@ def test_sensor_preset_changes_its_keys_and_nothing_else(name: str) -> None:
         assert config[key] == value, key
 
 
+@pytest.mark.parametrize("name", ["kurdej2013", "hdl64", "ibeo4", "vlp16"])
+@pytest.mark.parametrize("user_text", [
+    None,
+    # a key of the hdl64 and vlp16 presets, a key of none, and an open table's own key
+    "[objects]\ncentroid = \"cells\"\ngrowth_reach_cells = 2\n[grid]\nwindow_size_m = 60.0\n"
+    "[map.road_width_m]\nfootway = 2.5\n",
+])
+def test_a_preset_put_under_a_loaded_user_file_is_the_preset_loaded_with_it(
+        tmp_path: Path, name: str, user_text: str | None) -> None:
+    # the sensor preset a run chooses once the log is open (evperc.runner) goes between the
+    # defaults and the user's file, as --preset does: the file's keys win
+    from evperc.config import with_preset
+
+    path = write(tmp_path, user_text) if user_text is not None else None
+    got = with_preset(load_config(path), name, path)
+    assert dumps(got) == dumps(load_config(path, preset=name))
+    if user_text is not None:
+        assert got["objects"]["centroid"] == "cells" and got["objects"][
+            "growth_reach_cells"] == 2
+        assert got["map"]["road_width_m"]["footway"] == 2.5
+
+
+def test_a_preset_under_a_user_file_keeps_keys_set_since() -> None:
+    # evperc batch sets fusion.threads after loading: the preset, which does not set it,
+    # leaves it; the input is not changed
+    from evperc.config import with_preset
+
+    config = load_config()
+    config["fusion"]["threads"] = 1
+    got = with_preset(config, "hdl64")
+    assert got["fusion"]["threads"] == 1 and got["fusion"]["gate_rehit_revokes"] == (
+        "recent_returns")
+    assert config["fusion"]["gate_rehit_revokes"] == "block"
+
+
+def test_which_sensor_preset_a_lidar_gets() -> None:
+    from evperc.config import sensor_preset
+
+    assert [sensor_preset((n, "ring field")) for n in (4, 16, 32, 64)] == [
+        None, "vlp16", None, "hdl64"]
+    assert sensor_preset(None) is None
+    # a KITTI folder's reader says 64 layers
+    assert sensor_preset((64, "a KITTI folder: a Velodyne HDL-64E")) == "hdl64"
+
+
 @pytest.mark.parametrize(("line", "match"), [
     ('seeds = "everything"', r"objects.seeds"),
     ("vacated_share = 0.0", r"objects.vacated_share = 0.0 is outside"),

@@ -7,8 +7,9 @@ import json
 import numpy as np
 from click.testing import CliRunner
 
+import evperc
 from evperc.cli import cli
-from evperc.config import preset_for_layers
+from evperc.config import load_config, preset_for_layers
 from tests.logs.reference import S0
 from tests.mcap_writers import transform, write_ros2_mcap
 
@@ -72,8 +73,8 @@ def test_info_gives_the_lidars_layers_from_its_ring_field(tmp_path):
     path = _log(tmp_path, layout="padded32")
     result = CliRunner().invoke(cli, ["info", str(path)])
     assert result.exit_code == 0, result.output
-    assert ("lidar layers: 16 (ring field); --preset vlp16 is tuned for such scanners"
-            in result.output.splitlines())
+    assert ("lidar layers: 16 (ring field); `evperc run` takes --preset vlp16's keys, tuned "
+            "for such scanners" in result.output.splitlines())
     info = json.loads(CliRunner().invoke(cli, ["info", "--json", str(path)]).output)
     assert info["lidar_layers"] == {"count": 16, "from": "ring field"}
 
@@ -94,21 +95,31 @@ def _no_gnss_log(path, layout):
                            tf_static=[("base_link", "v", np.eye(4))])
 
 
-def test_run_names_the_preset_tuned_for_a_16_layer_lidar(tmp_path):
+def test_run_takes_the_preset_tuned_for_a_16_layer_lidar(tmp_path):
+    # a ring field of 16 layers: configs/vlp16.toml's keys under the defaults' place, said
+    # once; an explicit --preset (or none) and a cloud without a laser index: nothing said
     sixteen = _no_gnss_log(tmp_path / "sixteen.mcap", "padded32")
-    hint = (f"{sixteen}: a 16-layer lidar (ring field); --preset vlp16 is tuned for such "
-            "scanners (docs/evaluation.md § Where evperc stands)")
+    line = (f"{sixteen}: a 16-layer lidar (ring field): running with --preset vlp16, tuned "
+            "for such scanners (--preset none: the defaults alone)")
     unknown = _no_gnss_log(tmp_path / "unknown.mcap", "xyzi16")  # no laser index
     runs = {name: CliRunner().invoke(cli, ["run", str(log), "--no-map", "--out",
                                            str(tmp_path / name), *extra])
             for name, log, extra in (("plain", sixteen, []),
                                      ("preset", sixteen, ["--preset", "vlp16"]),
+                                     ("none", sixteen, ["--preset", "none"]),
                                      ("unknown", unknown, []))}
     for result in runs.values():
         assert result.exit_code == 0, result.output
-    assert runs["plain"].output.count(hint) == 1
-    assert "--preset" not in runs["preset"].output
-    assert "--preset" not in runs["unknown"].output
+    assert runs["plain"].output.count(line) == 1
+    for name in ("preset", "none", "unknown"):
+        assert "--preset" not in runs[name].output, name
+    configs = {name: evperc.load(tmp_path / name).manifest["config"] for name in runs}
+    vlp16 = load_config(None, preset="vlp16")
+    assert vlp16["objects"]["growth_reach_cells"] != load_config(None)["objects"][
+        "growth_reach_cells"]  # the preset changes a key: the check below can fail
+    for name, want in (("plain", vlp16), ("preset", vlp16), ("none", load_config(None)),
+                       ("unknown", load_config(None))):
+        assert json.dumps(configs[name], sort_keys=True) == json.dumps(want, sort_keys=True)
 
 
 def test_the_hint_reads_the_runs_own_log_so_a_damaged_log_is_reported_once(tmp_path):

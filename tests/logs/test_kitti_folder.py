@@ -4,6 +4,7 @@ present, and the one-line errors."""
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -13,10 +14,12 @@ from click.testing import CliRunner
 from scipy.spatial import cKDTree
 
 import evperc
-from evperc.cli import cli, suggest_preset
+from evperc.cli import cli
+from evperc.config import load_config
 from evperc.errors import LogError, PoseError
 from evperc.logs.factory import open_log
 from evperc.logs.kitti import KittiLog, is_kitti_sequence
+from evperc.runner import request_from_manifest
 from tests.mcap_writers import KITTI_BASE_NS, kitti_lidar_poses, write_kitti_odometry_mcap
 
 SMALL = Path(__file__).resolve().parents[1] / "data" / "semantickitti05"
@@ -180,51 +183,88 @@ def test_non_finite_points_are_dropped_with_their_index(tmp_path: Path) -> None:
     np.testing.assert_array_equal(scan.points, pts[scan.source_index, :3])
 
 
-HINT = "--preset hdl64 is tuned for such a scanner"
+LINE = "running with --preset hdl64, tuned for such scanners"
 
 
-def test_a_kitti_run_names_the_hdl64_preset_and_keeps_the_defaults(tmp_path: Path) -> None:
-    # a KITTI folder is an HDL-64E: without --preset or --config the run says which preset
-    # is tuned for it, and runs the defaults (the re-hit revokes the 3 x 3 block)
+def _same(a: dict, b: dict) -> bool:
+    """Two configs equal, their NaN keys ("not set") included."""
+    return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+
+
+def test_a_kitti_run_takes_the_hdl64_preset(tmp_path: Path) -> None:
+    # a KITTI folder is an HDL-64E: without --preset the run takes configs/hdl64.toml's keys
+    # (the re-hit revokes the cells hit a moment ago, not the 3 x 3 block), says so in one
+    # line and records it; `--preset none` runs the defaults alone
     result = CliRunner().invoke(cli, ["run", str(SMALL), "--no-map", "--out",
                                       str(tmp_path / "a")])
     assert result.exit_code == 0, result.output
-    assert HINT in result.output
-    config = evperc.load(tmp_path / "a").manifest["config"]
-    assert config["fusion"]["gate_rehit_revokes"] == "block"
+    assert result.output.count(LINE) == 1, result.output
+    manifest = evperc.load(tmp_path / "a").manifest
+    assert _same(manifest["config"], load_config(None, preset="hdl64"))
+    assert manifest["config"]["fusion"]["gate_rehit_revokes"] == "recent_returns"
+    assert (manifest["request"]["preset"], manifest["request"]["sensor_preset"]) == (
+        "hdl64", False)
+    plain = CliRunner().invoke(cli, ["run", str(SMALL), "--no-map", "--preset", "none",
+                                     "--out", str(tmp_path / "n")])
+    assert plain.exit_code == 0, plain.output
+    assert "--preset" not in plain.output
+    manifest = evperc.load(tmp_path / "n").manifest
+    assert _same(manifest["config"], load_config(None))
+    assert manifest["config"]["fusion"]["gate_rehit_revokes"] == "block"
+    assert manifest["request"]["preset"] is None
 
 
 def test_the_hdl64_preset_on_a_kitti_folder(tmp_path: Path) -> None:
     result = CliRunner().invoke(cli, ["run", str(SMALL), "--no-map", "--preset", "hdl64",
                                       "--out", str(tmp_path / "b")])
     assert result.exit_code == 0, result.output
-    assert HINT not in result.output
+    assert LINE not in result.output  # asked for: nothing to say
     config = evperc.load(tmp_path / "b").manifest["config"]
     assert config["fusion"]["gate_rehit_revokes"] == "recent_returns"
     assert (config["objects"]["centroid"], config["objects"]["centroid_sigma_m"]) == (
         "returns", 0.1)
 
 
-def test_no_preset_hint_for_a_user_config_or_another_kind_of_log(tmp_path: Path,
-                                                               caplog) -> None:
+def test_a_user_config_goes_over_the_sensor_preset(tmp_path: Path) -> None:
+    # the preset sits between the defaults and the user's file: the file's keys win, the
+    # preset's others stay
     user = tmp_path / "u.toml"
-    user.write_text("[grid]\nwindow_size_m = 30.0\n")
-    mcap = tmp_path / "drive.mcap"
-    mcap.write_bytes(b"")
-    with caplog.at_level("INFO", logger="evperc"):
-        suggest_preset([SMALL], None, user)
-        suggest_preset([SMALL], "ibeo4", None)
-        suggest_preset([mcap], None, None)
-        assert not [r for r in caplog.records if "--preset" in r.getMessage()]
-        suggest_preset([SMALL], None, None)
-        assert [r for r in caplog.records if HINT in r.getMessage()]
+    user.write_text("[grid]\nwindow_size_m = 30.0\n[objects]\ncentroid_max_cells = 5\n")
+    result = CliRunner().invoke(cli, ["run", str(SMALL), "--no-map", "--config", str(user),
+                                      "--out", str(tmp_path / "u")])
+    assert result.exit_code == 0, result.output
+    assert f"{LINE}, under {user}'s keys" in result.output
+    manifest = evperc.load(tmp_path / "u").manifest
+    assert manifest["request"]["config_path"] == str(user.absolute())
+    config = manifest["config"]
+    assert _same(config, load_config(user, preset="hdl64"))
+    assert config["objects"]["centroid_max_cells"] == 5  # the file's (the preset's is 8)
+    assert config["objects"]["centroid"] == "returns"    # the preset's
+    assert config["grid"]["window_size_m"] == 30.0
+    # --resume takes the manifest's config as it is: the preset is not chosen again
+    path = tmp_path / "u" / "manifest.json"
+    path.write_text(json.dumps({**json.loads(path.read_text()), "complete": False}))
+    again = request_from_manifest(tmp_path / "u")
+    assert (again.sensor_preset, again.preset, again.config_path) == (False, "hdl64",
+                                                                      user.absolute())
+    assert _same(again.config, config)
 
 
-def test_one_preset_hint_for_many_kitti_folders(tmp_path: Path, caplog) -> None:
-    # `evperc batch` over two KITTI folders and an MCAP: one line naming the two folders
-    mcap = tmp_path / "drive.mcap"
-    mcap.write_bytes(b"")
-    with caplog.at_level("INFO", logger="evperc"):
-        suggest_preset([SMALL, mcap, SMALL], None, None)
-    hints = [r.getMessage() for r in caplog.records if HINT in r.getMessage()]
-    assert len(hints) == 1 and hints[0].startswith(f"2 logs ({SMALL}")
+def test_a_batch_of_kitti_folders_takes_the_preset_and_skips_them_again(tmp_path: Path
+                                                                        ) -> None:
+    # each log of a batch takes the preset of its own lidar; run again, the outputs made
+    # with it are complete runs of the same config (skipped, not "another config")
+    out = tmp_path / "runs"
+    args = ["batch", str(SMALL), "--no-map", "--out", str(out), "--workers", "1"]
+    first = CliRunner().invoke(cli, args)
+    assert first.exit_code == 0, first.output
+    (done,) = [p for p in out.iterdir() if p.is_dir()]
+    manifest = evperc.load(done).manifest
+    want = load_config(None, preset="hdl64")
+    want["fusion"]["threads"] = 1  # a batch's logs run side by side, one thread each
+    assert _same(manifest["config"], want) and manifest["request"]["preset"] == "hdl64"
+    again = CliRunner().invoke(cli, args)
+    assert again.exit_code == 0, again.output
+    assert "skipped" in again.output and "another config" not in again.output
+    plain = CliRunner().invoke(cli, [*args, "--preset", "none"])
+    assert plain.exit_code == 1 and "another config" in plain.output
