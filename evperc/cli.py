@@ -417,7 +417,7 @@ def export_command(out_dir: Path, mcap_path: Path | None, mcap_alias: Path | Non
               help="Highway centre lines, if not in --map.")
 @click.option("--out", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Output folder: drive.mcap, map.geojson, truth/.")
-@click.option("--profile", type=click.Choice(["ibeo4", "hdl64", "vlp16", "scan2d"]),
+@click.option("--profile", type=click.Choice(["ibeo4", "hdl64", "vlp16", "hdl32", "scan2d"]),
               default="ibeo4", show_default=True, help="Lidar model.")
 @click.option("--seconds", type=click.FloatRange(min=0.1), default=10.0, show_default=True,
               help="Drive duration (10 scans per second).")

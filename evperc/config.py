@@ -38,7 +38,9 @@ NO_PRESET = "none"
 #: (fewest, most layers, preset): the shipped preset tuned for a lidar of so many layers
 #: (16: configs/vlp16.toml; 64 and denser: configs/hdl64.toml), which `evperc run` and
 #: `evperc batch` take without --preset (:func:`with_preset`); none for fewer than 12 (the
-#: defaults were tuned on 4) nor for 25-47 (no preset was measured on such a scanner)
+#: defaults were tuned on 4) nor for 25-47 (on a simulated 32-layer scanner configs/hdl64.toml
+#: cost a held-out city 0.05 of moving precision: docs/evaluation.md § History, eighth session
+#: of 2026-12-07)
 LAYER_PRESETS = ((12, 24, "vlp16"), (48, 128, "hdl64"))
 
 #: Tables whose keys are free (a user may add classes); values must be numbers.

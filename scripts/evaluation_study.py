@@ -64,7 +64,7 @@ MAP: Path = DEFAULT_MAP
 ROADS: Path | None = DEFAULT_ROADS
 EVPERC = [sys.executable, "-m", "evperc", "-q"]
 
-DEFAULT_SECONDS = {"ibeo4": 20.0, "hdl64": 10.0, "vlp16": 10.0, "scan2d": 20.0}
+DEFAULT_SECONDS = {"ibeo4": 20.0, "hdl64": 10.0, "vlp16": 10.0, "hdl32": 10.0, "scan2d": 20.0}
 FINE = ("free", "infrastructure", "unmapped", "stopped", "moving")
 COARSE = ("free", "static", "moving")
 DECISIONS = ("unknown", "free", "moving", "static", "stopped", "infrastructure", "unmapped")

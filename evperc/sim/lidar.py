@@ -45,8 +45,9 @@ def make_profile(name: str, range_noise_m: float | None = None, dropout: float |
     """``ibeo4`` (IBEO Alaska XT-like: 4 layers ±1.2°, 150° in front, 200 beams a layer),
     ``hdl64`` (Velodyne HDL-64E-like: 64 layers −24.8°..+2°, 360° in 2,000 steps),
     ``vlp16`` (Velodyne VLP-16-like: 16 layers −15°..+15° 2° apart, 360° in 1,800 steps, 100 m,
-    on the roof at 1.8 m; a geometry no default was tuned on) or ``scan2d`` (a planar 270°
-    LaserScan at 0.5°)."""
+    on the roof at 1.8 m; a geometry no default was tuned on), ``hdl32`` (Velodyne
+    HDL-32E-like: 32 layers −30.67°..+10.67° 1.33° apart, 360° in 1,800 steps, 100 m, on the
+    roof at 1.9 m) or ``scan2d`` (a planar 270° LaserScan at 0.5°)."""
     deg = np.deg2rad
     if name == "ibeo4":
         prof = LidarProfile(name, deg(np.linspace(-75.0, 75.0, 200)),
@@ -60,6 +61,10 @@ def make_profile(name: str, range_noise_m: float | None = None, dropout: float |
         prof = LidarProfile(name, deg(np.arange(1800) * 0.2 - 180.0),
                             deg(np.arange(-15.0, 16.0, 2.0)), 100.0, 0.5, 0.03, 0.01,
                             (1.5, 0.0, 1.8), candidates=16)
+    elif name == "hdl32":
+        prof = LidarProfile(name, deg(np.arange(1800) * 0.2 - 180.0),
+                            deg(np.linspace(-30.67, 10.67, 32)), 100.0, 1.0, 0.02, 0.01,
+                            (1.5, 0.0, 1.9), candidates=16)
     elif name == "scan2d":
         prof = LidarProfile(name, deg(np.linspace(-135.0, 135.0, 541)), np.zeros(1), 40.0, 0.1,
                             0.02, 0.01, (1.0, 0.0, 0.5), planar=True)

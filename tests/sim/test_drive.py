@@ -186,6 +186,9 @@ def test_stationary_ego_without_movers_has_no_moving_truth(tmp_path: Path) -> No
     # vlp16: 16 layers × 1,800 azimuths; the 7 lowest meet the road within 100 m (the −1°
     # layer at 103 m), so at least 7 × 1,800 less 1 % dropouts return
     ("vlp16", "/lidar/points", 12_400, 28_800, 1.8),
+    # hdl32: 32 layers × 1,800 azimuths; the 23 lowest meet the road within 100 m (the
+    # −1.41° layer at 77 m, the next, −0.08°, beyond), so at least 23 × 1,800 less 1 % return
+    ("hdl32", "/lidar/points", 40_900, 57_600, 1.9),
     ("scan2d", "/scan", 1, 541, None),
 ])
 def test_point_counts_per_profile(tmp_path: Path, profile: str, topic: str, low: int,
