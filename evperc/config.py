@@ -37,10 +37,10 @@ PRESETS = ("kurdej2013", "hdl64", "ibeo4", "vlp16")
 NO_PRESET = "none"
 #: (fewest, most layers, preset): the shipped preset tuned for a lidar of so many layers
 #: (16: configs/vlp16.toml; 64 and denser: configs/hdl64.toml), which `evperc run` and
-#: `evperc batch` take without --preset (:func:`with_preset`); none for fewer than 12 (the
-#: defaults were tuned on 4) nor for 25-47 (on a simulated 32-layer scanner configs/hdl64.toml
-#: cost a held-out city 0.05 of moving precision: docs/evaluation.md § History, eighth session
-#: of 2026-12-07)
+#: `evperc batch` take without --preset (:func:`preset_for_layers`, :func:`with_preset`);
+#: none for fewer than 12 (the defaults were tuned on 4) nor for 25-47 (on a simulated
+#: 32-layer scanner configs/hdl64.toml cost a held-out city 0.05 of moving precision:
+#: docs/evaluation.md § History, eighth session of 2026-12-07)
 LAYER_PRESETS = ((12, 24, "vlp16"), (48, 128, "hdl64"))
 
 #: Tables whose keys are free (a user may add classes); values must be numbers.
@@ -196,13 +196,6 @@ def preset_for_layers(layers: int) -> str | None:
     return next((p for lo, hi, p in LAYER_PRESETS if lo <= layers <= hi), None)
 
 
-def sensor_preset(layers: tuple[int, str] | None) -> str | None:
-    """The shipped preset tuned for a lidar of ``layers`` (``LogReader.sensor_layers()``: its
-    layer count and how it was read, :data:`LAYER_PRESETS`); None when the layers are
-    unknown or no preset is tuned for them."""
-    return None if layers is None else preset_for_layers(layers[0])
-
-
 def with_preset(config: dict[str, Any], preset: str, user_path: str | Path | None = None
                 ) -> dict[str, Any]:
     """``config`` — the defaults under the user's file at ``user_path`` (None: no file), as
@@ -214,13 +207,8 @@ def with_preset(config: dict[str, Any], preset: str, user_path: str | Path | Non
     out = copy.deepcopy(config)
     user = _flat(_read_toml(Path(user_path))) if user_path is not None else {}
     for dotted, value in _flat(_read_toml(preset_path(preset))).items():
-        if dotted in user:
-            continue
-        *tables, key = dotted.split(".")
-        node = out
-        for t in tables:
-            node = node.setdefault(t, {})
-        node[key] = copy.deepcopy(value)
+        if dotted not in user:
+            _set(out, dotted, value)
     problems = validate(out)
     if problems:
         raise ConfigError(f"{preset_path(preset)}: " + "; ".join(problems))
@@ -278,15 +266,20 @@ def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | N
         source = str(path) if preset is None else f"{p} + {path}"
         merge_problems += _merge(config, _read_toml(path), prefix="")
     for dotted, value in (overrides or {}).items():
-        *tables, key = dotted.split(".")
-        node = config
-        for t in tables:
-            node = node[t]
-        node[key] = value
+        _set(config, dotted, value)
     problems = merge_problems + validate(config)
     if problems:
         raise ConfigError(f"{source}: " + "; ".join(problems))
     return config
+
+
+def _set(config: dict[str, Any], dotted: str, value: Any) -> None:
+    """Set the key ``dotted`` (``objects.centroid``) of ``config`` to ``value``."""
+    *tables, key = dotted.split(".")
+    node = config
+    for t in tables:
+        node = node[t]
+    node[key] = value
 
 
 def _merge(base: dict[str, Any], user: Mapping[str, Any], prefix: str) -> list[str]:

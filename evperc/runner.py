@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from evperc.config import sensor_preset, with_preset
+from evperc.config import preset_for_layers, with_preset
 from evperc.errors import GeoreferenceError, OutputError, PoseError
 from evperc.fusion.fused import (
     StoredOutputs,
@@ -90,7 +90,7 @@ class RunRequest:
     #: the user's --config file, under whose keys a sensor preset goes (``sensor_preset``)
     config_path: Path | None = None
     #: take the shipped preset tuned for the log's lidar (its layers as the reader reads
-    #: them, :func:`evperc.config.sensor_preset`) under ``config_path``'s keys, once the log
+    #: them, :func:`evperc.config.preset_for_layers`) under ``config_path``'s keys, once the log
     #: is open (`evperc run` and `evperc batch` without --preset); the pipeline's request has
     #: it done (False, ``config`` and ``preset`` set)
     sensor_preset: bool = False
@@ -551,7 +551,7 @@ class Pipeline:
 
     def _sensor_preset(self, request: RunRequest) -> RunRequest:
         """``request`` with ``sensor_preset`` done: the shipped preset tuned for the log's
-        lidar (:func:`evperc.config.sensor_preset`: its layers as the log's reader reads them —
+        lidar (:func:`evperc.config.preset_for_layers`: its layers as the log's reader reads them —
         a KITTI folder's HDL-64E, a message log's ``ring`` field or organised rows) put under
         the user's --config keys, and said in one line; the config unchanged when the layers
         are unknown or no preset is tuned for them. Read from the run's own reader, before any
@@ -559,7 +559,7 @@ class Pipeline:
         if not request.sensor_preset:
             return request
         layers = self.reader.sensor_layers()
-        name = sensor_preset(layers)
+        name = None if layers is None else preset_for_layers(layers[0])
         if name is None:
             return replace(request, sensor_preset=False)
         under = (f", under {request.config_path}'s keys" if request.config_path is not None

@@ -264,16 +264,6 @@ def test_a_preset_under_a_user_file_keeps_keys_set_since() -> None:
     assert config["fusion"]["gate_rehit_revokes"] == "block"
 
 
-def test_which_sensor_preset_a_lidar_gets() -> None:
-    from evperc.config import sensor_preset
-
-    assert [sensor_preset((n, "ring field")) for n in (4, 16, 32, 64)] == [
-        None, "vlp16", None, "hdl64"]
-    assert sensor_preset(None) is None
-    # a KITTI folder's reader says 64 layers
-    assert sensor_preset((64, "a KITTI folder: a Velodyne HDL-64E")) == "hdl64"
-
-
 @pytest.mark.parametrize(("line", "match"), [
     ('seeds = "everything"', r"objects.seeds"),
     ("vacated_share = 0.0", r"objects.vacated_share = 0.0 is outside"),
