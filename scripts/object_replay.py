@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import json
 import logging
 import subprocess
 import sys
@@ -321,6 +322,19 @@ def with_objects(config: dict[str, Any], overrides: dict[str, Any]) -> dict[str,
     return c
 
 
+def run_config(out: Path, config_path: Path | None = None) -> dict[str, Any]:
+    """The replay's base config for the run recorded in ``out`` under ``config_path``: the
+    defaults under that file, with the preset the recording took for its lidar (since the
+    eighth session of 2026-12-07 a 64- or 16-layer drive's run takes one — its fusion ran
+    with it, so its object stage is replayed with it; a recording made before names none)."""
+    from evperc.config import load_config, with_preset
+
+    config = load_config(config_path)
+    manifest = json.loads((out / "manifest.json").read_text())
+    preset = (manifest.get("request") or {}).get("preset")
+    return config if preset is None else with_preset(config, preset, config_path)
+
+
 def scores(run: Any, truth: Any) -> dict[str, Any]:
     """The issue-21 scores of one run: moving P/R strict and within one cell, missed
     episodes, object P/R (visible cells), moving F1 (observed cells)."""
@@ -359,17 +373,17 @@ def main() -> None:
     parser.add_argument("--work", type=Path, required=True)
     parser.add_argument("--seeds", default="1,2")
     parser.add_argument("--profiles", default="ibeo4,hdl64")
-    parser.add_argument("--config", type=Path, help="the runs' --config (and the base)")
+    parser.add_argument("--config", type=Path,
+                        help="the recorded runs' --config, and the replays' base (with the "
+                             "preset each recording took for its lidar)")
     parser.add_argument("--no-map", action="store_true",
                         help="record and replay runs without the map (kept apart)")
     parser.add_argument("--set", action="append", default=None,
                         help="[objects] overrides, 'key=value;key=value' (repeatable)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    from evperc.config import load_config
     from evperc.sim.truth import load_truth
     sets = args.set or [""]
-    base = load_config(args.config)
     table: dict[str, dict[str, dict[str, Any]]] = {s: {} for s in sets}
     for profile in args.profiles.split(","):
         for seed in args.seeds.split(","):
@@ -377,7 +391,8 @@ def main() -> None:
             truth = load_truth(drive / "truth")
             for s in sets:
                 table[s][f"{profile}-s{seed}"] = r = scores(
-                    replay(out, with_objects(base, parse_set(s))), truth)
+                    replay(out, with_objects(run_config(out, args.config), parse_set(s))),
+                    truth)
                 log.info("%s %s-s%s %s", s or "(defaults)", profile, seed, r)
     print_table(table)
     print_means(table)

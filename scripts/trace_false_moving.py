@@ -346,19 +346,20 @@ def main() -> None:
     parser.add_argument("--json", type=Path, help="write every result here")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    from evperc.config import load_config
-    config = object_replay.with_objects(load_config(args.config),
-                                        object_replay.parse_set(args.set))
-    need = int(config["objects"]["motion_evidence_frames"])
+    overrides = object_replay.parse_set(args.set)
     results = {}
     for profile in args.profiles.split(","):
         for seed in args.seeds.split(","):
             drive, out = object_replay.recorded(args.work, profile, seed, args.config)
+            # the recording's config (with the preset its lidar took), with the overrides
+            config = object_replay.with_objects(object_replay.run_config(out, args.config),
+                                                overrides)
             STAGE.clear()
             run = object_replay.replay(out, config, step=traced_step, trace_backfill=True)
             results[f"{profile}-s{seed}"] = attribute(list(STAGE), run,
                                                       load_truth(drive / "truth"), args.cells,
-                                                      args.near, need)
+                                                      args.near,
+                                                      int(config["objects"]["motion_evidence_frames"]))
     print_report(results)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1, default=str))

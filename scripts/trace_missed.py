@@ -451,13 +451,14 @@ def main() -> None:
                         help="found: in the run's final object list (the backfill's fills)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    from evperc.config import load_config
-    config = object_replay.with_objects(load_config(args.config),
-                                        object_replay.parse_set(args.set))
+    overrides = object_replay.parse_set(args.set)
     results = {}
     for profile in args.profiles.split(","):
         for seed in args.seeds.split(","):
             drive, out = object_replay.recorded(args.work, profile, seed, args.config)
+            # the recording's config (with the preset its lidar took), with the overrides
+            config = object_replay.with_objects(object_replay.run_config(out, args.config),
+                                                overrides)
             RECORDS.clear()
             run = object_replay.replay(out, config, step=traced_step)
             results[f"{profile}-s{seed}"] = attribute(list(RECORDS), load_truth(
