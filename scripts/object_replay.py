@@ -327,12 +327,10 @@ def run_config(out: Path, config_path: Path | None = None) -> dict[str, Any]:
     defaults under that file, with the preset the recording took for its lidar (since the
     eighth session of 2026-12-07 a 64- or 16-layer drive's run takes one — its fusion ran
     with it, so its object stage is replayed with it; a recording made before names none)."""
-    from evperc.config import load_config, with_preset
+    from evperc.config import load_config
 
-    config = load_config(config_path)
     manifest = json.loads((out / "manifest.json").read_text())
-    preset = (manifest.get("request") or {}).get("preset")
-    return config if preset is None else with_preset(config, preset, config_path)
+    return load_config(config_path, preset=(manifest.get("request") or {}).get("preset"))
 
 
 def scores(run: Any, truth: Any) -> dict[str, Any]:
