@@ -33,7 +33,8 @@ if TYPE_CHECKING:  # the runner (numba, numpy kernels) is imported where a task 
 log = logging.getLogger(__name__)
 
 #: the keys of a result row, in table order
-ROW_KEYS = ("log", "out", "frames", "frames_per_s", "wall_time_s", "status", "poses", "error")
+ROW_KEYS = ("log", "out", "frames", "frames_per_s", "wall_time_s", "status", "poses", "preset",
+            "error")
 #: ``ok`` and ``resumed`` finished the run now; ``skipped`` was complete already
 SUCCESS = ("ok", "resumed", "skipped")
 
@@ -156,7 +157,17 @@ def process_log(task: RunRequest) -> dict[str, Any]:
     row["wall_time_s"] = round(time.perf_counter() - t0, 3)
     if row["status"] in SUCCESS:
         row["poses"] = _poses(task.out_dir)
+        row["preset"] = _preset(task.out_dir)
     return row
+
+
+def _preset(out_dir: Path) -> str | None:
+    """The shipped preset the run's config holds (the manifest's ``request.preset``: given
+    with --preset, or taken for the log's lidar; the workers' log lines do not reach the
+    user), or None."""
+    from evperc.output.manifest import read_manifest
+
+    return (read_manifest(out_dir).get("request") or {}).get("preset")
 
 
 def _poses(out_dir: Path) -> str | None:
@@ -372,10 +383,11 @@ def run_batch(request: BatchRequest, client: Any = None, progress: bool = True
 
 def format_table(rows: Sequence[dict[str, Any]]) -> str:
     """The summary table: log, frames, frames/s, status, poses (does the log's pose fit its
-    scans: evperc/sensor/pose_fit.py), error; one line per log."""
-    header = ("log", "frames", "frames/s", "status", "poses", "error")
+    scans: evperc/sensor/pose_fit.py), preset (the shipped preset the run took), error; one
+    line per log."""
+    header = ("log", "frames", "frames/s", "status", "poses", "preset", "error")
     cells = [(Path(r["log"]).name, _cell(r["frames"]), _cell(r["frames_per_s"]), r["status"],
-              _cell(r.get("poses")), r["error"] or "") for r in rows]
+              _cell(r.get("poses")), _cell(r.get("preset")), r["error"] or "") for r in rows]
     widths = [max(len(h), *(len(c[k]) for c in cells)) for k, h in enumerate(header)]
     lines = ["  ".join(v.ljust(w) for v, w in zip(line, widths, strict=True)).rstrip()
              for line in (header, *cells)]

@@ -81,16 +81,17 @@ def test_foreign_folder_is_not_touched(tmp_path):
 
 def test_table_lists_every_log_with_dashes_for_missing_numbers():
     rows = [{"log": "/x/a.mcap", "frames": 30, "frames_per_s": 7.123, "status": "ok",
-             "poses": "fit", "error": None},
+             "poses": "fit", "preset": "hdl64", "error": None},
             {"log": "/x/b.mcap", "frames": 16, "frames_per_s": 9.0, "status": "ok",
-             "poses": "MISFIT 0.64 m", "error": None},
+             "poses": "MISFIT 0.64 m", "preset": None, "error": None},
             {"log": "/x/bad.mcap", "frames": None, "frames_per_s": None, "status": "failed",
-             "poses": None, "error": "/x/bad.mcap: no lidar topic"}]
+             "poses": None, "preset": None, "error": "/x/bad.mcap: no lidar topic"}]
     lines = format_table(rows).splitlines()
-    assert lines[0].split() == ["log", "frames", "frames/s", "status", "poses", "error"]
-    assert lines[1].split() == ["a.mcap", "30", "7.1", "ok", "fit"]
-    assert lines[2].split() == ["b.mcap", "16", "9.0", "ok", "MISFIT", "0.64", "m"]
-    assert lines[3].split()[:5] == ["bad.mcap", "-", "-", "failed", "-"]
+    assert lines[0].split() == ["log", "frames", "frames/s", "status", "poses", "preset",
+                                "error"]
+    assert lines[1].split() == ["a.mcap", "30", "7.1", "ok", "fit", "hdl64"]
+    assert lines[2].split() == ["b.mcap", "16", "9.0", "ok", "MISFIT", "0.64", "m", "-"]
+    assert lines[3].split()[:6] == ["bad.mcap", "-", "-", "failed", "-", "-"]
     assert lines[3].endswith("/x/bad.mcap: no lidar topic")
 
 

@@ -263,6 +263,9 @@ def test_a_batch_of_kitti_folders_takes_the_preset_and_skips_them_again(tmp_path
     want = load_config(None, preset="hdl64")
     want["fusion"]["threads"] = 1  # a batch's logs run side by side, one thread each
     assert _same(manifest["config"], want) and manifest["request"]["preset"] == "hdl64"
+    # the table names it (a worker's log line does not reach the user)
+    (line,) = [r for r in first.output.splitlines() if r.startswith(SMALL.name)]
+    assert line.split()[3] == "ok" and line.split()[-1] == "hdl64"  # status, ..., preset
     again = CliRunner().invoke(cli, args)
     assert again.exit_code == 0, again.output
     assert "skipped" in again.output and "another config" not in again.output
