@@ -156,26 +156,19 @@ def process_log(task: RunRequest) -> dict[str, Any]:
         row.update(status="error", error=_one_line(f"{type(err).__name__}: {err}"))
     row["wall_time_s"] = round(time.perf_counter() - t0, 3)
     if row["status"] in SUCCESS:
-        row["poses"] = _poses(task.out_dir)
-        row["preset"] = _preset(task.out_dir)
+        from evperc.output.manifest import read_manifest
+
+        manifest = read_manifest(task.out_dir)
+        row["poses"] = _poses(manifest.get("pose_fit"))
+        # the shipped preset the run's config holds: given with --preset, or taken for the
+        # log's lidar (which the workers' log lines, not the user's, say)
+        row["preset"] = (manifest.get("request") or {}).get("preset")
     return row
 
 
-def _preset(out_dir: Path) -> str | None:
-    """The shipped preset the run's config holds (the manifest's ``request.preset``: given
-    with --preset, or taken for the log's lidar; the workers' log lines do not reach the
-    user), or None."""
-    from evperc.output.manifest import read_manifest
-
-    return (read_manifest(out_dir).get("request") or {}).get("preset")
-
-
-def _poses(out_dir: Path) -> str | None:
+def _poses(fit: dict[str, Any] | None) -> str | None:
     """The run's pose check (the manifest's ``pose_fit``, evperc/sensor/pose_fit.py) in a
     word: ``fit``, ``MISFIT <offset> m``, ``MISFIT <turn>°``, or None (not checked)."""
-    from evperc.output.manifest import read_manifest
-
-    fit = read_manifest(out_dir).get("pose_fit")
     if not fit:
         return None
     if not fit["misfit"]:
