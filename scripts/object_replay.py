@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import json
 import logging
 import subprocess
 import sys
@@ -328,9 +327,10 @@ def run_config(out: Path, config_path: Path | None = None) -> dict[str, Any]:
     eighth session of 2026-12-07 a 64- or 16-layer drive's run takes one — its fusion ran
     with it, so its object stage is replayed with it; a recording made before names none)."""
     from evperc.config import load_config
+    from evperc.output.manifest import read_manifest
 
-    manifest = json.loads((out / "manifest.json").read_text())
-    return load_config(config_path, preset=(manifest.get("request") or {}).get("preset"))
+    request = read_manifest(out).get("request") or {}
+    return load_config(config_path, preset=request.get("preset"))
 
 
 def scores(run: Any, truth: Any) -> dict[str, Any]:
