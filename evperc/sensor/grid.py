@@ -131,7 +131,8 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
         np.float32(params.sensor_height_m), np.float32(params.ground_threshold_m),
         np.float32(params.max_obstacle_height_m), hist, kind, params.ground_fallback == "scan",
         height, np.float32(params.ground_local_raise_m if local else 0.0), x, y, local_min,
-        params.ground_chain, params.foot_lift_m if foot else 0.0, feet)
+        params.ground_chain, params.foot_lift_m if foot else 0.0, feet,
+        params.ground_chain_gap_m)
     if kinds_out is not None:
         kinds_out[:] = kind
 

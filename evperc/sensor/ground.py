@@ -21,6 +21,11 @@ azimuth × bands of ``BAND_M`` horizontal range):
    prior's bound out there (0.5 + 0.1·40 m); it became the band's ground and the object's
    returns ground, free space that turned occupied as the layer slid down the object from
    scan to scan (false motion). With the chain that band keeps the nearer band's ground.
+   The chain's bound still grows with the gap, so far past the last ring (a 16-layer
+   scanner's −1° layer meets a car's side 1.05 m up at 43 m, 9 m past the ring's band:
+   bound 1.4 m) an object passes again; ``sensor.ground_chain_gap_m`` = G caps the gap at
+   G metres once a band is kept in the sector (an option: real terrain rising out there
+   flickers about the tighter bound; docs/method.md §3 "The chain's gap").
 4. Otherwise the cell takes the estimate of the nearest accepted band nearer the sensor in
    the same sector, or, if there is none, the *fallback*: the prior (height 0,
    ``sensor.ground_fallback = "prior"``, the paper's preset) or the median of the scan's
@@ -124,7 +129,8 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
                     height: np.ndarray = NO_HEIGHTS, local_raise: float = 0.0,
                     x: np.ndarray = NO_LOCAL, y: np.ndarray = NO_LOCAL,
                     local_min: np.ndarray = NO_LOCAL, chain: bool = False,
-                    foot_lift: float = 0.0, feet: np.ndarray = NO_FEET) -> int:
+                    foot_lift: float = 0.0, feet: np.ndarray = NO_FEET,
+                    chain_gap: float = 0.0) -> int:
     """Write into ``kind`` the GROUND / OBSTACLE / IGNORED kind of each point.
 
     ``z``: levelled height above the sensor; ``range_m``: horizontal range; ``az_bin``:
@@ -139,7 +145,10 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
     which has no ground; NaN for the other points). ``local_raise`` > 0: step 5 with Δ =
     ``local_raise``, on the points' levelled offsets ``x``, ``y`` from the sensor and the
     float32 work array ``local_min`` of ``local_grid_side(max_range_m)²`` elements.
-    ``chain``: step 3's chain along each sector. ``foot_lift`` > 0 (``sensor.foot_lift_m``):
+    ``chain``: step 3's chain along each sector; ``chain_gap`` > 0
+    (``sensor.ground_chain_gap_m``): the chain's slope bound grows over at most that many
+    metres past the last kept band of the sector (docs/method.md §3 "The chain's gap").
+    ``foot_lift`` > 0 (``sensor.foot_lift_m``):
     the indices of the GROUND points whose *lift* — height above the ground of the nearer
     band, the estimate their band would take without its own (:func:`_fill_ground`'s
     ``ground_near``) — is at least ``foot_lift`` are written to ``feet`` (int32, a point
@@ -176,7 +185,8 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
         cells[i] = cell
     if run:
         hist[last] += run
-    ground, ground_near = _fill_ground(hist, n_sector, n_band, n_z, scan_fallback, chain)
+    ground, ground_near = _fill_ground(hist, n_sector, n_band, n_z, scan_fallback, chain,
+                                       chain_gap)
     refine = local_raise > 0
     if refine:
         side = local_grid_side(max_range_m)
@@ -249,11 +259,12 @@ def _z_bin(height: np.float32, n_z: int) -> int:
 
 @numba.njit(cache=True, nogil=True)
 def _fill_ground(hist: np.ndarray, n_sector: int, n_band: int, n_z: int,
-                 scan_fallback: bool = False, chain: bool = False
+                 scan_fallback: bool = False, chain: bool = False, chain_gap: float = 0.0
                  ) -> tuple[np.ndarray, np.ndarray]:
     """``(ground, ground_near)`` (float32) per coarse cell. ``ground``: its own estimate if
     accepted (with ``chain``, also within the slope bound of the last accepted band nearer
-    the sensor), else that of the nearest accepted band nearer the sensor in its sector,
+    the sensor; ``chain_gap`` > 0 caps the distance the slope bound grows over, once a band
+    of the sector is kept), else that of the nearest accepted band nearer the sensor in its sector,
     else the fallback — 0 (the prior) or, with ``scan_fallback``, the median of the accepted
     estimates (steps 2–4). ``ground_near``: the same without the cell's own estimate (the
     nearest accepted band strictly nearer, else the fallback)."""
@@ -283,7 +294,10 @@ def _fill_ground(hist: np.ndarray, n_sector: int, n_band: int, n_z: int,
                 cell = sector * n_band + band
                 if ok[cell]:
                     r_out = (band + 1.0) * BAND_M
-                    bound = BASE_TOLERANCE_M + MAX_SLOPE * (r_out - last_r)
+                    gap = r_out - last_r
+                    if chain_gap > 0.0 and last_r > 0.0:
+                        gap = min(gap, chain_gap)
+                    bound = BASE_TOLERANCE_M + MAX_SLOPE * gap
                     if abs(accepted[cell] - last) <= bound:
                         last, last_r = accepted[cell], r_out
                     else:

@@ -32,6 +32,7 @@ class SensorParams:
     ground_local_raise_m: float = 0.0
     ground_chain: bool = False
     foot_lift_m: float = 0.0
+    ground_chain_gap_m: float = 0.0
 
     @staticmethod
     def from_config(sensor: Mapping[str, Any], cell_size_m: float) -> SensorParams:
@@ -52,4 +53,5 @@ class SensorParams:
             ground_local_raise_m=float(sensor["ground_local_raise_m"]),
             ground_chain=bool(sensor["ground_chain"]),
             foot_lift_m=float(sensor["foot_lift_m"]),
+            ground_chain_gap_m=float(sensor["ground_chain_gap_m"]),
         )

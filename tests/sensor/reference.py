@@ -132,7 +132,10 @@ def classify(kept, n_az, params) -> tuple[list[str], list[float]]:
             for band in range(n_band):
                 if (sector, band) in accepted:
                     r_out = (band + 1) * BAND_M
-                    bound = BASE_TOL_M + MAX_SLOPE * (r_out - last_r)
+                    gap = r_out - last_r   # sensor.ground_chain_gap_m caps it (0: no cap)
+                    if params.ground_chain_gap_m > 0 and last_r > 0:
+                        gap = min(gap, params.ground_chain_gap_m)
+                    bound = BASE_TOL_M + MAX_SLOPE * gap
                     if abs(accepted[(sector, band)] - last) <= bound:
                         last, last_r = accepted[(sector, band)], r_out
                     else:

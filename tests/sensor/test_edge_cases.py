@@ -28,9 +28,10 @@ def test_from_config_reads_every_sensor_key():
     cfg["sensor"]["ground_local_raise_m"] = 0.15
     cfg["sensor"]["ground_chain"] = False
     cfg["sensor"]["foot_lift_m"] = 0.2
+    cfg["sensor"]["ground_chain_gap_m"] = 2.0
     p = SensorParams.from_config(cfg["sensor"], 0.25)
     assert p == SensorParams(0.6, 0.8, 1.0, 80.0, 0.5, 0.3, 2.5, 1.73, 0.25, 0.75, 0.25, "scan",
-                             0.15, False, 0.2)
+                             0.15, False, 0.2, 2.0)
 
 
 @pytest.mark.parametrize("planar", [True, False])

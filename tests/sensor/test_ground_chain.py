@@ -137,3 +137,96 @@ def test_matches_oracle_on_the_sparse_scan(params, chain: bool) -> None:
     assert (want_occ > 0).sum() > 20 if chain else not want_occ.any()
     np.testing.assert_array_equal(free, want_free)
     np.testing.assert_array_equal(occ, want_occ)
+
+
+FAR_FENCE_X = 44.2   # the −1° layer meets it 1.03 m up, 10 m past the band of the last ring
+
+
+def test_a_far_band_without_ground_needs_the_gap_cap(params) -> None:
+    """Past the last ring the chain's bound grows with the gap, 0.5 + 0.1·(46 − 36) m = 1.5 m
+    at a fence 44.2 m out: its returns, 1.03 m up (a car's side there looks the same), pass
+    for the band's ground and are ground. With ``ground_chain_gap_m`` = 2 the bound is
+    0.5 + 0.1·2 = 0.7 m: the band is rejected, keeps the ring's ground (0), and the fence is
+    an obstacle; the ground returns stay ground either way."""
+    level, on_fence = sparse_scan(fence_x=FAR_FENCE_X)
+    top = level[on_fence][:, 2] + MOUNT
+    assert on_fence.sum() > 50 and np.allclose(top, 1.03, atol=0.01)
+    t = pose(*SENSOR, MOUNT)
+
+    def kinds(gap: float) -> np.ndarray:
+        out = np.empty(len(level), np.uint8)
+        sensor_grid((level @ t[:3, :3]).astype(np.float32), False, t,
+                    Window.centred_on(*SENSOR, 160.0, 0.5),
+                    replace(params, sensor_height_m=MOUNT, ground_chain=True,
+                            ground_chain_gap_m=gap), kinds_out=out)
+        return out
+
+    uncapped, capped = kinds(0.0), kinds(2.0)
+    assert (uncapped[on_fence] == GROUND).all()
+    assert (capped[on_fence] == OBSTACLE).all()
+    np.testing.assert_array_equal(capped[~on_fence], GROUND)
+    np.testing.assert_array_equal(uncapped[~on_fence], GROUND)
+
+
+@pytest.mark.parametrize("slope", [0.05, 0.09])
+def test_the_gap_cap_keeps_rising_ground_ground(params, slope: float) -> None:
+    """On ground rising towards +x every layer meets the road nearer (the −1° layer at
+    1.8 / (0.0175 + slope) m), so no band ahead lies far past a ring: the cap changes no
+    return's kind there."""
+    level, _ = sparse_scan(slope=slope, fence=False)
+    t = pose(*SENSOR, MOUNT)
+    out = {}
+    for gap in (0.0, 2.0):
+        out[gap] = np.empty(len(level), np.uint8)
+        sensor_grid((level @ t[:3, :3]).astype(np.float32), False, t,
+                    Window.centred_on(*SENSOR, 160.0, 0.5),
+                    replace(params, sensor_height_m=MOUNT, ground_chain=True,
+                            ground_chain_gap_m=gap), kinds_out=out[gap])
+    ahead = np.abs(np.degrees(np.arctan2(level[:, 1], level[:, 0]))) < 60.0
+    np.testing.assert_array_equal(out[2.0][ahead], out[0.0][ahead])
+    assert (out[2.0][ahead] == GROUND).mean() > 0.995
+
+
+@pytest.mark.parametrize("gap", [2.0, 4.0])
+def test_matches_oracle_with_a_gap_cap(params, gap: float) -> None:
+    level, _ = sparse_scan(fence_x=FAR_FENCE_X)
+    t = pose(3.0, -7.0, MOUNT, yaw_deg=20.0)
+    p = replace(params, sensor_height_m=MOUNT, ground_chain=True, ground_chain_gap_m=gap,
+                max_range_m=60.0)
+    window = Window.centred_on(3.0, -7.0, 130.0, 0.5)
+    sensor = (level @ t[:3, :3]).astype(np.float32)
+    free, occ = sensor_grid(sensor, False, t, window, p)
+    want_free, want_occ = reference_grid(sensor, False, t, window, p)
+    assert (want_occ > 0).sum() > 20
+    np.testing.assert_array_equal(free, want_free)
+    np.testing.assert_array_equal(occ, want_occ)
+
+
+def _histogram(bands: dict[int, float], n_band: int = 10, n_z: int = 120) -> np.ndarray:
+    """One sector's ground histogram (``_fill_ground``'s layout): 20 returns at each band's
+    height (m above the prior plane)."""
+    hist = np.zeros(n_band * n_z, np.int32)
+    for band, height in bands.items():
+        hist[band * n_z + int((height + 3.0) / 0.05)] = 20
+    return hist
+
+
+@pytest.mark.parametrize("gap", [0.0, 2.0])
+def test_a_sectors_first_kept_band_keeps_the_priors_bound(gap: float) -> None:
+    """A band 10–12 m out with nothing nearer kept (a parked car's side beside the sensor, no
+    ring before it) is bounded by the prior only, 0.5 + 0.1·12 m, with the cap or without."""
+    from evperc.sensor.ground import _fill_ground
+    ground, _ = _fill_ground(_histogram({5: 1.0}), 1, 10, 120, False, True, gap)
+    assert ground[5] == pytest.approx(1.025)   # the band's own estimate (bin centre)
+
+
+def test_the_cap_bounds_a_band_past_a_kept_one() -> None:
+    """A ring kept at 2–4 m (ground 0), then a band at 10–12 m 1.0 m up: without the cap the
+    bound is 0.5 + 0.1·(12 − 4) = 1.3 m (kept), with G = 2 m it is 0.7 m (rejected: the band
+    takes the ring's ground)."""
+    from evperc.sensor.ground import _fill_ground
+    hist = _histogram({1: 0.0, 5: 1.0})
+    uncapped, _ = _fill_ground(hist, 1, 10, 120, False, True, 0.0)
+    capped, _ = _fill_ground(hist, 1, 10, 120, False, True, 2.0)
+    assert uncapped[5] == pytest.approx(1.025)
+    assert capped[5] == pytest.approx(0.025) and capped[1] == pytest.approx(0.025)
