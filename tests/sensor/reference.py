@@ -162,3 +162,15 @@ def reference_grid(points, planar, t_crs_sensor, window, params):
     free = np.where(state == FREE, params.mu_free, 0.0).astype(np.float32)
     occupied = np.where(state == OCCUPIED, params.mu_occupied, 0.0).astype(np.float32)
     return free, occupied
+
+
+def assert_matches_reference(points, planar, t_crs_sensor, window, params):
+    """evperc's sensor grid of ``points`` equal to :func:`reference_grid`'s, cell for cell;
+    returns the reference's ``(free, occupied)`` for the caller's own checks."""
+    from evperc.sensor import sensor_grid
+
+    free, occ = sensor_grid(points, planar, t_crs_sensor, window, params)
+    want_free, want_occ = reference_grid(points, planar, t_crs_sensor, window, params)
+    np.testing.assert_array_equal(free, want_free)
+    np.testing.assert_array_equal(occ, want_occ)
+    return want_free, want_occ

@@ -18,7 +18,7 @@ import pytest
 from evperc.geo.window import Window
 from evperc.sensor import sensor_grid
 from evperc.sensor.ground import GROUND, OBSTACLE
-from tests.sensor.reference import reference_grid
+from tests.sensor.reference import assert_matches_reference, reference_grid
 from tests.sensor.scenes import pose
 
 MOUNT = 1.8
@@ -59,12 +59,13 @@ def sparse_scan(slope: float = 0.0, fence: bool = True, fence_x: float = FENCE_X
     return np.vstack(pts), np.concatenate(on_fence)
 
 
-def kinds_of(level: np.ndarray, params, chain: bool) -> np.ndarray:
+def kinds_of(level: np.ndarray, params, chain: bool, gap: float = 0.0) -> np.ndarray:
     t = pose(*SENSOR, MOUNT)
     kinds = np.empty(len(level), np.uint8)
     sensor_grid((level @ t[:3, :3]).astype(np.float32), False, t,
                 Window.centred_on(*SENSOR, 160.0, 0.5),
-                replace(params, sensor_height_m=MOUNT, ground_chain=chain), kinds_out=kinds)
+                replace(params, sensor_height_m=MOUNT, ground_chain=chain,
+                        ground_chain_gap_m=gap), kinds_out=kinds)
     return kinds
 
 
@@ -85,8 +86,14 @@ def test_a_band_without_ground_takes_the_nearer_ground_with_the_chain(params) ->
     within 0.5 + 0.1·(40 − 36) m of the band of the last ring (ground 0): it is rejected, the
     band keeps the ring's ground and the fence is an obstacle."""
     level, on_fence = sparse_scan()
-    before = kinds_of(level, params, chain=False)
-    after = kinds_of(level, params, chain=True)
+    assert_fence_turns_obstacle(kinds_of(level, params, chain=False),
+                                kinds_of(level, params, chain=True), on_fence)
+
+
+def assert_fence_turns_obstacle(before: np.ndarray, after: np.ndarray, on_fence: np.ndarray
+                                ) -> None:
+    """Every fence return ground before and an obstacle after; every ground return ground in
+    both."""
     assert (before[on_fence] == GROUND).all()
     assert (after[on_fence] == OBSTACLE).all()
     np.testing.assert_array_equal(after[~on_fence], GROUND)
@@ -151,21 +158,8 @@ def test_a_far_band_without_ground_needs_the_gap_cap(params) -> None:
     level, on_fence = sparse_scan(fence_x=FAR_FENCE_X)
     top = level[on_fence][:, 2] + MOUNT
     assert on_fence.sum() > 50 and np.allclose(top, 1.03, atol=0.01)
-    t = pose(*SENSOR, MOUNT)
-
-    def kinds(gap: float) -> np.ndarray:
-        out = np.empty(len(level), np.uint8)
-        sensor_grid((level @ t[:3, :3]).astype(np.float32), False, t,
-                    Window.centred_on(*SENSOR, 160.0, 0.5),
-                    replace(params, sensor_height_m=MOUNT, ground_chain=True,
-                            ground_chain_gap_m=gap), kinds_out=out)
-        return out
-
-    uncapped, capped = kinds(0.0), kinds(2.0)
-    assert (uncapped[on_fence] == GROUND).all()
-    assert (capped[on_fence] == OBSTACLE).all()
-    np.testing.assert_array_equal(capped[~on_fence], GROUND)
-    np.testing.assert_array_equal(uncapped[~on_fence], GROUND)
+    assert_fence_turns_obstacle(kinds_of(level, params, True, 0.0),
+                                kinds_of(level, params, True, 2.0), on_fence)
 
 
 @pytest.mark.parametrize("slope", [0.05, 0.09])
@@ -174,14 +168,7 @@ def test_the_gap_cap_keeps_rising_ground_ground(params, slope: float) -> None:
     1.8 / (0.0175 + slope) m), so no band ahead lies far past a ring: the cap changes no
     return's kind there."""
     level, _ = sparse_scan(slope=slope, fence=False)
-    t = pose(*SENSOR, MOUNT)
-    out = {}
-    for gap in (0.0, 2.0):
-        out[gap] = np.empty(len(level), np.uint8)
-        sensor_grid((level @ t[:3, :3]).astype(np.float32), False, t,
-                    Window.centred_on(*SENSOR, 160.0, 0.5),
-                    replace(params, sensor_height_m=MOUNT, ground_chain=True,
-                            ground_chain_gap_m=gap), kinds_out=out[gap])
+    out = {gap: kinds_of(level, params, True, gap) for gap in (0.0, 2.0)}
     ahead = np.abs(np.degrees(np.arctan2(level[:, 1], level[:, 0]))) < 60.0
     np.testing.assert_array_equal(out[2.0][ahead], out[0.0][ahead])
     assert (out[2.0][ahead] == GROUND).mean() > 0.995
@@ -194,12 +181,9 @@ def test_matches_oracle_with_a_gap_cap(params, gap: float) -> None:
     p = replace(params, sensor_height_m=MOUNT, ground_chain=True, ground_chain_gap_m=gap,
                 max_range_m=60.0)
     window = Window.centred_on(3.0, -7.0, 130.0, 0.5)
-    sensor = (level @ t[:3, :3]).astype(np.float32)
-    free, occ = sensor_grid(sensor, False, t, window, p)
-    want_free, want_occ = reference_grid(sensor, False, t, window, p)
+    _, want_occ = assert_matches_reference((level @ t[:3, :3]).astype(np.float32), False, t,
+                                           window, p)
     assert (want_occ > 0).sum() > 20
-    np.testing.assert_array_equal(free, want_free)
-    np.testing.assert_array_equal(occ, want_occ)
 
 
 def _histogram(bands: dict[int, float], n_band: int = 10, n_z: int = 120) -> np.ndarray:
