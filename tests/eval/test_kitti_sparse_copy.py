@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 SMALL = REPO / "tests" / "data" / "semantickitti05"
@@ -46,7 +47,6 @@ def test_the_copy_keeps_points_near_the_layers_with_their_labels(tmp_path: Path)
 
 
 def test_a_folder_that_is_no_slice_is_refused_in_one_line(tmp_path: Path) -> None:
-    import pytest
     with pytest.raises(SystemExit, match="no velodyne: give a SemanticKITTI sequence folder"):
         sparse.sparse_copy(tmp_path, tmp_path / "copy", sparse.layer_elevations())
     with pytest.raises(SystemExit, match="would replace its source"):
