@@ -333,6 +333,13 @@ def run_config(out: Path, config_path: Path | None = None) -> dict[str, Any]:
     return load_config(config_path, preset=request.get("preset"))
 
 
+def replay_config(out: Path, config_path: Path | None, overrides: dict[str, Any]
+                  ) -> dict[str, Any]:
+    """:func:`run_config` (the recording's config, with the preset its lidar took) with the
+    ``[objects]`` ``overrides`` (:func:`with_objects`): what a replay of ``out`` runs."""
+    return with_objects(run_config(out, config_path), overrides)
+
+
 def scores(run: Any, truth: Any) -> dict[str, Any]:
     """The issue-21 scores of one run: moving P/R strict and within one cell, missed
     episodes, object P/R (visible cells), moving F1 (observed cells)."""
@@ -389,8 +396,7 @@ def main() -> None:
             truth = load_truth(drive / "truth")
             for s in sets:
                 table[s][f"{profile}-s{seed}"] = r = scores(
-                    replay(out, with_objects(run_config(out, args.config), parse_set(s))),
-                    truth)
+                    replay(out, replay_config(out, args.config, parse_set(s))), truth)
                 log.info("%s %s-s%s %s", s or "(defaults)", profile, seed, r)
     print_table(table)
     print_means(table)

@@ -456,9 +456,7 @@ def main() -> None:
     for profile in args.profiles.split(","):
         for seed in args.seeds.split(","):
             drive, out = object_replay.recorded(args.work, profile, seed, args.config)
-            # the recording's config (with the preset its lidar took), with the overrides
-            config = object_replay.with_objects(object_replay.run_config(out, args.config),
-                                                overrides)
+            config = object_replay.replay_config(out, args.config, overrides)
             RECORDS.clear()
             run = object_replay.replay(out, config, step=traced_step)
             results[f"{profile}-s{seed}"] = attribute(list(RECORDS), load_truth(
