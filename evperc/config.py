@@ -125,6 +125,7 @@ RULES: dict[str, tuple] = {
     "objects.centroid": ("choice", "cells", "returns"),
     "objects.centroid_max_cells": ("range", 0, 1_000_000, False, False),
     "objects.centroid_min_returns": ("range", 0, 1_000_000, False, False),
+    "objects.centroid_depth_m": ("range", 0.0, 10.0, False, False),
     "objects.centroid_returns_sigma_m": ("range", 0.0, 100.0, False, False),
     "objects.backfill_candidate_frames": ("range", -1, 1_000_000, False, False),
     "objects.motion_evidence_frames": ("range", 0, 10_000, False, False),

@@ -731,7 +731,8 @@ class Pipeline:
             frame["objects"], frame["object_cells"] = self.objects.step(
                 state.tracks, out.decision, out.betp[4], out.conflict[0], window,
                 inputs.stamp_ns, occupied_now=occupied_now, heights=inputs.heights,
-                near_building=inputs.near_building, return_sums=inputs.return_sums)
+                near_building=inputs.near_building, return_sums=inputs.return_sums,
+                sensor_xy=(float(inputs.pose[0]), float(inputs.pose[1])))
             self._spare(inputs.return_sums)  # read by the object stage only
             if self.backfill_frames > 0:  # the backfill's gaps (objects.bridge_gaps), boxes
                 frame["occupied_now"] = occupied_now

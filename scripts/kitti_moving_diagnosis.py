@@ -85,7 +85,8 @@ class Recorder:
             return fill(decision, moving_cells)
 
         def step_wrap(self_, state, decision, betp_moving, conflict_fo, window, stamp_ns,
-                      occupied_now=None, heights=None, near_building=None, return_sums=None):
+                      occupied_now=None, heights=None, near_building=None, return_sums=None,
+                      sensor_xy=None):
             got: dict[str, Any] = {}
             inner = self_.clusterer.clusters
 
@@ -96,7 +97,7 @@ class Recorder:
             try:
                 result = obj_step(self_, state, decision, betp_moving, conflict_fo, window,
                                   stamp_ns, occupied_now, heights, near_building,
-                                  return_sums)
+                                  return_sums, sensor_xy)
             finally:
                 del self_.clusterer.clusters
             rec._cur.update(clusters=got["clusters"], conflict_fo=np.array(conflict_fo),

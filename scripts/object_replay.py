@@ -110,7 +110,8 @@ def record(drive: Path, out: Path, config: Path | None = None, with_map: bool = 
                conflict_fo: np.ndarray, window: Window, stamp_ns: int,
                occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None,
                near_building: np.ndarray | None = None,
-               return_sums: np.ndarray | None = None) -> Any:
+               return_sums: np.ndarray | None = None,
+               sensor_xy: tuple[float, float] | None = None) -> Any:
         if decision.shape[0] >= 20:  # not the runner's warm-up on a tiny window
             frames.append((int(stamp_ns), window.row0, window.col0, decision.copy(),
                            betp_moving.copy(), conflict_fo.copy(),
@@ -121,7 +122,7 @@ def record(drive: Path, out: Path, config: Path | None = None, with_map: bool = 
                            np.zeros((*decision.shape, 3), np.float32) if return_sums is None
                            else return_sums.copy()))
         return original(self, state, decision, betp_moving, conflict_fo, window, stamp_ns,
-                        occupied_now, heights, near_building, return_sums)
+                        occupied_now, heights, near_building, return_sums, sensor_xy)
 
     root = logging.getLogger()
     handlers, level = list(root.handlers), root.level
@@ -187,7 +188,8 @@ class ReplayRun:
 
 
 StepFn = Callable[[ObjectStage, TrackerState, np.ndarray, np.ndarray, np.ndarray, Window, int,
-                   np.ndarray, np.ndarray | None, np.ndarray | None],
+                   np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None,
+                   tuple[float, float] | None],
                   tuple[np.ndarray, np.ndarray]]
 
 
@@ -232,9 +234,11 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None,
         # heights as float16 (the bound is 0.4 m: 1e-3 m steps there); None when the
         # recorded run did not compute them (all zero: no return is that low)
         top = data["heights"][k].astype(np.float32)
+        f = stored.get(int(stamps[k]))
         args = (state, decision, betps[k], conflicts[k], window, int(stamps[k]), occ,
                 top if top.any() else None, near_building(window),
-                None if sums is None else sums[k])
+                None if sums is None else sums[k],
+                None if f is None else (float(f.pose[0]), float(f.pose[1])))
         objects, cells = step(stage, *args) if step is not None else stage.step(*args)
         speaks = np.unpackbits(data["speaks"][k])[:occ.size].reshape(shape).astype(bool)
         if fp_params.frames > 0:
@@ -255,7 +259,6 @@ def replay(out: Path, config: dict[str, Any], step: StepFn | None = None,
                 small = small_groups[k][0]
                 support.push(k, window.row0, window.col0, window.cols,
                              small if moving is None else np.concatenate([small, moving]))
-        f = stored.get(int(stamps[k]))
         if f is not None:  # the unmapped cue's cells, where the replay did not decide moving
             relabel = (np.asarray(f.decision) == _UNMAPPED) & (decision != _MOVING)
             decision[relabel] = _UNMAPPED

@@ -102,14 +102,15 @@ STAGE: list[StageFrame] = []
 def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.ndarray,
                 conflict_fo: np.ndarray, window: Window, stamp_ns: int,
                 occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None,
-                near_building: np.ndarray | None = None, return_sums: np.ndarray | None = None
+                near_building: np.ndarray | None = None, return_sums: np.ndarray | None = None,
+                sensor_xy: tuple[float, float] | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`ObjectStage.step` (the same call and result) that appends a
     :class:`StageFrame` to :data:`STAGE`."""
     fusion = decision.copy()
     objects, cells = self.__class__.step(self, state, decision, betp_moving, conflict_fo,
                                          window, stamp_ns, occupied_now, heights,
-                                         near_building, return_sums)
+                                         near_building, return_sums, sensor_xy)
     moving = moving_object_cells(objects, cells)
     tracks = {}
     for i in range(len(state.id)):

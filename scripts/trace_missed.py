@@ -117,7 +117,8 @@ RECORDS: list[FrameRecord] = []
 def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.ndarray,
                 conflict_fo: np.ndarray, window: Any, stamp_ns: int,
                 occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None,
-                near_building: np.ndarray | None = None, return_sums: np.ndarray | None = None
+                near_building: np.ndarray | None = None, return_sums: np.ndarray | None = None,
+                sensor_xy: tuple[float, float] | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`ObjectStage.step` (the same calls, the same results) that appends a
     :class:`FrameRecord` to :data:`RECORDS`."""
@@ -135,9 +136,10 @@ def traced_step(self: Any, state: Any, decision: np.ndarray, betp_moving: np.nda
     clusters = self.splitter.split(clusters, state, window, stamp_ns, decision, betp_moving,
                                    conflict_fo)
     if return_sums is not None and self.needs_return_sums:
-        clusters = with_return_centroids(clusters, return_sums, window,
-                                         self.cluster_params.centroid_max_cells,
-                                         self.cluster_params.centroid_min_returns, heights)
+        p = self.cluster_params
+        clusters = with_return_centroids(clusters, return_sums, window, p.centroid_max_cells,
+                                         p.centroid_min_returns, heights, sensor_xy,
+                                         p.centroid_depth_m)
     records, cells = track_step(state, clusters, window, stamp_ns, self.tracking_params,
                                 decision, near_building)
     extent = np.maximum(rc.bbox_m[:, 2] - rc.bbox_m[:, 0], rc.bbox_m[:, 3] - rc.bbox_m[:, 1]) \

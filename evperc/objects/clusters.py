@@ -125,6 +125,9 @@ class ClusterParams:
     centroid_max_cells: int = 0
     #: objects.centroid_min_returns: ... and holding at least this many returns (0: one)
     centroid_min_returns: int = 0
+    #: objects.centroid_depth_m: a returns' mean is moved this far from the sensor along the
+    #: line of sight (m; :func:`with_return_centroids`); 0: as it is
+    centroid_depth_m: float = 0.0
 
     @staticmethod
     def from_config(config: dict[str, Any]) -> ClusterParams:
@@ -144,7 +147,8 @@ class ClusterParams:
                                  o.get("off_buildings_max_height_m", 0.0)),
                              centroid=str(o.get("centroid", "cells")),
                              centroid_max_cells=int(o.get("centroid_max_cells", 0)),
-                             centroid_min_returns=int(o.get("centroid_min_returns", 0)))
+                             centroid_min_returns=int(o.get("centroid_min_returns", 0)),
+                             centroid_depth_m=float(o.get("centroid_depth_m", 0.0)))
 
 
 @dataclass(frozen=True)
@@ -530,10 +534,23 @@ def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_e
 
 def with_return_centroids(clusters: Clusters, sums: np.ndarray, window: Window,
                           max_cells: int = 0, min_returns: int = 0,
-                          heights: np.ndarray | None = None) -> Clusters:
+                          heights: np.ndarray | None = None,
+                          sensor_xy: tuple[float, float] | None = None,
+                          depth_m: float = 0.0) -> Clusters:
     """``clusters`` with each centroid the mean of the scan's obstacle returns in its cells,
 
         c = Σ_cells (n_c · x_c + Σᵢ δᵢ) / Σ_cells n_c,
+
+    moved ``depth_m`` further from the sensor along the line of sight,
+
+        c' = c + d · (c − s) / |c − s|
+
+    (``s`` = ``sensor_xy``, the scan's sensor position in the working CRS; None: the centre
+    of the window's centre cell, which holds the sensor). The returns lie on the object's
+    near side, so their mean sits in front of its centre — by πr/4 for a round object of
+    radius r seen from afar (0.24 m for a person 0.6 m across) — and swings round it as the
+    sensor drives past: a standing person seems to move, a walking one lags (docs/method.md
+    §8 "Centroids", "The near side's depth"). ``depth_m`` 0: the returns' mean as it is.
 
     (``x_c`` a cell's centre, ``n_c`` its returns, ``δᵢ`` their offsets from the centre:
     ``sums`` (rows, cols, 3) float32 of :func:`evperc.sensor.sensor_grid`'s ``sums_out``),
@@ -552,10 +569,14 @@ def with_return_centroids(clusters: Clusters, sums: np.ndarray, window: Window,
     flat = sums.reshape(-1, 3)
     top = _NO_FLAT_HEIGHTS if heights is None else np.ascontiguousarray(
         heights, np.float32).reshape(-1)
+    if sensor_xy is None:
+        sensor_xy = ((window.col0 + window.cols // 2 + 0.5) * window.resolution_m,
+                     (window.row0 + window.rows // 2 + 0.5) * window.resolution_m)
     centroid, from_returns = _return_centroids(
         clusters.cells, clusters.offsets, clusters.centroid_m, flat, top, window.row0,
         window.col0, window.cols, float(window.resolution_m), max_cells,
-        float(max(min_returns, 1)))
+        float(max(min_returns, 1)), float(sensor_xy[0]), float(sensor_xy[1]),
+        float(depth_m))
     return replace(clusters, centroid_m=centroid, from_returns=from_returns)
 
 
@@ -563,13 +584,16 @@ def warm_up_return_centroids() -> None:
     """Load (or compile) :func:`with_return_centroids`' kernel before the first frame."""
     for top in (_NO_FLAT_HEIGHTS, np.ones(1, np.float32)):
         _return_centroids(np.zeros(1, np.int64), np.array([0, 1], np.int64), np.zeros((1, 2)),
-                          np.ones((1, 3), np.float32), top, 0, 0, 1, 0.5, 0, 1.0)
+                          np.ones((1, 3), np.float32), top, 0, 0, 1, 0.5, 0, 1.0, 0.0, 0.0,
+                          0.0)
 
 
 @numba.njit(cache=True)  # keeps the GIL: a short pass over the clusters' cells
 def _return_centroids(cells, offsets, cell_centroid, sums, top, row0, col0, cols, res,
-                      max_cells, min_returns):  # pragma: no cover - compiled
-    """See :func:`with_return_centroids` (``top`` empty: no heights)."""
+                      max_cells, min_returns, sensor_x, sensor_y, depth
+                      ):  # pragma: no cover - compiled
+    """See :func:`with_return_centroids` (``top`` empty: no heights; ``depth`` 0: the
+    returns' mean as it is)."""
     n = offsets.shape[0] - 1
     out = cell_centroid.copy()
     from_returns = np.zeros(n, np.bool_)
@@ -592,8 +616,17 @@ def _return_centroids(cells, offsets, cell_centroid, sums, top, row0, col0, cols
                 sy += m * ((row0 + row + 0.5) * res) + np.float64(sums[cell, 1])
                 count += m
         if count >= min_returns:
-            out[k, 0] = sx / count
-            out[k, 1] = sy / count
+            x = sx / count
+            y = sy / count
+            if depth > 0.0:
+                dx = x - sensor_x
+                dy = y - sensor_y
+                r = math.sqrt(dx * dx + dy * dy)
+                if r > 0.0:
+                    x += depth * dx / r
+                    y += depth * dy / r
+            out[k, 0] = x
+            out[k, 1] = y
             from_returns[k] = True
     return out, from_returns
 

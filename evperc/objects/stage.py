@@ -104,7 +104,8 @@ class ObjectStage:
     def step(self, state: TrackerState, decision: np.ndarray, betp_moving: np.ndarray,
              conflict_fo: np.ndarray, window: Window, stamp_ns: int,
              occupied_now: np.ndarray | None = None, heights: np.ndarray | None = None,
-             near_building: np.ndarray | None = None, return_sums: np.ndarray | None = None
+             near_building: np.ndarray | None = None, return_sums: np.ndarray | None = None,
+             sensor_xy: tuple[float, float] | None = None
              ) -> tuple[np.ndarray, np.ndarray]:
         """The frame's reported objects and their cells (:func:`track_step`); ``state``
         is updated in place. ``occupied_now``: (rows, cols) bool, the cells holding a
@@ -117,7 +118,9 @@ class ObjectStage:
         float32, each cell's returns' offset sums and count (``sensor_grid(sums_out=)``), for
         ``objects.centroid = "returns"`` (None: the cell centres' mean); read only where
         ``heights`` > 0 when ``heights`` is given (the sensor grid writes the two in one pass
-        and leaves the other cells' sums as they were)."""
+        and leaves the other cells' sums as they were); ``sensor_xy``: the scan's sensor
+        position (working CRS, m), the line of sight of ``objects.centroid_depth_m`` (None:
+        the window's centre cell)."""
         seeds = footprint_seeds(state, window)
         clusters = self.clusterer.clusters(decision, betp_moving, conflict_fo, window, seeds,
                                            occupied_now, heights, near_building)
@@ -125,9 +128,10 @@ class ObjectStage:
         clusters = self.splitter.split(clusters, state, window, stamp_ns, decision,
                                        betp_moving, conflict_fo)
         if return_sums is not None and self.needs_return_sums:
+            p = self.cluster_params
             clusters = with_return_centroids(clusters, return_sums, window,
-                                             self.cluster_params.centroid_max_cells,
-                                             self.cluster_params.centroid_min_returns, heights)
+                                             p.centroid_max_cells, p.centroid_min_returns,
+                                             heights, sensor_xy, p.centroid_depth_m)
         return track_step(state, clusters, window, stamp_ns, self.tracking_params, decision,
                           near_building)
 
