@@ -37,16 +37,22 @@ fills and gaps included) holds it, not the object stage's own records of the fra
 causes are those of the frame's own step all the same.
 
 A ``velocity_test`` agent-frame is detailed too (the table "Velocity test"): its track's
-fitted speed under ``moving_speed_m_per_s`` (``slow``, with the agent's own speed over the
-second around the frame from its truth cells' centroid: < 0.3, < 0.6 or ≥ 0.6 m/s — the
-truth calls an agent moving above 0.1 m/s), or the Mahalanobis test failing with the fit's
+fitted speed under ``moving_speed_m_per_s`` (``slow``, with the agent's own speed at the
+frame: < 0.3, < 0.6 or ≥ 0.6 m/s — the truth calls an agent moving above 0.1 m/s), or the Mahalanobis test failing with the fit's
 centroid noise at the floor ``centroid_sigma_m`` (``floor``) or above it (``residual``: the
 centroids scatter more than the floor), each with ``evidence`` when the track already has
 some motion evidence (conflict or vacated frames) and ``no evidence`` when it has none.
 
 Found by role and range (the table "Found by role and range"): every agent-frame by the
 agent's role and the range from the sensor to the centre of its visible truth-M cells
-(< 20, 20–40, 40–60, ≥ 60 m).
+(< 20, 20–40, 40–60, ≥ 60 m); and by role and the agent's own speed at the frame against
+``moving_speed_m_per_s`` (the table "Found by role and planned speed": an agent setting off
+or slowing down is M from 0.1 m/s, and the simulator smooths its speed over 2 s).
+
+An agent's speed is the simulator's, exact: the drive planned again from the truth
+manifest's map, roads, profile, length and seed (:func:`planned_speeds`); where that plan is
+not the truth's drive (another simulator configuration), the speed over the second around
+the frame from its truth cells' centroid (whole cells: a person's start reads as 0.5–1 m/s).
 
 Cell level: the visible truth-M cells not decided ``moving`` are split by what they are
 decided and by whether their agent was found (a found agent's undecided cells are what a
@@ -216,6 +222,60 @@ def _speed_around(path: list[tuple[int, float, float]], stamp: int) -> float | N
     return math.hypot(x1 - x0, y1 - y0) / ((t1 - t0) * 1e-9)
 
 
+def planned_speeds(truth: Any) -> dict[int, np.ndarray] | None:
+    """Every agent's speed (m/s) at each scan of the drive, exact: the simulator's plan of
+    the drive (:func:`evperc.sim.drive.plan`, no scan cast) from the truth manifest's map,
+    roads, profile, length and seed, with the default configuration's simulator keys; by
+    truth agent id (1 + the plan's agent index), an array over the truth's frames. None when
+    the plan is not the truth's drive (other agents' roles than the manifest's, or the
+    agents at the first scan a median of more than 0.5 m from their truth cells' centroids:
+    a drive simulated with other keys, or a moved map) — the cells' estimate
+    (:func:`_speed_around`) stands then."""
+    from evperc.config import load_config
+    from evperc.sim.drive import SimRequest, plan
+    from evperc.sim.scene import read_map_layers
+
+    m = truth.manifest
+
+    def where(name: str) -> Path:  # a relative path in the manifest: from the project root
+        path = Path(name)
+        return path if path.is_absolute() or path.exists() else REPO / path
+
+    try:
+        roads = where(m["roads"]) if m.get("roads") else None
+        layers = read_map_layers(where(m["map"]), roads)
+        req = SimRequest(map_path=where(m["map"]), out_dir=Path("."), config=load_config(),
+                         roads_path=roads, profile=m["profile"], seconds=float(m["seconds"]),
+                         seed=int(m["seed"]))
+        agents = plan(req, layers).agents
+    except (OSError, KeyError, ValueError) as err:
+        log.warning("no planned speeds (%s): the truth cells' estimate", err)
+        return None
+    first = next(iter(truth.frames))
+    res = first.window.resolution_m
+    off = []  # an agent cut by the window's edge has its centroid off: the median decides
+    for a in np.unique(first.agent[first.agent > 0]).tolist():
+        rr, cc = np.nonzero(first.agent == a)
+        if a - 1 < len(agents):
+            off.append(math.hypot((cc.mean() + first.window.col0 + 0.5) * res
+                                  - agents.x[0, a - 1],
+                                  (rr.mean() + first.window.row0 + 0.5) * res
+                                  - agents.y[0, a - 1]))
+    if ([str(r) for r in agents.role] != [a.get("role") for a in truth.agents]
+            or not off or float(np.median(off)) > 0.5):
+        log.warning("the simulator's plan is not the truth's drive: the truth cells' speed "
+                    "estimate")
+        return None
+    return {a + 1: np.abs(agents.speed[:, a]) for a in range(len(agents))}
+
+
+def _speed_bucket(v: float | None, v0: float) -> str:
+    """An agent-frame's planned speed against the motion test's ``v0``."""
+    if v is None:
+        return "speed ?"
+    return (f"< {v0:g} m/s" if v < v0 else f"{v0:g}-1 m/s" if v < 1.0 else ">= 1 m/s")
+
+
 RANGES_M = (20.0, 40.0, 60.0)
 
 
@@ -300,7 +360,11 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
     by_range: dict[tuple[str, str], list[int]] = collections.defaultdict(lambda: [0, 0])
     slow_pending: list[tuple[int, int, str, dict[str, Any]]] = []  # (agent, stamp, role, track)
     v0 = float(params["moving_speed_m_per_s"])
+    planned = planned_speeds(truth)
+    frame_of: dict[int, int] = {}
+    by_speed: dict[str, list[int]] = collections.defaultdict(lambda: [0, 0])
     for t in truth.frames:
+        frame_of[t.stamp_ns] = t.index
         rec = by_stamp.get(t.stamp_ns)
         f = run_by_stamp.get(t.stamp_ns)
         if rec is None or f is None:
@@ -357,6 +421,10 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
             band = by_range[(role, _range_band(reach))]
             band[0] += 1
             band[1] += int(is_found)
+            true_speed = None if planned is None else float(planned[a][t.index])
+            speed_row = by_speed[f"{role} {_speed_bucket(true_speed, v0)}"]
+            speed_row[0] += 1
+            speed_row[1] += int(is_found)
             for code in final[vis_cells].tolist():
                 name = _NAMES.get(int(code), "?")
                 cells_split[("found " if is_found else "missed ") + name] += 1
@@ -432,10 +500,14 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
                                        if i.get("group_cells") is not None})})
     velocity: collections.Counter[str] = collections.Counter()
     for a, stamp, role, tr_ in slow_pending:
-        velocity[f"{role} {_velocity_detail(tr_, v0, _speed_around(centroids[a], stamp))}"] += 1
+        speed = (_speed_around(centroids[a], stamp) if planned is None
+                 else float(planned[a][frame_of[stamp]]))
+        velocity[f"{role} {_velocity_detail(tr_, v0, speed)}"] += 1
     return {"agent_frames": total_n, "found": found_n, "causes": dict(causes),
             "small_clusters": dict(small), "velocity_test": dict(velocity),
             "by_range": {f"{role} {band}": v for (role, band), v in sorted(by_range.items())},
+            "by_speed": {k: v for k, v in sorted(by_speed.items())},
+            "speeds_planned": planned is not None,
             "by_role": {k: dict(v) for k, v in by_role.items()},
             "cells": dict(cells_split), "episodes": episodes}
 
@@ -493,6 +565,16 @@ def print_report(results: dict[str, Any]) -> None:
             ranges[key][0] += n
             ranges[key][1] += found
     for key, (n, found) in sorted(ranges.items()):
+        print(f"  {key}: {found} / {n} ({found / n:.3f})")
+    planned = sum(r["speeds_planned"] for r in results.values())
+    print(f"\nFound by role and planned speed (the simulator's, {planned} of {len(results)} "
+          "runs; agent-frames found / all):")
+    speeds: dict[str, list[int]] = collections.defaultdict(lambda: [0, 0])
+    for r in results.values():
+        for key, (n, found) in r["by_speed"].items():
+            speeds[key][0] += n
+            speeds[key][1] += found
+    for key, (n, found) in sorted(speeds.items()):
         print(f"  {key}: {found} / {n} ({found / n:.3f})")
     print("\nBy role (missed agent-frames):")
     for name, r in results.items():
