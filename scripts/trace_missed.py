@@ -38,9 +38,10 @@ causes are those of the frame's own step all the same.
 
 A ``velocity_test`` agent-frame is detailed too (the table "Velocity test"): its track's
 fitted speed under ``moving_speed_m_per_s`` (``slow``, with the agent's own speed at the
-frame: < 0.3, < 0.6 or ≥ 0.6 m/s — the truth calls an agent moving above 0.1 m/s), or the Mahalanobis test failing with the fit's
-centroid noise at the floor ``centroid_sigma_m`` (``floor``) or above it (``residual``: the
-centroids scatter more than the floor), each with ``evidence`` when the track already has
+frame: < 0.3, < 0.6 or ≥ 0.6 m/s — the truth calls an agent moving above 0.1 m/s), or
+the Mahalanobis test failing with the fit's centroid noise at the floor
+``centroid_sigma_m`` (``floor``) or above it (``residual``: the centroids scatter more than
+the floor), each with ``evidence`` when the track already has
 some motion evidence (conflict or vacated frames) and ``no evidence`` when it has none.
 
 Found by role and range (the table "Found by role and range"): every agent-frame by the
