@@ -364,6 +364,8 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
     planned = planned_speeds(truth)
     frame_of: dict[int, int] = {}
     by_speed: dict[str, list[int]] = collections.defaultdict(lambda: [0, 0])
+    speed_causes: dict[str, collections.Counter[str]] = collections.defaultdict(
+        collections.Counter)
     for t in truth.frames:
         frame_of[t.stamp_ns] = t.index
         rec = by_stamp.get(t.stamp_ns)
@@ -423,7 +425,8 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
             band[0] += 1
             band[1] += int(is_found)
             true_speed = None if planned is None else float(planned[a][t.index])
-            speed_row = by_speed[f"{role} {_speed_bucket(true_speed, v0)}"]
+            speed_key = f"{role} {_speed_bucket(true_speed, v0)}"
+            speed_row = by_speed[speed_key]
             speed_row[0] += 1
             speed_row[1] += int(is_found)
             for code in final[vis_cells].tolist():
@@ -468,6 +471,7 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
                             if cause == "adjacent" and a in merged_over:
                                 cause = "merged"
             info["cause"] = cause
+            speed_causes[speed_key][cause] += 1
             causes[cause] += 1
             by_role[role][cause] += 1
             per_agent[a].append(info)
@@ -508,6 +512,7 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
             "small_clusters": dict(small), "velocity_test": dict(velocity),
             "by_range": {f"{role} {band}": v for (role, band), v in sorted(by_range.items())},
             "by_speed": {k: v for k, v in sorted(by_speed.items())},
+            "speed_causes": {k: dict(v) for k, v in sorted(speed_causes.items())},
             "speeds_planned": planned is not None,
             "by_role": {k: dict(v) for k, v in by_role.items()},
             "cells": dict(cells_split), "episodes": episodes}
@@ -577,6 +582,13 @@ def print_report(results: dict[str, Any]) -> None:
             speeds[key][1] += found
     for key, (n, found) in sorted(speeds.items()):
         print(f"  {key}: {found} / {n} ({found / n:.3f})")
+    print("\nMissed by role and planned speed, by cause (agent-frames, all runs):")
+    by_cause: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
+    for r in results.values():
+        for key, c in r["speed_causes"].items():
+            by_cause[key].update(c)
+    for key, c in sorted(by_cause.items()):
+        print(f"  {key}: {dict(c.most_common())}")
     print("\nBy role (missed agent-frames):")
     for name, r in results.items():
         for role, c in sorted(r["by_role"].items()):
