@@ -539,18 +539,7 @@ def with_return_centroids(clusters: Clusters, sums: np.ndarray, window: Window,
                           depth_m: float = 0.0) -> Clusters:
     """``clusters`` with each centroid the mean of the scan's obstacle returns in its cells,
 
-        c = Σ_cells (n_c · x_c + Σᵢ δᵢ) / Σ_cells n_c,
-
-    moved ``depth_m`` further from the sensor along the line of sight,
-
-        c' = c + d · (c − s) / |c − s|
-
-    (``s`` = ``sensor_xy``, the scan's sensor position in the working CRS; None: the centre
-    of the window's centre cell, which holds the sensor). The returns lie on the object's
-    near side, so their mean sits in front of its centre — by πr/4 for a round object of
-    radius r seen from afar (0.24 m for a person 0.6 m across) — and swings round it as the
-    sensor drives past: a standing person seems to move, a walking one lags (docs/method.md
-    §8 "Centroids", "The near side's depth"). ``depth_m`` 0: the returns' mean as it is.
+        c = Σ_cells (n_c · x_c + Σᵢ δᵢ) / Σ_cells n_c
 
     (``x_c`` a cell's centre, ``n_c`` its returns, ``δᵢ`` their offsets from the centre:
     ``sums`` (rows, cols, 3) float32 of :func:`evperc.sensor.sensor_grid`'s ``sums_out``),
@@ -563,7 +552,15 @@ def with_return_centroids(clusters: Clusters, sums: np.ndarray, window: Window,
     ``from_returns`` says which clusters took the returns' mean (the tracker's noise floor,
     ``objects.centroid_returns_sigma_m``). A person is one or two 0.5 m cells: the mean of
     the cell centres moves by half a cell or not at all as the person walks a quarter cell a
-    scan, the mean of the returns moves with the person (docs/method.md §8 "Centroids")."""
+    scan, the mean of the returns moves with the person (docs/method.md §8 "Centroids").
+
+    With ``depth_m`` d > 0 each returns' mean is moved d further from the sensor along the
+    line of sight, c' = c + d · (c − s) / |c − s| (``s`` = ``sensor_xy``, the scan's sensor
+    position in the working CRS; None: the centre of the window's centre cell, which holds
+    the sensor). The returns lie on the object's near side, so their mean sits in front of
+    its centre — by πr/4 for a round object of radius r seen from afar (0.24 m for a person
+    0.6 m across) — and swings round it as the sensor drives past: a standing person seems
+    to move, a walking one lags (docs/method.md §8 "The near side's depth")."""
     if len(clusters) == 0:
         return replace(clusters, from_returns=np.zeros(0, np.bool_))
     flat = sums.reshape(-1, 3)
