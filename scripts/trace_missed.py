@@ -546,6 +546,17 @@ def main() -> None:
         args.json.write_text(json.dumps(results, indent=1, default=str))
 
 
+def _print_found(results: dict[str, Any], table: str) -> None:
+    """The rows of ``table`` (key -> [agent-frames, found]) pooled over the runs."""
+    pooled: dict[str, list[int]] = collections.defaultdict(lambda: [0, 0])
+    for r in results.values():
+        for key, (n, found) in r[table].items():
+            pooled[key][0] += n
+            pooled[key][1] += found
+    for key, (n, found) in sorted(pooled.items()):
+        print(f"  {key}: {found} / {n} ({found / n:.3f})")
+
+
 def print_report(results: dict[str, Any]) -> None:
     print("\n| run | agent-frames | found | " + " | ".join(CAUSES) + " |")
     print("|---|---|---|" + "---|" * len(CAUSES))
@@ -565,23 +576,11 @@ def print_report(results: dict[str, Any]) -> None:
     for what, n in pooled.most_common():
         print(f"  {what}: {n}")
     print("\nFound by role and range (agent-frames found / all, all runs):")
-    ranges: dict[str, list[int]] = collections.defaultdict(lambda: [0, 0])
-    for r in results.values():
-        for key, (n, found) in r["by_range"].items():
-            ranges[key][0] += n
-            ranges[key][1] += found
-    for key, (n, found) in sorted(ranges.items()):
-        print(f"  {key}: {found} / {n} ({found / n:.3f})")
+    _print_found(results, "by_range")
     planned = sum(r["speeds_planned"] for r in results.values())
     print(f"\nFound by role and planned speed (the simulator's, {planned} of {len(results)} "
           "runs; agent-frames found / all):")
-    speeds: dict[str, list[int]] = collections.defaultdict(lambda: [0, 0])
-    for r in results.values():
-        for key, (n, found) in r["by_speed"].items():
-            speeds[key][0] += n
-            speeds[key][1] += found
-    for key, (n, found) in sorted(speeds.items()):
-        print(f"  {key}: {found} / {n} ({found / n:.3f})")
+    _print_found(results, "by_speed")
     print("\nMissed by role and planned speed, by cause (agent-frames, all runs):")
     by_cause: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
     for r in results.values():
