@@ -359,15 +359,14 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
     per_agent: dict[int, list[dict[str, Any]]] = collections.defaultdict(list)
     centroids: dict[int, list[tuple[int, float, float]]] = collections.defaultdict(list)
     by_range: dict[tuple[str, str], list[int]] = collections.defaultdict(lambda: [0, 0])
-    slow_pending: list[tuple[int, int, str, dict[str, Any]]] = []  # (agent, stamp, role, track)
+    # (agent, stamp, truth frame, role, track)
+    slow_pending: list[tuple[int, int, int, str, dict[str, Any]]] = []
     v0 = float(params["moving_speed_m_per_s"])
     planned = planned_speeds(truth)
-    frame_of: dict[int, int] = {}
     by_speed: dict[str, list[int]] = collections.defaultdict(lambda: [0, 0])
     speed_causes: dict[str, collections.Counter[str]] = collections.defaultdict(
         collections.Counter)
     for t in truth.frames:
-        frame_of[t.stamp_ns] = t.index
         rec = by_stamp.get(t.stamp_ns)
         f = run_by_stamp.get(t.stamp_ns)
         if rec is None or f is None:
@@ -467,7 +466,7 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
                             info["track"] = tr_
                             cause = _track_cause(tr_, confirm)
                             if cause == "velocity_test":
-                                slow_pending.append((a, t.stamp_ns, role, tr_))
+                                slow_pending.append((a, t.stamp_ns, t.index, role, tr_))
                             if cause == "adjacent" and a in merged_over:
                                 cause = "merged"
             info["cause"] = cause
@@ -504,9 +503,9 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
                 "group_cells": sorted({i.get("group_cells") for i in g
                                        if i.get("group_cells") is not None})})
     velocity: collections.Counter[str] = collections.Counter()
-    for a, stamp, role, tr_ in slow_pending:
+    for a, stamp, frame, role, tr_ in slow_pending:
         speed = (_speed_around(centroids[a], stamp) if planned is None
-                 else float(planned[a][frame_of[stamp]]))
+                 else float(planned[a][frame]))
         velocity[f"{role} {_velocity_detail(tr_, v0, speed)}"] += 1
     return {"agent_frames": total_n, "found": found_n, "causes": dict(causes),
             "small_clusters": dict(small), "velocity_test": dict(velocity),

@@ -532,6 +532,15 @@ def _summarise(all_cells, stats, n, betp_flat, row0, col0, res, min_cells, max_e
     return cells, offsets, centroid, bbox, seeds, mean_m
 
 
+def ego_cell_centre(window: Window) -> tuple[float, float]:
+    """(x, y) m of the centre of the window's centre cell, the one that holds the ego
+    (:meth:`~evperc.geo.window.Window.centred_on`): the origin of the range in
+    ``objects.centroid_sigma_per_m``, and the sensor position of
+    :func:`with_return_centroids` when none is given."""
+    return ((window.col0 + window.cols // 2 + 0.5) * window.resolution_m,
+            (window.row0 + window.rows // 2 + 0.5) * window.resolution_m)
+
+
 def with_return_centroids(clusters: Clusters, sums: np.ndarray, window: Window,
                           max_cells: int = 0, min_returns: int = 0,
                           heights: np.ndarray | None = None,
@@ -567,8 +576,7 @@ def with_return_centroids(clusters: Clusters, sums: np.ndarray, window: Window,
     top = _NO_FLAT_HEIGHTS if heights is None else np.ascontiguousarray(
         heights, np.float32).reshape(-1)
     if sensor_xy is None:
-        sensor_xy = ((window.col0 + window.cols // 2 + 0.5) * window.resolution_m,
-                     (window.row0 + window.rows // 2 + 0.5) * window.resolution_m)
+        sensor_xy = ego_cell_centre(window)
     centroid, from_returns = _return_centroids(
         clusters.cells, clusters.offsets, clusters.centroid_m, flat, top, window.row0,
         window.col0, window.cols, float(window.resolution_m), max_cells,

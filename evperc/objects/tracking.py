@@ -71,7 +71,7 @@ import numpy as np
 
 from evperc.fusion.twin import DECISION_CODES
 from evperc.geo.window import Window
-from evperc.objects.clusters import Clusters
+from evperc.objects.clusters import Clusters, ego_cell_centre
 from evperc.output.objects import OBJECT_DTYPE, OBJECT_STATES
 
 _FREE = DECISION_CODES["free"]
@@ -954,14 +954,6 @@ def _fill_records(rows, cl, ids, flags, hits, velocity, sigma, cells, offsets, c
 
 _NO_NEAR = np.zeros(1, np.bool_)
 _NO_DECISION = np.zeros(0, np.uint8)
-
-
-def ego_cell_centre(window: Window) -> tuple[float, float]:
-    """(x, y) m of the centre of the window's centre cell, the one that holds the ego
-    (:meth:`~evperc.geo.window.Window.centred_on`): the origin of the range in
-    ``objects.centroid_sigma_per_m``."""
-    return ((window.col0 + window.cols // 2 + 0.5) * window.resolution_m,
-            (window.row0 + window.rows // 2 + 0.5) * window.resolution_m)
 
 
 _NO_SIGMAS = np.zeros(0, np.float64)
