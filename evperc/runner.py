@@ -645,7 +645,7 @@ class Pipeline:
         sums = self._sums_block(inputs.window.shape) if self.return_sums else None
         free, occupied = sensor_grid(scan.points, scan.planar, inputs.t_crs, inputs.window,
                                      self.sensor_params, kinds_out=kinds, hits_out=hits,
-                                     heights_out=heights, sums_out=sums)
+                                     heights_out=heights, sums_out=sums, context=inputs.labels)
         cells = scan_cells(free, occupied, heights) if self.objects is not None else None
         seconds = {**inputs.seconds, "sensor": time.perf_counter() - t0}
         labelling = (scan, inputs.t_crs, kinds) if kinds is not None else None

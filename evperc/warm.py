@@ -97,7 +97,8 @@ def _warm_sensor(spec: WarmSpec) -> None:
     sensor_grid(points, False, np.eye(4), tiny, params,
                 hits_out=np.empty(tiny.shape, np.bool_),
                 heights_out=np.empty(tiny.shape, np.float32),
-                sums_out=np.zeros((*tiny.shape, 3), np.float32))
+                sums_out=np.zeros((*tiny.shape, 3), np.float32),
+                context=np.zeros(tiny.shape, np.uint8))  # the road's returns, if asked
     # the heights without the sums (objects.centroid = "cells"): a pass of their own
     sensor_grid(points, False, np.eye(4), tiny, params,
                 heights_out=np.empty(tiny.shape, np.float32))

@@ -208,7 +208,10 @@ SENSOR_PRESETS = {
               ("objects", "centroid"): "cells"},
     "vlp16": {("objects", "growth_reach_cells"): 1, ("objects", "growth_early"): True,
               # as measured in 2026-12-06 (eleventh session): the cell centres' means
-              ("objects", "centroid"): "cells"},
+              ("objects", "centroid"): "cells",
+              # 2026-12-07 (eleventh session): the chain's gap capped on the mapped road
+              ("sensor", "ground_chain_gap_m"): 2.0,
+              ("sensor", "ground_chain_gap_road_only"): True},
 }
 
 

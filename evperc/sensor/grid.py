@@ -8,6 +8,7 @@ import threading
 
 import numpy as np
 
+from evperc.geo.prior import CONTEXT_ROAD
 from evperc.geo.window import Window
 from evperc.sensor.beams import (
     PolarLayout,
@@ -20,6 +21,7 @@ from evperc.sensor.beams import (
 from evperc.sensor.conservative import conservative_free
 from evperc.sensor.evidence import beam_extents
 from evperc.sensor.ground import (
+    EVERY_POINT,
     NO_FEET,
     NO_HEIGHTS,
     NO_LOCAL,
@@ -30,6 +32,7 @@ from evperc.sensor.ground import (
 )
 from evperc.sensor.params import SensorParams
 from evperc.sensor.projection import (
+    points_in_context,
     rasterise,
     scatter_all_hits,
     scatter_free_polar_cells,
@@ -64,7 +67,8 @@ _scratch = _Scratch()
 def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, window: Window,
                 params: SensorParams, kinds_out: np.ndarray | None = None,
                 hits_out: np.ndarray | None = None, heights_out: np.ndarray | None = None,
-                sums_out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                sums_out: np.ndarray | None = None, context: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
     """``(free, occupied)``: float32 ``window.shape`` arrays of m({F}) and m({O}) for one scan;
     m(Ω_SG) = 1 − free − occupied and a cell has at most one of the two nonzero.
 
@@ -97,7 +101,11 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
     not cleared (pass zeros; :func:`~evperc.sensor.projection.scatter_return_sums`); with
     ``heights_out`` the two come from one pass and the sums are written, valid exactly where
     ``heights_out`` > 0 — any block will do, nothing needs clearing
-    (:func:`~evperc.sensor.projection.scatter_top_heights_and_sums`).
+    (:func:`~evperc.sensor.projection.scatter_top_heights_and_sums`). ``context`` (uint8
+    ``window.shape``, optional): the window's map context (:mod:`evperc.geo.prior`); with
+    ``sensor.ground_chain_gap_road_only`` only the returns in its road cells take the chain's
+    capped ground (none without it: the cap then applies nowhere; docs/method.md §3 "The
+    chain's gap on the road").
     """
     layout = PolarLayout.build(params.azimuth_resolution_deg,
                                params.range_bin_m or window.resolution_m,
@@ -126,13 +134,19 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
     feet = _scratch.take("feet", n, np.int32) if foot else NO_FEET
     local_min = (_scratch.take("local_min", local_grid_side(layout.max_range_m) ** 2, np.float32)
                  if local else NO_LOCAL)
+    chain_gap, capped = params.ground_chain_gap_m, EVERY_POINT
+    if chain_gap > 0 and params.ground_chain_gap_road_only and not planar:
+        if context is None:  # no map: no return is on a mapped road
+            chain_gap = 0.0
+        else:
+            capped = _scratch.take("capped", n, np.uint8)
+            points_in_context(capped, context, CONTEXT_ROAD, window, sensor_xy, x, y)
     n_feet = classify_points(
         z, range_m, az_bin, layout.n_az, layout.max_range_m, bool(planar),
         np.float32(params.sensor_height_m), np.float32(params.ground_threshold_m),
         np.float32(params.max_obstacle_height_m), hist, kind, params.ground_fallback == "scan",
         height, np.float32(params.ground_local_raise_m if local else 0.0), x, y, local_min,
-        params.ground_chain, params.foot_lift_m if foot else 0.0, feet,
-        params.ground_chain_gap_m)
+        params.ground_chain, params.foot_lift_m if foot else 0.0, feet, chain_gap, capped)
     if kinds_out is not None:
         kinds_out[:] = kind
 

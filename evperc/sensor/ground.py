@@ -112,6 +112,8 @@ NO_HEIGHTS = np.zeros(0, np.float32)
 NO_FEET = np.zeros(0, np.int32)
 #: the ``x`` / ``y`` / ``local_min`` arguments of :func:`classify_points` without step 5
 NO_LOCAL = np.zeros(0, np.float32)
+#: the ``capped`` argument of :func:`classify_points`: the chain's gap cap for every point
+EVERY_POINT = np.zeros(0, np.uint8)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -130,7 +132,7 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
                     x: np.ndarray = NO_LOCAL, y: np.ndarray = NO_LOCAL,
                     local_min: np.ndarray = NO_LOCAL, chain: bool = False,
                     foot_lift: float = 0.0, feet: np.ndarray = NO_FEET,
-                    chain_gap: float = 0.0) -> int:
+                    chain_gap: float = 0.0, capped: np.ndarray = EVERY_POINT) -> int:
     """Write into ``kind`` the GROUND / OBSTACLE / IGNORED kind of each point.
 
     ``z``: levelled height above the sensor; ``range_m``: horizontal range; ``az_bin``:
@@ -147,7 +149,10 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
     float32 work array ``local_min`` of ``local_grid_side(max_range_m)²`` elements.
     ``chain``: step 3's chain along each sector; ``chain_gap`` > 0
     (``sensor.ground_chain_gap_m``): the chain's slope bound grows over at most that many
-    metres past the last kept band of the sector (docs/method.md §3 "The chain's gap").
+    metres past the last kept band of the sector (docs/method.md §3 "The chain's gap");
+    ``capped`` (uint8, one per point, optional): only the points marked 1 take the capped
+    chain's ground, the others that of the chain without the cap (both estimated from the
+    same histogram; ``sensor.ground_chain_gap_road_only``: the points on a mapped road).
     ``foot_lift`` > 0 (``sensor.foot_lift_m``):
     the indices of the GROUND points whose *lift* — height above the ground of the nearer
     band, the estimate their band would take without its own (:func:`_fill_ground`'s
@@ -185,8 +190,13 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
         cells[i] = cell
     if run:
         hist[last] += run
-    ground, ground_near = _fill_ground(hist, n_sector, n_band, n_z, scan_fallback, chain,
-                                       chain_gap)
+    accepted, ok = _accepted(hist, n_sector, n_band, n_z)
+    ground, ground_near = _chained(accepted, ok, n_sector, n_band, scan_fallback, chain,
+                                   chain_gap)
+    split = chain and chain_gap > 0.0 and capped.shape[0] == z.shape[0]
+    # the points not marked in ``capped``: the chain's ground without the cap
+    free_ground, free_near = (_chained(accepted, ok, n_sector, n_band, scan_fallback, chain,
+                                       0.0) if split else (ground, ground_near))
     refine = local_raise > 0
     if refine:
         side = local_grid_side(max_range_m)
@@ -199,13 +209,16 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
         if heights:
             height[i] = np.nan
         if cell >= 0:
-            d = (z[i] + sensor_height) - ground[cell]
+            own = not split or capped[i] != 0
+            g, g_near = (ground[cell], ground_near[cell]) if own else (free_ground[cell],
+                                                                        free_near[cell])
+            d = (z[i] + sensor_height) - g
             if refine and d < local_raise:  # near the coarse ground: may be a block's lowest
                 at = _local_cell(x[i], y[i], max_range_m, side)
                 local_min[at] = min(local_min[at], z[i] + sensor_height)
             if d < threshold:
                 kind[i] = GROUND
-                if (z[i] + sensor_height) - ground_near[cell] >= foot:
+                if (z[i] + sensor_height) - g_near >= foot:
                     feet[n_feet] = i
                     n_feet += 1
             elif d <= max_height:
@@ -219,7 +232,9 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
         i = candidates[k]
         at = _local_cell(x[i], y[i], max_range_m, side)
         h = z[i] + sensor_height
-        base = ground[cells[i]]
+        own = not split or capped[i] != 0
+        base = ground[cells[i]] if own else free_ground[cells[i]]
+        base_near = ground_near[cells[i]] if own else free_near[cells[i]]
         lowest = np.float32(np.inf)
         for dr in range(-LOCAL_CELLS, LOCAL_CELLS + 1):
             for dc in range(-LOCAL_CELLS, LOCAL_CELLS + 1):
@@ -231,7 +246,7 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
             kind[i] = GROUND
             if heights:
                 height[i] = np.nan
-            if h - ground_near[cells[i]] >= foot:
+            if h - base_near >= foot:
                 feet[n_feet] = i
                 n_feet += 1
         elif heights:
@@ -268,6 +283,15 @@ def _fill_ground(hist: np.ndarray, n_sector: int, n_band: int, n_z: int,
     else the fallback — 0 (the prior) or, with ``scan_fallback``, the median of the accepted
     estimates (steps 2–4). ``ground_near``: the same without the cell's own estimate (the
     nearest accepted band strictly nearer, else the fallback)."""
+    accepted, ok = _accepted(hist, n_sector, n_band, n_z)
+    return _chained(accepted, ok, n_sector, n_band, scan_fallback, chain, chain_gap)
+
+
+@numba.njit(cache=True, nogil=True)
+def _accepted(hist: np.ndarray, n_sector: int, n_band: int, n_z: int
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Steps 2–3 without the chain: each coarse cell's estimate (float64) and whether the
+    prior's slope bound accepts it."""
     accepted = np.empty(n_sector * n_band, dtype=np.float64)
     ok = np.zeros(n_sector * n_band, dtype=np.bool_)
     for cell in range(n_sector * n_band):
@@ -287,6 +311,16 @@ def _fill_ground(hist: np.ndarray, n_sector: int, n_band: int, n_z: int,
             if 0 < pct_bin < n_z - 1 and abs(estimate) <= tolerance:
                 accepted[cell] = estimate
                 ok[cell] = True
+    return accepted, ok
+
+
+@numba.njit(cache=True, nogil=True)
+def _chained(accepted: np.ndarray, ok_prior: np.ndarray, n_sector: int, n_band: int,
+             scan_fallback: bool, chain: bool, chain_gap: float
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_fill_ground` from :func:`_accepted`'s estimates (``ok_prior`` is not
+    changed: the chain works on a copy)."""
+    ok = ok_prior.copy()
     if chain:
         for sector in range(n_sector):
             last, last_r = 0.0, 0.0

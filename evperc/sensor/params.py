@@ -33,6 +33,7 @@ class SensorParams:
     ground_chain: bool = False
     foot_lift_m: float = 0.0
     ground_chain_gap_m: float = 0.0
+    ground_chain_gap_road_only: bool = False
 
     @staticmethod
     def from_config(sensor: Mapping[str, Any], cell_size_m: float) -> SensorParams:
@@ -54,4 +55,5 @@ class SensorParams:
             ground_chain=bool(sensor["ground_chain"]),
             foot_lift_m=float(sensor["foot_lift_m"]),
             ground_chain_gap_m=float(sensor["ground_chain_gap_m"]),
+            ground_chain_gap_road_only=bool(sensor["ground_chain_gap_road_only"]),
         )

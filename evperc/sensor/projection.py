@@ -209,6 +209,28 @@ def _scatter_all_hits(mask, res, row0, col0, sx, sy, x, y, kind) -> None:
                   np.uint8(1))
 
 
+def points_in_context(out: np.ndarray, context: np.ndarray, value: int, window: Window,
+                      sensor_xy: tuple[float, float], x: np.ndarray, y: np.ndarray) -> None:
+    """Write into ``out`` (uint8, a point each) 1 for each point (level offsets ``x``, ``y``
+    from the sensor) whose world cell lies in the window with ``context`` (uint8
+    ``window.shape``, :mod:`evperc.geo.prior`'s map context) equal to ``value``, else 0
+    (``sensor.ground_chain_gap_road_only``: the returns on a mapped road)."""
+    if context.shape != window.shape:
+        raise ValueError(f"context {context.shape}, the window is {window.shape}")
+    _points_in_context(out, context, np.uint8(value), float(window.resolution_m), window.row0,
+                       window.col0, sensor_xy[0], sensor_xy[1], x, y)
+
+
+@numba.njit(cache=True, nogil=True)
+def _points_in_context(out, context, value, res, row0, col0, sx, sy, x, y) -> None:
+    """See :func:`points_in_context` (cells as :func:`_mark`)."""
+    rows, cols = context.shape
+    for i in range(x.shape[0]):
+        _, _, _, _, r, c = _world_cell(res, row0, col0, sx, sy, x[i], y[i])
+        out[i] = np.uint8(1) if (0 <= r < rows and 0 <= c < cols
+                                 and context[r, c] == value) else np.uint8(0)
+
+
 #: the least value :func:`scatter_top_heights` leaves in a cell holding an OBSTACLE point
 TOP_FLOOR = np.float32(np.finfo(np.float32).tiny)
 

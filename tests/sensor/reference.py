@@ -20,10 +20,14 @@ Z_BIN_M, Z_SPAN_M, BASE_TOL_M, MAX_SLOPE = 0.05, 3.0, 0.5, 0.1
 SMALL_OBJECT_CELLS = 4
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
+# the map context of a road cell (CONTEXT_ROAD, as docs/architecture.md lists the codes)
+ROAD = 1
 
 
-def reference_state(points, planar, t_crs_sensor, window, params) -> list[list[int]]:
-    """Per-cell state rows × cols (row 0 south) of UNKNOWN / FREE / OCCUPIED."""
+def reference_state(points, planar, t_crs_sensor, window, params,
+                    context=None) -> list[list[int]]:
+    """Per-cell state rows × cols (row 0 south) of UNKNOWN / FREE / OCCUPIED. ``context``:
+    the window's map context (1 = road), read with ``ground_chain_gap_road_only``."""
     t = [[float(v) for v in row] for row in np.asarray(t_crs_sensor)]
     heading = math.atan2(t[1][0], t[0][0])
     sx, sy = t[0][3], t[1][3]
@@ -43,8 +47,22 @@ def reference_state(points, planar, t_crs_sensor, window, params) -> list[list[i
         a = round((math.atan2(y, x) - heading) / step) % n_az
         kept.append((x, y, z, r, a, math.floor(r / c)))
 
+    r0 = window.resolution_m
+
+    def on_road(x: float, y: float) -> bool:
+        col = math.floor((sx + x) / r0) - window.col0
+        row = math.floor((sy + y) / r0) - window.row0
+        return (context is not None and 0 <= row < window.rows and 0 <= col < window.cols
+                and int(context[row][col]) == ROAD)
+
     if planar:
         kinds, lifts = ["obstacle"] * len(kept), [0.0] * len(kept)
+    elif params.ground_chain_gap_road_only:   # the cap only for the returns on the road
+        road = [on_road(x, y) for (x, y, _, _, _, _) in kept]
+        capped = classify(kept, n_az, params)
+        uncapped = classify(kept, n_az, params, gap=0.0)
+        kinds = [c if r else u for c, u, r in zip(capped[0], uncapped[0], road, strict=True)]
+        lifts = [c if r else u for c, u, r in zip(capped[1], uncapped[1], road, strict=True)]
     else:
         kinds, lifts = classify(kept, n_az, params)
 
@@ -61,7 +79,6 @@ def reference_state(points, planar, t_crs_sensor, window, params) -> list[list[i
             return OCCUPIED if k == nearest[a] else FREE if k < nearest[a] else UNKNOWN
         return FREE if a in furthest and k <= furthest[a] else UNKNOWN
 
-    r0 = window.resolution_m
     state = [[UNKNOWN] * window.cols for _ in range(window.rows)]
     for row in range(window.rows):
         for col in range(window.cols):
@@ -104,10 +121,12 @@ def reference_state(points, planar, t_crs_sensor, window, params) -> list[list[i
     return state
 
 
-def classify(kept, n_az, params) -> tuple[list[str], list[float]]:
+def classify(kept, n_az, params, gap=None) -> tuple[list[str], list[float]]:
     """'ground' / 'obstacle' / 'ignored' per point, by height above the local ground, and
     each point's height above the ground of the nearest accepted band nearer the sensor in
-    its sector (0, the prior, if none)."""
+    its sector (0, the prior, if none). ``gap``: the chain's gap cap (default
+    ``params.ground_chain_gap_m``; 0 = none)."""
+    cap = params.ground_chain_gap_m if gap is None else gap
     n_sector = round(360.0 / SECTOR_DEG)
     n_band = int(params.max_range_m // BAND_M) + 1
     n_z = round(2 * Z_SPAN_M / Z_BIN_M)
@@ -132,10 +151,10 @@ def classify(kept, n_az, params) -> tuple[list[str], list[float]]:
             for band in range(n_band):
                 if (sector, band) in accepted:
                     r_out = (band + 1) * BAND_M
-                    gap = r_out - last_r   # sensor.ground_chain_gap_m caps it (0: no cap)
-                    if params.ground_chain_gap_m > 0 and last_r > 0:
-                        gap = min(gap, params.ground_chain_gap_m)
-                    bound = BASE_TOL_M + MAX_SLOPE * gap
+                    span = r_out - last_r   # sensor.ground_chain_gap_m caps it (0: no cap)
+                    if cap > 0 and last_r > 0:
+                        span = min(span, cap)
+                    bound = BASE_TOL_M + MAX_SLOPE * span
                     if abs(accepted[(sector, band)] - last) <= bound:
                         last, last_r = accepted[(sector, band)], r_out
                     else:
@@ -156,21 +175,23 @@ def classify(kept, n_az, params) -> tuple[list[str], list[float]]:
     return kinds, lifts
 
 
-def reference_grid(points, planar, t_crs_sensor, window, params):
+def reference_grid(points, planar, t_crs_sensor, window, params, context=None):
     """``(free, occupied)`` float32 arrays from :func:`reference_state`."""
-    state = np.array(reference_state(points, planar, t_crs_sensor, window, params), np.uint8)
+    state = np.array(reference_state(points, planar, t_crs_sensor, window, params, context),
+                     np.uint8)
     free = np.where(state == FREE, params.mu_free, 0.0).astype(np.float32)
     occupied = np.where(state == OCCUPIED, params.mu_occupied, 0.0).astype(np.float32)
     return free, occupied
 
 
-def assert_matches_reference(points, planar, t_crs_sensor, window, params):
+def assert_matches_reference(points, planar, t_crs_sensor, window, params, context=None):
     """evperc's sensor grid of ``points`` equal to :func:`reference_grid`'s, cell for cell;
     returns the reference's ``(free, occupied)`` for the caller's own checks."""
     from evperc.sensor import sensor_grid
 
-    free, occ = sensor_grid(points, planar, t_crs_sensor, window, params)
-    want_free, want_occ = reference_grid(points, planar, t_crs_sensor, window, params)
+    free, occ = sensor_grid(points, planar, t_crs_sensor, window, params, context=context)
+    want_free, want_occ = reference_grid(points, planar, t_crs_sensor, window, params,
+                                         context)
     np.testing.assert_array_equal(free, want_free)
     np.testing.assert_array_equal(occ, want_occ)
     return want_free, want_occ

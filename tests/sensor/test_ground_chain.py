@@ -59,14 +59,26 @@ def sparse_scan(slope: float = 0.0, fence: bool = True, fence_x: float = FENCE_X
     return np.vstack(pts), np.concatenate(on_fence)
 
 
-def kinds_of(level: np.ndarray, params, chain: bool, gap: float = 0.0) -> np.ndarray:
+def kinds_of(level: np.ndarray, params, chain: bool, gap: float = 0.0,
+             road_only: bool = False, context: np.ndarray | None = None) -> np.ndarray:
     t = pose(*SENSOR, MOUNT)
     kinds = np.empty(len(level), np.uint8)
-    sensor_grid((level @ t[:3, :3]).astype(np.float32), False, t,
-                Window.centred_on(*SENSOR, 160.0, 0.5),
+    sensor_grid((level @ t[:3, :3]).astype(np.float32), False, t, WINDOW,
                 replace(params, sensor_height_m=MOUNT, ground_chain=chain,
-                        ground_chain_gap_m=gap), kinds_out=kinds)
+                        ground_chain_gap_m=gap, ground_chain_gap_road_only=road_only),
+                kinds_out=kinds, context=context)
     return kinds
+
+
+WINDOW = Window.centred_on(*SENSOR, 160.0, 0.5)
+
+
+def road_where(inside) -> np.ndarray:
+    """A map context layer of :data:`WINDOW`: road (1) in the cells whose centre ``(x, y)``
+    satisfies ``inside(x, y)``, other (0) elsewhere."""
+    x, y = WINDOW.cell_centres()
+    return np.broadcast_to(np.where(inside(x[None, :], y[:, None]), 1, 0),
+                           WINDOW.shape).astype(np.uint8)
 
 
 def test_the_scene_is_what_the_docstring_says() -> None:
@@ -207,3 +219,47 @@ def test_the_cap_bounds_a_band_past_a_kept_one() -> None:
     capped, _ = _fill_ground(hist, 1, 10, 120, False, True, 2.0)
     assert uncapped[5] == pytest.approx(1.025)
     assert capped[5] == pytest.approx(0.025) and capped[1] == pytest.approx(0.025)
+
+
+def test_the_road_only_cap_holds_on_the_road_alone(params) -> None:
+    """``ground_chain_gap_road_only``: the far fence (1.03 m up, 44.2 m out: a car's side or
+    rising terrain, the ground split cannot tell) is an obstacle where its returns lie in
+    road cells of the map and ground elsewhere — point by point, a road under half of it
+    splits it —; without a map no return is capped. The ground returns stay ground."""
+    level, on_fence = sparse_scan(fence_x=FAR_FENCE_X)
+    uncapped = kinds_of(level, params, True, 0.0)
+    capped = kinds_of(level, params, True, 2.0)
+    assert_fence_turns_obstacle(uncapped, capped, on_fence)
+    world_y = level[:, 1] + SENSOR[1]
+    for inside, want_capped in [
+            (lambda x, y: (x > 40.0) & (x < 48.0) & (np.abs(y) < 6.0), on_fence),   # on it
+            (lambda x, y: np.abs(y) > 20.0, np.zeros_like(on_fence)),          # elsewhere
+            (lambda x, y: (x > 40.0) & (y < 0.0), on_fence & (world_y < 0.0))]:  # half
+        got = kinds_of(level, params, True, 2.0, True, road_where(inside))
+        np.testing.assert_array_equal(got, np.where(want_capped, capped, uncapped))
+    assert 0 < (on_fence & (world_y < 0.0)).sum() < on_fence.sum()   # the half: a split
+    np.testing.assert_array_equal(kinds_of(level, params, True, 2.0, True, None), uncapped)
+
+
+@pytest.mark.parametrize("half", ["south", "north"])
+def test_matches_oracle_with_the_road_only_cap(params, half: str) -> None:
+    """evperc against the oracle with the cap on the road alone, the road under one half of
+    the window (the fence's returns on both sides of its edge)."""
+    level, _ = sparse_scan(fence_x=FAR_FENCE_X)
+    t = pose(3.0, -7.0, MOUNT, yaw_deg=20.0)
+    p = replace(params, sensor_height_m=MOUNT, ground_chain=True, ground_chain_gap_m=2.0,
+                ground_chain_gap_road_only=True, max_range_m=60.0)
+    window = Window.centred_on(3.0, -7.0, 130.0, 0.5)
+    _, y = window.cell_centres()
+    south = np.broadcast_to((y < -7.0)[:, None], window.shape)   # the fence: y -12 to -2 m
+    context = np.where(south if half == "south" else ~south, 1, 0).astype(np.uint8)
+    _, want_occ = assert_matches_reference((level @ t[:3, :3]).astype(np.float32), False, t,
+                                           window, p, context)
+    capped = replace(p, ground_chain_gap_road_only=False)
+    uncapped = replace(p, ground_chain_gap_m=0.0, ground_chain_gap_road_only=False)
+    from tests.sensor.reference import reference_grid
+    _, all_occ = reference_grid((level @ t[:3, :3]).astype(np.float32), False, t, window, capped)
+    _, none_occ = reference_grid((level @ t[:3, :3]).astype(np.float32), False, t, window,
+                                 uncapped)
+    # between the two: some of the fence's cells occupied, fewer than with the cap everywhere
+    assert (none_occ > 0).sum() < (want_occ > 0).sum() < (all_occ > 0).sum()
