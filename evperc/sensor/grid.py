@@ -135,7 +135,8 @@ def sensor_grid(points: np.ndarray, planar: bool, T_crs_sensor: np.ndarray, wind
     local_min = (_scratch.take("local_min", local_grid_side(layout.max_range_m) ** 2, np.float32)
                  if local else NO_LOCAL)
     chain_gap, capped = params.ground_chain_gap_m, EVERY_POINT
-    if chain_gap > 0 and params.ground_chain_gap_road_only and not planar:
+    if (chain_gap > 0 and params.ground_chain and params.ground_chain_gap_road_only
+            and not planar):
         if context is None:  # no map: no return is on a mapped road
             chain_gap = 0.0
         else:

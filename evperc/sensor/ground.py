@@ -155,7 +155,7 @@ def classify_points(z: np.ndarray, range_m: np.ndarray, az_bin: np.ndarray, n_az
     same histogram; ``sensor.ground_chain_gap_road_only``: the points on a mapped road).
     ``foot_lift`` > 0 (``sensor.foot_lift_m``):
     the indices of the GROUND points whose *lift* — height above the ground of the nearer
-    band, the estimate their band would take without its own (:func:`_fill_ground`'s
+    band, the estimate their band would take without its own (:func:`_chained`'s
     ``ground_near``) — is at least ``foot_lift`` are written to ``feet`` (int32, a point
     each), and their count returned (0 otherwise)."""
     heights = height.shape[0] == z.shape[0]
@@ -273,21 +273,6 @@ def _z_bin(height: np.float32, n_z: int) -> int:
 
 
 @numba.njit(cache=True, nogil=True)
-def _fill_ground(hist: np.ndarray, n_sector: int, n_band: int, n_z: int,
-                 scan_fallback: bool = False, chain: bool = False, chain_gap: float = 0.0
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(ground, ground_near)`` (float32) per coarse cell. ``ground``: its own estimate if
-    accepted (with ``chain``, also within the slope bound of the last accepted band nearer
-    the sensor; ``chain_gap`` > 0 caps the distance the slope bound grows over, once a band
-    of the sector is kept), else that of the nearest accepted band nearer the sensor in its sector,
-    else the fallback — 0 (the prior) or, with ``scan_fallback``, the median of the accepted
-    estimates (steps 2–4). ``ground_near``: the same without the cell's own estimate (the
-    nearest accepted band strictly nearer, else the fallback)."""
-    accepted, ok = _accepted(hist, n_sector, n_band, n_z)
-    return _chained(accepted, ok, n_sector, n_band, scan_fallback, chain, chain_gap)
-
-
-@numba.njit(cache=True, nogil=True)
 def _accepted(hist: np.ndarray, n_sector: int, n_band: int, n_z: int
               ) -> tuple[np.ndarray, np.ndarray]:
     """Steps 2–3 without the chain: each coarse cell's estimate (float64) and whether the
@@ -318,8 +303,14 @@ def _accepted(hist: np.ndarray, n_sector: int, n_band: int, n_z: int
 def _chained(accepted: np.ndarray, ok_prior: np.ndarray, n_sector: int, n_band: int,
              scan_fallback: bool, chain: bool, chain_gap: float
              ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_fill_ground` from :func:`_accepted`'s estimates (``ok_prior`` is not
-    changed: the chain works on a copy)."""
+    """``(ground, ground_near)`` (float32) per coarse cell, from :func:`_accepted`'s
+    estimates (``ok_prior`` is not changed). ``ground``: its own estimate if accepted (with
+    ``chain``, also within the slope bound of the last accepted band nearer the sensor;
+    ``chain_gap`` > 0 caps the distance the slope bound grows over, once a band of the
+    sector is kept), else that of the nearest accepted band nearer the sensor in its sector,
+    else the fallback — 0 (the prior) or, with ``scan_fallback``, the median of the accepted
+    estimates (steps 2–4). ``ground_near``: the same without the cell's own estimate (the
+    nearest accepted band strictly nearer, else the fallback)."""
     ok = ok_prior.copy()
     if chain:
         for sector in range(n_sector):

@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 
-from tests.e2e.paired_runs import paired_scores
+from tests.e2e.paired_runs import moving_within_one_cell
 
 
 @pytest.fixture(scope="module")
@@ -24,8 +24,7 @@ def within_one_cell(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     root = tmp_path_factory.mktemp("vlp16-road-cap")
     before = root / "before.toml"
     before.write_text("[sensor]\nground_chain_gap_m = 0.0\n")
-    scores = paired_scores(root, "vlp16", 7, {"now": None, "before": before})
-    return {name: s["moving_within_one_cell"] for name, s in scores.items()}
+    return moving_within_one_cell(root, "vlp16", 7, before)
 
 
 def test_the_road_cap_finds_the_far_cars(within_one_cell: dict[str, Any]) -> None:

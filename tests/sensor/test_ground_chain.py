@@ -192,7 +192,7 @@ def test_the_gap_cap_keeps_rising_ground_ground(params, slope: float) -> None:
 
 
 def _histogram(bands: dict[int, float], n_band: int = 10, n_z: int = 120) -> np.ndarray:
-    """One sector's ground histogram (``_fill_ground``'s layout): 20 returns at each band's
+    """One sector's ground histogram (``_accepted``'s layout): 20 returns at each band's
     height (m above the prior plane)."""
     hist = np.zeros(n_band * n_z, np.int32)
     for band, height in bands.items():
@@ -200,12 +200,17 @@ def _histogram(bands: dict[int, float], n_band: int = 10, n_z: int = 120) -> np.
     return hist
 
 
+def fill_ground(hist: np.ndarray, gap: float) -> tuple[np.ndarray, np.ndarray]:
+    """The chained ground of :func:`_histogram`'s one sector (10 bands), chain on."""
+    from evperc.sensor.ground import _accepted, _chained
+    return _chained(*_accepted(hist, 1, 10, 120), 1, 10, False, True, gap)
+
+
 @pytest.mark.parametrize("gap", [0.0, 2.0])
 def test_a_sectors_first_kept_band_keeps_the_priors_bound(gap: float) -> None:
     """A band 10–12 m out with nothing nearer kept (a parked car's side beside the sensor, no
     ring before it) is bounded by the prior only, 0.5 + 0.1·12 m, with the cap or without."""
-    from evperc.sensor.ground import _fill_ground
-    ground, _ = _fill_ground(_histogram({5: 1.0}), 1, 10, 120, False, True, gap)
+    ground, _ = fill_ground(_histogram({5: 1.0}), gap)
     assert ground[5] == pytest.approx(1.025)   # the band's own estimate (bin centre)
 
 
@@ -213,10 +218,9 @@ def test_the_cap_bounds_a_band_past_a_kept_one() -> None:
     """A ring kept at 2–4 m (ground 0), then a band at 10–12 m 1.0 m up: without the cap the
     bound is 0.5 + 0.1·(12 − 4) = 1.3 m (kept), with G = 2 m it is 0.7 m (rejected: the band
     takes the ring's ground)."""
-    from evperc.sensor.ground import _fill_ground
     hist = _histogram({1: 0.0, 5: 1.0})
-    uncapped, _ = _fill_ground(hist, 1, 10, 120, False, True, 0.0)
-    capped, _ = _fill_ground(hist, 1, 10, 120, False, True, 2.0)
+    uncapped, _ = fill_ground(hist, 0.0)
+    capped, _ = fill_ground(hist, 2.0)
     assert uncapped[5] == pytest.approx(1.025)
     assert capped[5] == pytest.approx(0.025) and capped[1] == pytest.approx(0.025)
 
