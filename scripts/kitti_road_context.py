@@ -36,9 +36,11 @@ from evperc.logs.kitti import KittiLog  # noqa: E402
 
 #: SemanticKITTI's road, parking and lane-marking classes
 ROAD_CLASSES = (40, 44, 60)
+#: the road's lattice (the defaults' and every preset's grid.cell_size_m)
+RESOLUTION_M = 0.5
 
 
-def road_cells(seq_dir: Path, resolution_m: float = 0.5, grow: int = 0) -> np.ndarray:
+def road_cells(seq_dir: Path, resolution_m: float = RESOLUTION_M, grow: int = 0) -> np.ndarray:
     """``(K, 2)`` int64 unique lattice cells ``(iy, ix)`` (y = ⌊y/res⌋, x = ⌊x/res⌋ in the
     first scan's lidar frame) holding a point of :data:`ROAD_CLASSES` in any scan of
     ``seq_dir`` (velodyne/, labels/, poses.txt, calib.txt), each grown by ``grow`` cells
@@ -82,6 +84,9 @@ def main(argv: list[str] | None = None) -> int:
     sensor_grid = runner.sensor_grid
 
     def with_road(points, planar, t_crs, window, params, **kwargs):  # noqa: ANN001, ANN202
+        if window.resolution_m != RESOLUTION_M:
+            raise SystemExit(f"the run's cells are {window.resolution_m} m, the road's "
+                             f"{RESOLUTION_M} m: run with grid.cell_size_m = {RESOLUTION_M}")
         kwargs["context"] = context_of(cells, window)
         return sensor_grid(points, planar, t_crs, window, params, **kwargs)
 
