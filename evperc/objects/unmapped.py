@@ -91,6 +91,9 @@ _UNMAPPED = DECISION_CODES["unmapped"]
 _STATIC_BYTES = np.uint64(_STATIC) * BYTE_ONES
 _STOPPED_BYTES = np.uint64(_STOPPED) * BYTE_ONES
 _UNMAPPED_BYTES = np.uint64(_UNMAPPED) * BYTE_ONES
+#: the bits of a word's bytes above code 1: zero iff its 8 cells are decided unknown (0) or
+#: free (1), the codes of most of the window
+_ABOVE_FREE = np.uint64(0xFEFEFEFEFEFEFEFE)
 
 
 def unmapped_enabled(config: dict[str, Any]) -> bool:
@@ -338,6 +341,9 @@ def _unmapped_pass(decision, labels, has_labels, from_decision, seen_cells, age_
         if w < n_words:  # 8 cells at once: the words without a candidate are skipped
             while w < n_words:
                 x = dec_words[w]
+                if x & _ABOVE_FREE == 0:  # unknown and free cells only (most words)
+                    w += 1
+                    continue
                 a = x ^ _STATIC_BYTES  # a zero byte where decided static, ...
                 b = x ^ _STOPPED_BYTES
                 e = x ^ _UNMAPPED_BYTES

@@ -341,6 +341,52 @@ def test_random_shifting_windows_match_the_reference(seed: int, stopped_needs_ro
         assert sum(int((w != v).sum()) for w, v in zip(want, without, strict=True)) > 10
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_sparse_windows_skipped_word_by_word_match_the_reference(seed: int) -> None:
+    """A window like a drive's: nine in ten of its 8-cell words decided only unknown or free,
+    which the components' scan skips on one test of the word, with a few static, stopped
+    and unmapped cells between them (a pole, a car's face, a cell at a word's edge) — the
+    relabels and the ages against the plain reference, on a scrolling window."""
+    rng = np.random.default_rng(100 + seed)
+    shape = (10, 64)
+    codes = np.array([D["free"], D["unknown"], D["static"], D["stopped"], D["unmapped"],
+                      D["moving"]])
+    p = [0.6, 0.385, 0.006, 0.004, 0.003, 0.002]
+    world = rng.choice(np.array([CONTEXT_OTHER, CONTEXT_ROAD, CONTEXT_BUILDING], np.uint8),
+                       size=(100, 200), p=[0.85, 0.13, 0.02])
+    world_dec = rng.choice(codes, size=world.shape, p=p).astype(np.uint8)
+    params = UnmappedParams(max_width_m=0.8, min_age_s=0.2, stopped_needs_road=True,
+                            stopped_off_facades=True)
+    cue = UnmappedCue(params, shape, RES)
+    state = UnmappedState.fresh(shape)
+    win = Window(RES, *shape, 40, 60)
+    offset = (0, 0)
+    seq, got, got_ages, low_words = [], [], [], []
+    for k in range(25):
+        shift = (0, 0) if k == 0 else tuple(int(v) for v in rng.integers(-1, 2, size=2))
+        win = Window(RES, *shape, win.row0 + shift[0], win.col0 + shift[1])
+        offset = ((offset[0] + shift[0]) % shape[0], (offset[1] + shift[1]) % shape[1])
+        at = (slice(win.row0, win.row0 + shape[0]), slice(win.col0, win.col0 + shape[1]))
+        dec, labels = world_dec[at].copy(), world[at].copy()
+        low_words.append(float((dec.reshape(-1, 8) <= D["free"]).all(axis=1).mean()))
+        seq.append((win, dec.copy(), labels, dec == D["moving"]))
+        cue.step(state, dec, labels, DT, offset=offset, shift=shift)
+        got.append(dec)
+        rows_at = (np.arange(shape[0]) + offset[0]) % shape[0]
+        cols_at = (np.arange(shape[1]) + offset[1]) % shape[1]
+        got_ages.append(state.age_s[np.ix_(rows_at, cols_at)].copy())
+    assert min(low_words) > 0.8  # the skipped words are most of the window
+    want_ages: list[np.ndarray] = []
+    want = _reference(seq, params, RES, want_ages)
+    for k, (g, w) in enumerate(zip(got_ages, want_ages, strict=True)):
+        np.testing.assert_array_equal(g, w, err_msg=f"ages, frame {k}")
+    changed = 0
+    for k, ((_, dec, _, _), g, w) in enumerate(zip(seq, got, want, strict=True)):
+        np.testing.assert_array_equal(g, w, err_msg=f"frame {k}")
+        changed += int((w != dec).sum())
+    assert changed > 20  # relabels and stopped cells turned static happen between the skips
+
+
 def test_moving_object_cells_takes_the_moving_records_only() -> None:
     objects = np.zeros(3, OBJECT_DTYPE)
     objects["state"] = [OBJECT_STATES["moving"], OBJECT_STATES["stopped"],
