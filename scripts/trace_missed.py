@@ -30,7 +30,11 @@ not reported, the causes above — ``young_track`` / ``velocity_test`` / ``no_ev
 (``moving_cell``), or with none: ``no_moving_cell`` and the largest ∅_FO under the agent
 (×255: 0, < 25, < 64, < 128, ≥ 128) — the conflict a gate-closed cell keeps, which no rule
 reads as motion. ``tall``: a return at least ``isolated_min_height_m`` (0.4 m) up within one
-cell.
+cell. For a dropped tall group (``no_moving_cell tall``) the table "What breaks the
+isolation" names the truth of the cells decided static, stopped, unmapped or infrastructure
+within ``isolated_clearance_m`` of it (:func:`isolation_breakers`): ``free`` there is a cell
+still decided as it was held while nothing is in it — the cells a walker has just left;
+``none (N cells)``: isolated, but smaller than ``isolated_min_cells``.
 
 ``--after-backfill``: an agent-frame is found when the run's final object list (the backfill's
 fills and gaps included) holds it, not the object stage's own records of the frame; the
@@ -86,7 +90,13 @@ import object_replay  # noqa: E402
 
 from evperc.eval.metrics import dilate_one_cell  # noqa: E402
 from evperc.fusion.twin import DECISION_CODES  # noqa: E402
-from evperc.objects.clusters import Clusterer, ClusterParams, with_return_centroids  # noqa: E402,E501
+from evperc.objects.clusters import (  # noqa: E402
+    STILL,
+    Clusterer,
+    ClusterParams,
+    isolated_reach,
+    with_return_centroids,
+)
 from evperc.objects.tracking import footprint_seeds, is_moving, track_step  # noqa: E402
 from evperc.output.objects import OBJECT_STATES, record_cells  # noqa: E402
 from evperc.sim.truth import load_truth  # noqa: E402
@@ -333,6 +343,43 @@ def _small_detail(rec: FrameRecord, near: np.ndarray, occ: np.ndarray, confirm: 
     return f"no_moving_cell {height} {decided} fo{level}"
 
 
+_STILL_CODES = np.array([DECISION_CODES[n] for n in STILL], np.uint8)
+
+
+def isolation_breakers(group: np.ndarray, decision: np.ndarray, reach: int, agent: int,
+                       agent_run: np.ndarray, class_run: np.ndarray,
+                       class_names: dict[int, str]) -> list[str]:
+    """What keeps a small group from being isolated (:func:`evperc.objects.clusters._isolated`),
+    by the truth: the cells decided static, stopped, unmapped or infrastructure within
+    ``reach`` cells (Chebyshev) of the group's cells ``group`` (flat, on the run window of
+    ``decision``, (rows, cols)), not in it, each named ``same agent`` (``agent_run``, the
+    truth agent of each run cell, is ``agent``), ``another agent``, ``outside`` (no truth:
+    ``class_run`` < 0) or its truth class (``class_names``; ``free``: a cell decided as it
+    was held, which no return holds now — the cells a walker left). Sorted, each once."""
+    rows, cols = decision.shape
+    flat = decision.reshape(-1)
+    inside = set(np.asarray(group, np.int64).tolist())
+    kinds: set[str] = set()
+    for g in inside:
+        r, c = divmod(g, cols)
+        for rr in range(max(r - reach, 0), min(r + reach + 1, rows)):
+            for cc in range(max(c - reach, 0), min(c + reach + 1, cols)):
+                j = rr * cols + cc
+                if j in inside or flat[j] not in _STILL_CODES:
+                    continue
+                who = int(agent_run.reshape(-1)[j])
+                cls = int(class_run.reshape(-1)[j])
+                if who == agent:
+                    kinds.add("same agent")
+                elif who > 0:
+                    kinds.add("another agent")
+                elif cls < 0:
+                    kinds.add("outside")
+                else:
+                    kinds.add(class_names.get(cls, "?"))
+    return sorted(kinds)
+
+
 def _to_window(lattice_rc: np.ndarray, rec: FrameRecord) -> np.ndarray:
     r = lattice_rc[:, 0] - rec.row0
     c = lattice_rc[:, 1] - rec.col0
@@ -350,6 +397,9 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
     max_extent = float(params["max_cluster_extent_m"])
     confirm = int(params["confirm_frames"])
     min_height = float(params["isolated_min_height_m"])
+    reach_cells = isolated_reach(float(params["isolated_clearance_m"]), truth.resolution_m)
+    class_names = {code: name for name, code in truth.class_codes.items()}
+    breakers: collections.Counter[str] = collections.Counter()
     roles = {a["id"]: a for a in truth.agents}
     causes: collections.Counter[str] = collections.Counter()
     by_role: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
@@ -396,6 +446,15 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
         inside = ((tr + tw.row0 - rec.row0 >= 0) & (tr + tw.row0 - rec.row0 < shape[0])
                   & (tc + tw.col0 - rec.col0 >= 0) & (tc + tw.col0 - rec.col0 < shape[1]))
         agent_run[flat_run] = t.agent[tr[inside], tc[inside]]
+        # every truth cell's class and agent on the run window (the isolation's breakers)
+        class_run = np.full(shape[0] * shape[1], -1, np.int64)
+        any_agent_run = np.zeros(shape[0] * shape[1], np.int64)
+        ar_, ac_ = np.indices(t.classes.shape).reshape(2, -1)
+        on_run = _to_window(np.stack([ar_ + tw.row0, ac_ + tw.col0], 1), rec)
+        kept_ = ((ar_ + tw.row0 - rec.row0 >= 0) & (ar_ + tw.row0 - rec.row0 < shape[0])
+                 & (ac_ + tw.col0 - rec.col0 >= 0) & (ac_ + tw.col0 - rec.col0 < shape[1]))
+        class_run[on_run] = t.classes[ar_[kept_], ac_[kept_]]
+        any_agent_run[on_run] = t.agent[ar_[kept_], ac_[kept_]]
         found: set[int] = set()
         merged_over: set[int] = set()
         for cells in (_final_moving(f) if after_backfill else rec.moving_objects):
@@ -452,7 +511,16 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
                     info["group_cells"] = int(sizes[best])
                     if sizes[lab].max() < min_cells:
                         cause = "small_cluster"
-                        small[f"{role} {_small_detail(rec, near, occ, confirm, min_height)}"] += 1
+                        detail = _small_detail(rec, near, occ, confirm, min_height)
+                        small[f"{role} {detail}"] += 1
+                        if detail.startswith("no_moving_cell tall"):  # why not isolated
+                            group = rec.relaxed_cells[rec.relaxed_offsets[best]:
+                                                      rec.relaxed_offsets[best + 1]]
+                            kinds = isolation_breakers(
+                                group, rec.decision.reshape(shape), reach_cells, a,
+                                any_agent_run, class_run, class_names)
+                            breakers[f"{role}: {', '.join(kinds)}" if kinds else
+                                     f"{role}: none ({len(group)} cells)"] += 1
                     elif rec.relaxed_extent[best] > max_extent + 1e-9:
                         cause = "too_large"
                     else:
@@ -508,7 +576,8 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
                  else float(planned[a][frame]))
         velocity[f"{role} {_velocity_detail(tr_, v0, speed)}"] += 1
     return {"agent_frames": total_n, "found": found_n, "causes": dict(causes),
-            "small_clusters": dict(small), "velocity_test": dict(velocity),
+            "small_clusters": dict(small), "isolation_breakers": dict(breakers),
+            "velocity_test": dict(velocity),
             "by_range": {f"{role} {band}": v for (role, band), v in sorted(by_range.items())},
             "by_speed": {k: v for k, v in sorted(by_speed.items())},
             "speed_causes": {k: dict(v) for k, v in sorted(speed_causes.items())},
@@ -566,6 +635,14 @@ def print_report(results: dict[str, Any]) -> None:
     pooled: collections.Counter[str] = collections.Counter()
     for r in results.values():
         pooled.update(r["small_clusters"])
+    for what, n in pooled.most_common():
+        print(f"  {what}: {n}")
+    print("\nWhat breaks the isolation of the dropped tall groups (the truth of the cells "
+          "decided static, stopped, unmapped or infrastructure within "
+          "isolated_clearance_m; all runs):")
+    pooled = collections.Counter()
+    for r in results.values():
+        pooled.update(r["isolation_breakers"])
     for what, n in pooled.most_common():
         print(f"  {what}: {n}")
     print("\nVelocity test (missed agent-frames, all runs; module docstring):")

@@ -69,3 +69,40 @@ def test_a_plan_of_another_drive_is_refused(truth_dir: Path, tmp_path: Path):
                                        (1.0, ">= 1 m/s")])
 def test_speed_buckets(v, bucket):
     assert trace_missed._speed_bucket(v, 0.5) == bucket
+
+
+def test_isolation_breakers_name_the_truth_of_the_still_cells_around_a_group():
+    """A one-cell group at (2, 2) of a 6 x 6 run window, reach 1: the still cells around it
+    are a cell the same agent's truth covers, one of another agent, a free cell decided
+    static (a cell the walker left), a static truth cell and one outside the truth; a cell
+    decided free or moving, one beyond the reach and the group's own cell are not named."""
+    D = trace_missed.DECISION_CODES
+    names = {0: "free", 3: "static", 6: "unmapped"}
+    decision = np.full((6, 6), D["free"], np.uint8)
+    agent = np.zeros((6, 6), np.int64)
+    classes = np.zeros((6, 6), np.int64)  # truth free
+    decision[2, 2] = D["static"]  # the group itself
+    agent[2, 2] = 7
+    decision[1, 1] = D["stopped"]
+    agent[1, 1] = 7  # the same agent
+    decision[1, 2] = D["unmapped"]
+    agent[1, 2] = 9  # another one
+    decision[1, 3] = D["static"]  # truth free: a left cell
+    decision[3, 1] = D["infrastructure"]
+    classes[3, 1] = 3
+    decision[3, 3] = D["static"]
+    classes[3, 3] = -1  # no truth there
+    decision[3, 2] = D["moving"]  # not still
+    decision[0, 0] = D["static"]  # beyond one cell
+    classes[0, 0] = 6
+    got = trace_missed.isolation_breakers(np.array([2 * 6 + 2]), decision, 1, 7, agent,
+                                          classes, names)
+    assert got == ["another agent", "free", "outside", "same agent", "static"]
+    assert trace_missed.isolation_breakers(np.array([2 * 6 + 2]), decision, 2, 7, agent,
+                                           classes, names) == sorted([*got, "unmapped"])
+    decision[1, 3] = D["free"]
+    assert "free" not in trace_missed.isolation_breakers(np.array([14]), decision, 1, 7,
+                                                         agent, classes, names)
+    group = np.array([35])  # at a corner: neighbours outside the window are left out
+    assert trace_missed.isolation_breakers(group, decision, 1, 7, agent, classes,
+                                           names) == []
