@@ -357,7 +357,7 @@ def isolation_breakers(group: np.ndarray, decision: np.ndarray, reach: int, agen
     ``class_run`` < 0) or its truth class (``class_names``; ``free``: a cell decided as it
     was held, which no return holds now — the cells a walker left). Sorted, each once."""
     rows, cols = decision.shape
-    flat = decision.reshape(-1)
+    flat, agents, classes = decision.reshape(-1), agent_run.reshape(-1), class_run.reshape(-1)
     inside = set(np.asarray(group, np.int64).tolist())
     kinds: set[str] = set()
     for g in inside:
@@ -367,8 +367,7 @@ def isolation_breakers(group: np.ndarray, decision: np.ndarray, reach: int, agen
                 j = rr * cols + cc
                 if j in inside or flat[j] not in _STILL_CODES:
                     continue
-                who = int(agent_run.reshape(-1)[j])
-                cls = int(class_run.reshape(-1)[j])
+                who, cls = int(agents[j]), int(classes[j])
                 if who == agent:
                     kinds.add("same agent")
                 elif who > 0:
@@ -378,6 +377,19 @@ def isolation_breakers(group: np.ndarray, decision: np.ndarray, reach: int, agen
                 else:
                     kinds.add(class_names.get(cls, "?"))
     return sorted(kinds)
+
+
+def _on_run(layer: np.ndarray, tw: Any, rec: FrameRecord, fill: int) -> np.ndarray:
+    """A truth window's ``layer`` (``tw``'s shape) on the run window of ``rec``: (rows, cols)
+    int64, ``fill`` where the truth window does not reach."""
+    out = np.full(rec.shape, fill, np.int64)
+    r0, c0 = max(tw.row0, rec.row0), max(tw.col0, rec.col0)
+    r1 = min(tw.row0 + layer.shape[0], rec.row0 + rec.shape[0])
+    c1 = min(tw.col0 + layer.shape[1], rec.col0 + rec.shape[1])
+    if r0 < r1 and c0 < c1:
+        out[r0 - rec.row0:r1 - rec.row0, c0 - rec.col0:c1 - rec.col0] = \
+            layer[r0 - tw.row0:r1 - tw.row0, c0 - tw.col0:c1 - tw.col0]
+    return out
 
 
 def _to_window(lattice_rc: np.ndarray, rec: FrameRecord) -> np.ndarray:
@@ -447,14 +459,8 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
                   & (tc + tw.col0 - rec.col0 >= 0) & (tc + tw.col0 - rec.col0 < shape[1]))
         agent_run[flat_run] = t.agent[tr[inside], tc[inside]]
         # every truth cell's class and agent on the run window (the isolation's breakers)
-        class_run = np.full(shape[0] * shape[1], -1, np.int64)
-        any_agent_run = np.zeros(shape[0] * shape[1], np.int64)
-        ar_, ac_ = np.indices(t.classes.shape).reshape(2, -1)
-        on_run = _to_window(np.stack([ar_ + tw.row0, ac_ + tw.col0], 1), rec)
-        kept_ = ((ar_ + tw.row0 - rec.row0 >= 0) & (ar_ + tw.row0 - rec.row0 < shape[0])
-                 & (ac_ + tw.col0 - rec.col0 >= 0) & (ac_ + tw.col0 - rec.col0 < shape[1]))
-        class_run[on_run] = t.classes[ar_[kept_], ac_[kept_]]
-        any_agent_run[on_run] = t.agent[ar_[kept_], ac_[kept_]]
+        class_run = _on_run(t.classes, tw, rec, -1)
+        any_agent_run = _on_run(t.agent, tw, rec, 0)
         found: set[int] = set()
         merged_over: set[int] = set()
         for cells in (_final_moving(f) if after_backfill else rec.moving_objects):

@@ -273,6 +273,31 @@ def _reference(seq, params, res, ages=None):
     return outs
 
 
+def _scrolled(params: UnmappedParams, shape: tuple[int, int], origin: tuple[int, int],
+              frames: int, shift_at, frame_at):
+    """The cue over a window scrolled from ``origin`` (row0, col0) by ``shift_at(k)`` before
+    frame k, whose decision and labels are ``frame_at(k, window)``: the frames as
+    :func:`_reference` reads them, the relabelled decisions, and the ages in window order
+    after each frame."""
+    cue = UnmappedCue(params, shape, RES)
+    state = UnmappedState.fresh(shape)
+    win = Window(RES, *shape, *origin)
+    offset = (0, 0)
+    seq, got, got_ages = [], [], []
+    for k in range(frames):
+        shift = shift_at(k)
+        win = Window(RES, *shape, win.row0 + shift[0], win.col0 + shift[1])
+        offset = ((offset[0] + shift[0]) % shape[0], (offset[1] + shift[1]) % shape[1])
+        dec, labels = frame_at(k, win)
+        seq.append((win, dec.copy(), labels, dec == D["moving"]))
+        cue.step(state, dec, labels, DT, offset=offset, shift=shift)
+        got.append(dec)
+        rows_at = (np.arange(shape[0]) + offset[0]) % shape[0]
+        cols_at = (np.arange(shape[1]) + offset[1]) % shape[1]
+        got_ages.append(state.age_s[np.ix_(rows_at, cols_at)].copy())  # window order
+    return seq, got, got_ages
+
+
 @pytest.mark.parametrize(("stopped_needs_road", "stopped_off_facades", "unknown_margins"),
                          [(False, False, False), (True, False, False), (False, True, False),
                           (True, True, False), (False, False, True), (True, True, True)])
@@ -297,17 +322,14 @@ def test_random_shifting_windows_match_the_reference(seed: int, stopped_needs_ro
     params = UnmappedParams(max_width_m=0.8, min_age_s=0.2,
                             stopped_needs_road=stopped_needs_road,
                             stopped_off_facades=stopped_off_facades)
-    cue = UnmappedCue(params, shape, RES)
-    state = UnmappedState.fresh(shape)
-    win = Window(RES, *shape, 80, 80)
-    offset = (0, 0)
-    seq, got, got_ages = [], [], []
-    for k in range(30):
-        shift = (0, 0) if k == 0 else tuple(int(v) for v in rng.integers(-2, 3, size=2))
+
+    def shift_at(k: int) -> tuple[int, int]:
         if k == 12:
-            shift = (0, 20)  # a jump: every cell enters
-        win = Window(RES, *shape, win.row0 + shift[0], win.col0 + shift[1])
-        offset = ((offset[0] + shift[0]) % shape[0], (offset[1] + shift[1]) % shape[1])
+            rng.integers(-2, 3, size=2)  # drawn as every frame's, then replaced
+            return (0, 20)  # a jump: every cell enters
+        return (0, 0) if k == 0 else tuple(int(v) for v in rng.integers(-2, 3, size=2))
+
+    def frame_at(k: int, win: Window) -> tuple[np.ndarray, np.ndarray]:
         redraw = rng.random(world_dec.shape) < 0.1
         world_dec[redraw] = rng.choice(codes, size=int(redraw.sum()), p=p)
         at = (slice(win.row0, win.row0 + shape[0]), slice(win.col0, win.col0 + shape[1]))
@@ -317,13 +339,9 @@ def test_random_shifting_windows_match_the_reference(seed: int, stopped_needs_ro
                 lo, hi = (int(v) for v in rng.integers(0, 4, size=2))
                 dec[r, :lo] = D["unknown"]
                 dec[r, shape[1] - hi:] = D["unknown"]
-        mov = dec == D["moving"]
-        seq.append((win, dec.copy(), labels, mov))
-        cue.step(state, dec, labels, DT, offset=offset, shift=shift)
-        got.append(dec)
-        rows_at = (np.arange(shape[0]) + offset[0]) % shape[0]
-        cols_at = (np.arange(shape[1]) + offset[1]) % shape[1]
-        got_ages.append(state.age_s[np.ix_(rows_at, cols_at)].copy())  # window order
+        return dec, labels
+
+    seq, got, got_ages = _scrolled(params, shape, (80, 80), 30, shift_at, frame_at)
     want_ages: list[np.ndarray] = []
     want = _reference(seq, params, RES, want_ages)
     for k, (g, w) in enumerate(zip(got_ages, want_ages, strict=True)):  # the state, exactly
@@ -357,24 +375,18 @@ def test_sparse_windows_skipped_word_by_word_match_the_reference(seed: int) -> N
     world_dec = rng.choice(codes, size=world.shape, p=p).astype(np.uint8)
     params = UnmappedParams(max_width_m=0.8, min_age_s=0.2, stopped_needs_road=True,
                             stopped_off_facades=True)
-    cue = UnmappedCue(params, shape, RES)
-    state = UnmappedState.fresh(shape)
-    win = Window(RES, *shape, 40, 60)
-    offset = (0, 0)
-    seq, got, got_ages, low_words = [], [], [], []
-    for k in range(25):
-        shift = (0, 0) if k == 0 else tuple(int(v) for v in rng.integers(-1, 2, size=2))
-        win = Window(RES, *shape, win.row0 + shift[0], win.col0 + shift[1])
-        offset = ((offset[0] + shift[0]) % shape[0], (offset[1] + shift[1]) % shape[1])
+    low_words: list[float] = []
+
+    def frame_at(k: int, win: Window) -> tuple[np.ndarray, np.ndarray]:
         at = (slice(win.row0, win.row0 + shape[0]), slice(win.col0, win.col0 + shape[1]))
-        dec, labels = world_dec[at].copy(), world[at].copy()
+        dec = world_dec[at].copy()
         low_words.append(float((dec.reshape(-1, 8) <= D["free"]).all(axis=1).mean()))
-        seq.append((win, dec.copy(), labels, dec == D["moving"]))
-        cue.step(state, dec, labels, DT, offset=offset, shift=shift)
-        got.append(dec)
-        rows_at = (np.arange(shape[0]) + offset[0]) % shape[0]
-        cols_at = (np.arange(shape[1]) + offset[1]) % shape[1]
-        got_ages.append(state.age_s[np.ix_(rows_at, cols_at)].copy())
+        return dec, world[at].copy()
+
+    seq, got, got_ages = _scrolled(
+        params, shape, (40, 60), 25,
+        lambda k: (0, 0) if k == 0 else tuple(int(v) for v in rng.integers(-1, 2, size=2)),
+        frame_at)
     assert min(low_words) > 0.8  # the skipped words are most of the window
     want_ages: list[np.ndarray] = []
     want = _reference(seq, params, RES, want_ages)
