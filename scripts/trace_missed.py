@@ -452,12 +452,7 @@ def attribute(records: list[FrameRecord], truth: Any, run: Any, params: dict[str
             relaxed_label[rec.relaxed_cells[rec.relaxed_offsets[k]:rec.relaxed_offsets[k + 1]]] = k
         sizes = np.diff(rec.relaxed_offsets)
         # truth agent ids on the run window (for the object match)
-        agent_run = np.zeros(shape[0] * shape[1], np.int64)
-        tr, tc = np.nonzero(is_m)
-        flat_run = _to_window(np.stack([tr + tw.row0, tc + tw.col0], 1), rec)
-        inside = ((tr + tw.row0 - rec.row0 >= 0) & (tr + tw.row0 - rec.row0 < shape[0])
-                  & (tc + tw.col0 - rec.col0 >= 0) & (tc + tw.col0 - rec.col0 < shape[1]))
-        agent_run[flat_run] = t.agent[tr[inside], tc[inside]]
+        agent_run = _on_run(np.where(is_m, t.agent, 0), tw, rec, 0).reshape(-1)
         # every truth cell's class and agent on the run window (the isolation's breakers)
         class_run = _on_run(t.classes, tw, rec, -1)
         any_agent_run = _on_run(t.agent, tw, rec, 0)
