@@ -64,6 +64,7 @@ RULES: dict[str, tuple] = {
     "sensor.ground_local_raise_m": ("range", 0.0, 10.0, False, False),
     "sensor.foot_lift_m": ("range", 0.0, 10.0, False, False),
     "sensor.ground_chain_gap_m": ("range", 0.0, 1e4, False, False),
+    "sensor.ground_chain_gap_road_reach_m": ("range", 0.0, 100.0, False, False),
     "sensor.free_margin_m": ("range", 0.0, 10.0, False, False),
     "sensor.free_erosion_m": ("range", 0.0, 10.0, False, False),
     "map.beta_building": ("range", *_UNIT_INTERVAL, False, False),

@@ -130,6 +130,9 @@ class FrameInputs:
     #: a return and of those it marks occupied (:func:`evperc.objects.stage.scan_cells`),
     #: for the clusters, the footprints, the boxes and the backfill
     scan_cells: tuple[np.ndarray, np.ndarray | None, np.ndarray] | None = None
+    #: with sensor.ground_chain_gap_road_reach_m: the map context with the roads widened by
+    #: that reach, for the sensor grid's capped ground (None: ``labels``)
+    cap_labels: np.ndarray | None = None
 
 
 def geo_reference(reader: Any, config: dict[str, Any], need_crs: bool
@@ -433,6 +436,8 @@ class Pipeline:
         self.map_data: MapData | None = None
         self.rasteriser: PriorRasteriser | None = None
         self.near_rasteriser: PriorRasteriser | None = None
+        #: the roads widened by sensor.ground_chain_gap_road_reach_m (method.md §3)
+        self.reach_rasteriser: PriorRasteriser | None = None
         if request.map_path is not None:
             read = load_map_cached if reuse_map else load_map
             map_data = read(request.map_path, request.roads_path, config_map=config["map"])
@@ -445,6 +450,13 @@ class Pipeline:
             self.near_rasteriser = (PriorRasteriser(
                 replace(self.map_data, roads=self.map_data.roads[:0]), self.resolution, tile,
                 building_margin_m=margin, inner=self.rasteriser) if margin > 0 else None)
+            sensor = config["sensor"]
+            reach = sensor["ground_chain_gap_road_reach_m"]
+            if (reach > 0 and sensor["ground_chain"] and sensor["ground_chain_gap_m"] > 0
+                    and sensor["ground_chain_gap_road_only"]):
+                self.reach_rasteriser = PriorRasteriser(
+                    replace(self.map_data, buildings=self.map_data.buildings[:0]),
+                    self.resolution, tile, road_margin_m=reach)
         self.betas = (config["map"]["beta_building"], config["map"]["beta_road"],
                       config["map"]["beta_other"])
         self.params = FusionParams.from_config(config)
@@ -628,9 +640,12 @@ class Pipeline:
         labels = self.rasteriser.labels(window) if self.rasteriser is not None else None
         near = (self.near_rasteriser.labels(window) == CONTEXT_BUILDING
                 if self.near_rasteriser is not None else None)
+        cap_labels = (self.reach_rasteriser.labels(window)
+                      if self.reach_rasteriser is not None else None)
         t2 = time.perf_counter()
         inputs = FrameInputs(scan.stamp_ns, pose, window, None, None, labels, near,
-                             {"geometry": t1 - t0, "prior": t2 - t1}, scan, t_crs)
+                             {"geometry": t1 - t0, "prior": t2 - t1}, scan, t_crs,
+                             cap_labels=cap_labels)
         return self.sensor_grid(inputs) if sensor else inputs
 
     def sensor_grid(self, inputs: FrameInputs) -> FrameInputs:
@@ -645,13 +660,15 @@ class Pipeline:
         sums = self._sums_block(inputs.window.shape) if self.return_sums else None
         free, occupied = sensor_grid(scan.points, scan.planar, inputs.t_crs, inputs.window,
                                      self.sensor_params, kinds_out=kinds, hits_out=hits,
-                                     heights_out=heights, sums_out=sums, context=inputs.labels)
+                                     heights_out=heights, sums_out=sums,
+                                     context=(inputs.labels if inputs.cap_labels is None
+                                              else inputs.cap_labels))
         cells = scan_cells(free, occupied, heights) if self.objects is not None else None
         seconds = {**inputs.seconds, "sensor": time.perf_counter() - t0}
         labelling = (scan, inputs.t_crs, kinds) if kinds is not None else None
         return replace(inputs, free=free, occupied=occupied, seconds=seconds, scan=None,
                        t_crs=None, labelling=labelling, hits=hits, heights=heights,
-                       return_sums=sums, scan_cells=cells)
+                       return_sums=sums, scan_cells=cells, cap_labels=None)
 
     def _sums_block(self, shape: tuple[int, int]) -> np.ndarray:
         """A float32 ``(*shape, 3)`` array for the sensor grid's return sums: one the object

@@ -3,10 +3,13 @@
 Each cell is classified by its centre point ``((ix + 0.5)·r, (iy + 0.5)·r)``: inside a
 building → ``CONTEXT_BUILDING``, else inside a road surface → ``CONTEXT_ROAD``, else
 ``CONTEXT_OTHER`` (priority building > road > other where polygons overlap). A rasteriser
-may widen its buildings first by ``building_margin_m`` (:func:`widen_buildings`,
+may widen its buildings first by ``building_margin_m`` (:func:`widen_polygons`,
 docs/method.md §4a "Widened buildings"): the runner's second rasteriser, whose building cells
 are the layer that holds the motion gate shut where a return at a building face falls
 although the map or the pose is off by up to that margin (the prior keeps the outlines).
+Or its roads by ``road_margin_m``: the runner's rasteriser of the roads' reach, whose road
+cells take the ground chain's capped gap (``sensor.ground_chain_gap_road_reach_m``,
+docs/method.md §3 "The chain's gap on the road").
 
 Polygons are closed: a centre exactly on a polygon's edge or vertex counts as inside it
 (``intersects``, i.e. ``polygon.covers(point)``; ``contains`` would say outside). So two
@@ -65,11 +68,12 @@ class PriorRasteriser:
 
     def __init__(self, map_data: MapData, resolution_m: float, tile_size_cells: int,
                  max_tiles: int = DEFAULT_MAX_TILES, building_margin_m: float = 0.0,
-                 inner: PriorRasteriser | None = None) -> None:
+                 inner: PriorRasteriser | None = None, road_margin_m: float = 0.0) -> None:
         if resolution_m <= 0 or tile_size_cells < 1 or max_tiles < 1:
             raise ValueError("resolution_m, tile_size_cells and max_tiles must be positive")
-        if not building_margin_m >= 0:
-            raise ValueError(f"building_margin_m must be >= 0, got {building_margin_m}")
+        if not (building_margin_m >= 0 and road_margin_m >= 0):
+            raise ValueError(f"building_margin_m and road_margin_m must be >= 0, got "
+                             f"{building_margin_m}, {road_margin_m}")
         if inner is not None and (inner.resolution_m != resolution_m
                                   or inner.tile_size != tile_size_cells
                                   or inner.building_margin_m != 0.0):
@@ -80,8 +84,10 @@ class PriorRasteriser:
         self.tile_size = int(tile_size_cells)
         self.max_tiles = int(max_tiles)
         self.building_margin_m = float(building_margin_m)
-        self._geoms = {CONTEXT_ROAD: np.asarray(map_data.roads, dtype=object),
-                       CONTEXT_BUILDING: widen_buildings(
+        self.road_margin_m = float(road_margin_m)
+        self._geoms = {CONTEXT_ROAD: widen_polygons(
+                           np.asarray(map_data.roads, dtype=object), road_margin_m),
+                       CONTEXT_BUILDING: widen_polygons(
                            np.asarray(map_data.buildings, dtype=object), building_margin_m)}
         for geoms in self._geoms.values():
             shapely.prepare(geoms)
@@ -168,14 +174,15 @@ class PriorRasteriser:
         return out
 
 
-def widen_buildings(buildings: np.ndarray, margin_m: float) -> np.ndarray:
-    """The building polygons grown by ``margin_m`` (the map's and the pose's error): every point
-    within ``margin_m`` of a building is in its widened polygon (a round buffer, each quarter
-    circle approximated by ``_BUFFER_QUAD_SEGS`` segments, so up to ``margin·(1 − cos(π/4n))``
-    ≈ 2 % short of the margin at the corners). ``margin_m = 0``: the polygons themselves."""
-    if margin_m <= 0 or buildings.size == 0:
-        return buildings
-    return shapely.buffer(buildings, margin_m, quad_segs=_BUFFER_QUAD_SEGS)
+def widen_polygons(polygons: np.ndarray, margin_m: float) -> np.ndarray:
+    """The polygons grown by ``margin_m`` (buildings: the map's and the pose's error; roads:
+    their reach): every point within ``margin_m`` of a polygon is in its widened polygon (a
+    round buffer, each quarter circle approximated by ``_BUFFER_QUAD_SEGS`` segments, so up to
+    ``margin·(1 − cos(π/4n))`` ≈ 2 % short of the margin at the corners). ``margin_m = 0``:
+    the polygons themselves."""
+    if margin_m <= 0 or polygons.size == 0:
+        return polygons
+    return shapely.buffer(polygons, margin_m, quad_segs=_BUFFER_QUAD_SEGS)
 
 
 def prior_masses(labels: np.ndarray, beta_building: float, beta_road: float,

@@ -207,7 +207,7 @@ def test_widened_building_covers_cells_within_the_margin() -> None:
 
 
 def widened_brute_force(md: MapData, margin: float, window: Window) -> np.ndarray:
-    """:func:`brute_force` of the buildings buffered as :func:`widen_buildings` does, without
+    """:func:`brute_force` of the buildings buffered as :func:`widen_polygons` does, without
     roads (the runner's rasteriser of widened buildings)."""
     wide = shapely.buffer(md.buildings, margin, quad_segs=4)
     return brute_force(map_of(list(wide), []), window)
@@ -271,3 +271,29 @@ def test_widened_tiles_of_a_map_without_buildings_are_empty() -> None:
     assert (inner.labels(w) == CONTEXT_ROAD).any()
     wide = PriorRasteriser(map_of([], []), 0.5, 16, building_margin_m=0.5, inner=inner)
     assert (wide.labels(w) == CONTEXT_OTHER).all()
+
+
+def test_widened_roads_cover_the_cells_within_the_reach() -> None:
+    """``road_margin_m`` (the roads' reach of ``sensor.ground_chain_gap_road_reach_m``): a
+    straight road 4 m wide, y in [0, 4], widened by 2 m. A cell's centre at distance d from
+    the strip (computed here from the strip's edges, not by shapely) is road iff d ≤ 2 m;
+    the buildings keep their own label and win where both cover a cell, as in the prior."""
+    road = shapely.box(-50.0, 0.0, 50.0, 4.0)
+    house = shapely.box(0.0, 5.0, 5.0, 15.0)        # 1 m from the road's north edge
+    md = map_of([house], [road])
+    window = Window(0.5, 40, 40, -12, -20)           # y from -6 m to 14 m, x from -10 m to 10 m
+    wide = PriorRasteriser(md, 0.5, 16, road_margin_m=2.0).labels(window)
+    plain = PriorRasteriser(md, 0.5, 16).labels(window)
+    xs, ys = window.cell_centres()
+    distance = np.maximum(np.maximum(0.0 - ys, ys - 4.0), 0.0)[:, None] + 0 * xs[None, :]
+    in_house = ((xs[None, :] >= 0.0) & (xs[None, :] <= 5.0)
+                & (ys[:, None] >= 5.0) & (ys[:, None] <= 15.0))
+    want = np.where(in_house, CONTEXT_BUILDING,
+                    np.where(distance <= 2.0, CONTEXT_ROAD, CONTEXT_OTHER))
+    np.testing.assert_array_equal(wide, want)
+    # the reach adds four rows of cells on each side (centres 0.25 … 1.75 m from the edge),
+    # but for the house's 10 columns in the two rows of the north side that it covers
+    assert in_house.sum() == 10 * 18
+    assert int((wide == CONTEXT_ROAD).sum()) - int((plain == CONTEXT_ROAD).sum()) == 8 * 40 - 20
+    with pytest.raises(ValueError, match="road_margin_m"):
+        PriorRasteriser(md, 0.5, 16, road_margin_m=-1.0)
