@@ -65,6 +65,7 @@ from evperc.output.writer import HeldLayers, RunWriter, check_output_dir
 from evperc.plumbing import fusion_threads, keep_freed_memory, prefetched
 from evperc.progress import bar as progress_bar
 from evperc.sensor import SensorParams, sensor_grid
+from evperc.sensor.map_fit import MapFit, fit_map
 from evperc.sensor.pose_fit import PoseFit, check_poses
 from evperc.warm import WarmSpec, warm_up
 
@@ -434,6 +435,8 @@ class Pipeline:
         self.resolution = config["grid"]["cell_size_m"]
         self.window_size = config["grid"]["window_size_m"]
         self.map_data: MapData | None = None
+        #: map.fit_to_scans: the map's fit to the first scans (evperc.sensor.map_fit)
+        self.map_fit: MapFit | None = None
         self.rasteriser: PriorRasteriser | None = None
         self.near_rasteriser: PriorRasteriser | None = None
         #: the roads widened by sensor.ground_chain_gap_road_reach_m (method.md §3)
@@ -442,6 +445,8 @@ class Pipeline:
             read = load_map_cached if reuse_map else load_map
             map_data = read(request.map_path, request.roads_path, config_map=config["map"])
             self.map_data = map_data.to_crs(self.georef.crs)
+            if config["map"]["fit_to_scans"]:
+                self.map_data, self.map_fit = self._fit_map(self.map_data, config)
             tile = config["map"]["tile_size_cells"]
             self.rasteriser = PriorRasteriser(self.map_data, self.resolution, tile)
             margin = config["map"]["building_margin_m"]
@@ -539,7 +544,32 @@ class Pipeline:
                                   and hasattr(self.reader, "numbers") else "frame index"}
                                  if self.request.point_labels else None),
                 # how well the log's poses fit its scans (None: not checked)
-                "pose_fit": self.pose_fit.summary() if self.pose_fit is not None else None}
+                "pose_fit": self.pose_fit.summary() if self.pose_fit is not None else None,
+                "map_fit": self.map_fit.summary() if self.map_fit is not None else None}
+
+    def _fit_map(self, map_data: MapData, config: dict[str, Any]
+                 ) -> tuple[MapData, MapFit | None]:
+        """``map_data`` moved to fit the span's first scans (:func:`evperc.sensor.map_fit.fit_map`;
+        ``map.fit_to_scans``), and the fit, said in one line."""
+        scans = self.scans(-1)
+        try:
+            moved, fit = fit_map(map_data, (scan for _, scan in scans), self.georef.apply,
+                                 SensorParams.from_config(config["sensor"], self.resolution))
+        finally:
+            scans.close()
+        where = self.request.map_path
+        if fit is None:
+            log.info("%s: used as it is: the first scans' returns meet too few of its building "
+                     "outlines to fit it to them (map.fit_to_scans)", where)
+        elif fit.moved:
+            log.info("%s: moved %.2f m east, %.2f m north to fit the scans (%d returns of %d "
+                     "scans on its outlines: %.0f %% -> %.0f %%)", where, *fit.offset_m,
+                     fit.returns, fit.scans, 100 * fit.share_at_map, 100 * fit.share_best)
+        else:
+            log.info("%s: fits the scans (%d returns of %d scans, %.0f %% on its outlines; "
+                     "the best offset, %.2f m east, %.2f m north, not worth a move)", where,
+                     fit.returns, fit.scans, 100 * fit.share_at_map, *fit.best_m)
+        return moved, fit
 
     def check_poses(self) -> PoseFit | None:
         """Whether the log's poses fit its scans (:func:`evperc.sensor.pose_fit.check_poses`

@@ -151,7 +151,7 @@ SPEC = {
     # evperc's additions, off in the paper's method
     ("sensor", "free_margin_m"): 0.0, ("sensor", "free_erosion_m"): 0.0,
     ("sensor", "ground_chain"): False, ("sensor", "foot_lift_m"): 0.0,
-    ("map", "building_margin_m"): 0.0,
+    ("map", "building_margin_m"): 0.0, ("map", "fit_to_scans"): False,
 }
 
 

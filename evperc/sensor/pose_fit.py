@@ -253,6 +253,15 @@ def _thinned(b: np.ndarray, most: int) -> np.ndarray:
     return b[::math.ceil(len(b) / most)] if len(b) > most else b
 
 
+def best_offset(a: np.ndarray, b: np.ndarray) -> tuple[float, float, tuple[float, float]]:
+    """Points ``b`` on points ``a`` (both (N, 2) x, y), without a turn: ``(share at no offset,
+    best share, best offset (x, y))`` of ``b`` (at most :data:`MAX_RETURNS` of them, every
+    k-th), searched as :func:`fit_scans` does (steps 3 of the module docstring)."""
+    b = _thinned(b, MAX_RETURNS)
+    marked, origin = _raster(a, b)
+    return _search(marked, origin, b)
+
+
 def fit_scans(a: np.ndarray, b: np.ndarray, sensor: tuple[float, float]
               ) -> tuple[tuple[float, float, tuple[float, float]],
                          tuple[float, float, tuple[float, float]]]:
