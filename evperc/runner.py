@@ -434,6 +434,7 @@ class Pipeline:
         self.crs_name = self.georef.crs.to_string() if self.georef is not None else "local"
         self.resolution = config["grid"]["cell_size_m"]
         self.window_size = config["grid"]["window_size_m"]
+        self.sensor_params = SensorParams.from_config(config["sensor"], self.resolution)
         self.map_data: MapData | None = None
         #: map.fit_to_scans: the map's fit to the first scans (evperc.sensor.map_fit)
         self.map_fit: MapFit | None = None
@@ -446,7 +447,7 @@ class Pipeline:
             map_data = read(request.map_path, request.roads_path, config_map=config["map"])
             self.map_data = map_data.to_crs(self.georef.crs)
             if config["map"]["fit_to_scans"]:
-                self.map_data, self.map_fit = self._fit_map(self.map_data, config)
+                self.map_data, self.map_fit = self._fit_map(self.map_data)
             tile = config["map"]["tile_size_cells"]
             self.rasteriser = PriorRasteriser(self.map_data, self.resolution, tile)
             margin = config["map"]["building_margin_m"]
@@ -466,7 +467,6 @@ class Pipeline:
                       config["map"]["beta_other"])
         self.params = FusionParams.from_config(config)
         self.fusion_threads = fusion_threads(config["fusion"]["threads"])
-        self.sensor_params = SensorParams.from_config(config["sensor"], self.resolution)
         self._overlap_checked = False
         self.clock = StageClock()
         #: frames whose sensor grid the fusion thread computed (:meth:`inputs`, ``defer``)
@@ -547,14 +547,13 @@ class Pipeline:
                 "pose_fit": self.pose_fit.summary() if self.pose_fit is not None else None,
                 "map_fit": self.map_fit.summary() if self.map_fit is not None else None}
 
-    def _fit_map(self, map_data: MapData, config: dict[str, Any]
-                 ) -> tuple[MapData, MapFit | None]:
+    def _fit_map(self, map_data: MapData) -> tuple[MapData, MapFit | None]:
         """``map_data`` moved to fit the span's first scans (:func:`evperc.sensor.map_fit.fit_map`;
         ``map.fit_to_scans``), and the fit, said in one line."""
         scans = self.scans(-1)
         try:
             moved, fit = fit_map(map_data, (scan for _, scan in scans), self.georef.apply,
-                                 SensorParams.from_config(config["sensor"], self.resolution))
+                                 self.sensor_params)
         finally:
             scans.close()
         where = self.request.map_path

@@ -34,7 +34,6 @@ class SensorParams:
     foot_lift_m: float = 0.0
     ground_chain_gap_m: float = 0.0
     ground_chain_gap_road_only: bool = False
-    ground_chain_gap_road_reach_m: float = 0.0
 
     @staticmethod
     def from_config(sensor: Mapping[str, Any], cell_size_m: float) -> SensorParams:
@@ -57,5 +56,4 @@ class SensorParams:
             foot_lift_m=float(sensor["foot_lift_m"]),
             ground_chain_gap_m=float(sensor["ground_chain_gap_m"]),
             ground_chain_gap_road_only=bool(sensor["ground_chain_gap_road_only"]),
-            ground_chain_gap_road_reach_m=float(sensor["ground_chain_gap_road_reach_m"]),
         )
