@@ -16,15 +16,16 @@ much. The walls of the map and the walls in the scans are the same lines, so:
 2. The outlines of the map's buildings near them, as points every :data:`OUTLINE_STEP_M`.
 3. The returns' best horizontal offset onto the outlines
    (:func:`evperc.sensor.pose_fit.best_offset`: the share of returns within ~0.1–0.3 m of an
-   outline point, searched within ±2 m, by 0.25 m then 0.05 m).
+   outline point, searched within ±:data:`SEARCH_M` on each axis, by 0.25 m then 0.05 m).
 4. The map is moved by minus that offset — its buildings and its roads together, one
    translation: a map traced off a shifted image, or a geo-reference off by its GNSS's error
-   — when the offset is at least :data:`MIN_MOVE_M` (half the default cell) and raises the
-   share by at least :data:`MIN_GAIN`; otherwise it is kept as it is (a map that fits moves
-   by no noise).
+   — when the offset is at least :data:`MIN_MOVE_M` (half the default cell), raises the
+   share by at least :data:`MIN_GAIN`, and lies inside the search (at most 3.875 m on each
+   axis: a best offset at the search's edge may be no peak at all); otherwise it is kept as
+   it is (a map that fits moves by no noise).
 
 What it does not do: turns and scales (a rotated map), errors that differ across the map
-(one building off, its neighbour right), maps off by more than 2 m, logs whose first scans
+(one building off, its neighbour right), maps off by more than 3.875 m, logs whose first scans
 see no mapped building (nothing to fit: kept, and said in the log). Cost: the scans read and
 one ground split each, the search on ≤ 20,000 returns: once, before the run."""
 
@@ -40,7 +41,7 @@ import shapely
 
 from evperc.geo.maps import MapData
 from evperc.sensor.params import SensorParams
-from evperc.sensor.pose_fit import SEARCH_M, best_offset, obstacle_xy
+from evperc.sensor.pose_fit import COARSE_M, best_offset, obstacle_xy
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +61,9 @@ MIN_POINTS = 200
 MIN_MOVE_M = 0.25
 #: ... that raises the share of returns on an outline by at least this much
 MIN_GAIN = 0.05
+#: m: the offsets searched, within ±SEARCH_M on each axis (the pose check's search, wider);
+#: a best offset past SEARCH_M − COARSE_M / 2 is the search's edge, not a peak: no move
+SEARCH_M = 4.0
 
 
 @dataclass(frozen=True)
@@ -120,10 +124,14 @@ def fit_returns(returns_xy: np.ndarray, buildings: np.ndarray, scans: int = 0) -
                                          hi[1] + reach))
     if len(outline) < MIN_POINTS:
         return None
-    at_map, best, (dx, dy) = best_offset(outline, returns_xy)
+    at_map, best, (dx, dy) = best_offset(outline, returns_xy, SEARCH_M)
     # the returns fit best moved by (dx, dy): the map fits them moved by minus that
     best_m = (0.0 - dx, 0.0 - dy)  # not -0.0
-    move = bool(np.hypot(dx, dy) >= MIN_MOVE_M and best - at_map >= MIN_GAIN)
+    # a best offset past the middle of the coarse search's last step is where the search
+    # ends, not where the share peaks: the map may be off by more (with a ±2 m search, maps
+    # 2.5 m off: two of five simulated drives' maps moved the wrong way)
+    inside = max(abs(dx), abs(dy)) <= SEARCH_M - COARSE_M / 2
+    move = bool(inside and np.hypot(dx, dy) >= MIN_MOVE_M and best - at_map >= MIN_GAIN)
     return MapFit(scans, len(returns_xy), at_map, best, best_m,
                   best_m if move else (0.0, 0.0))
 

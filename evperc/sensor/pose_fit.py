@@ -211,11 +211,12 @@ def _grid(step: float, half: float, centre: tuple[float, float]) -> np.ndarray:
     return np.array([(centre[0] + dx, centre[1] + dy) for dx in steps for dy in steps])
 
 
-def _raster(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _raster(a: np.ndarray, b: np.ndarray, half: float = SEARCH_M
+            ) -> tuple[np.ndarray, np.ndarray]:
     """``(marked, origin)``: ``a``'s returns on a raster of :data:`RASTER_M` cells from
-    ``origin``, each widened by its 8 neighbours, over ``a`` and ``b`` and the search's
-    reach."""
-    margin = SEARCH_M + COARSE_M + 2 * RASTER_M
+    ``origin``, each widened by its 8 neighbours, over ``a`` and ``b`` and the reach of a
+    search within ``half``."""
+    margin = half + COARSE_M + 2 * RASTER_M
     origin = np.minimum(a.min(axis=0), b.min(axis=0)) - margin
     top = np.maximum(a.max(axis=0), b.max(axis=0)) + margin
     cols, rows = (int(v) + 1 for v in np.floor((top - origin) / RASTER_M))
@@ -253,13 +254,15 @@ def _thinned(b: np.ndarray, most: int) -> np.ndarray:
     return b[::math.ceil(len(b) / most)] if len(b) > most else b
 
 
-def best_offset(a: np.ndarray, b: np.ndarray) -> tuple[float, float, tuple[float, float]]:
+def best_offset(a: np.ndarray, b: np.ndarray, half: float = SEARCH_M
+                ) -> tuple[float, float, tuple[float, float]]:
     """Points ``b`` on points ``a`` (both (N, 2) x, y), without a turn: ``(share at no offset,
     best share, best offset (x, y))`` of ``b`` (at most :data:`MAX_RETURNS` of them, every
-    k-th), searched as :func:`fit_scans` does (steps 3 of the module docstring)."""
+    k-th), searched as :func:`fit_scans` does (step 3 of the module docstring), the coarse
+    offsets within ``half`` on each axis."""
     b = _thinned(b, MAX_RETURNS)
-    marked, origin = _raster(a, b)
-    return _search(marked, origin, b)
+    marked, origin = _raster(a, b, half)
+    return _search(marked, origin, b, half=half)
 
 
 def fit_scans(a: np.ndarray, b: np.ndarray, sensor: tuple[float, float]

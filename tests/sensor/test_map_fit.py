@@ -57,6 +57,30 @@ def test_a_moved_map_is_moved_back(offset: tuple[float, float]) -> None:
     assert fit.share_best > fit.share_at_map + 0.2
 
 
+def test_a_map_off_by_more_than_the_pose_checks_search_is_found() -> None:
+    """2.5 m off: beyond the pose check's ±2 m, within the fit's ±4 m (with ±2 m, two of five
+    simulated ibeo4 maps 2.5 m off were moved the wrong way, to the search's edge)."""
+    true = _street()
+    given = moved(MapData(true, np.zeros(0, object), UTM35, "test"), 2.5, 0.0)
+    fit = fit_returns(_returns(true, 4), given.buildings, scans=1)
+    assert fit is not None and fit.moved
+    np.testing.assert_allclose(fit.offset_m, (-2.5, 0.0), atol=0.05)
+
+
+@pytest.mark.parametrize("found, moves", [((3.9, 0.0), False), ((0.0, -3.9), False),
+                                          ((3.85, 0.0), True), ((-1.0, 3.8), True)])
+def test_a_best_offset_at_the_search_edge_moves_nothing(
+        monkeypatch: pytest.MonkeyPatch, found: tuple[float, float], moves: bool) -> None:
+    """The rule alone (the search's result given): past SEARCH_M − COARSE_M / 2 = 3.875 m on
+    an axis the best offset is the search's edge, no peak, and the map stays."""
+    import evperc.sensor.map_fit as map_fit
+
+    monkeypatch.setattr(map_fit, "best_offset", lambda a, b, half: (0.1, 0.6, found))
+    fit = fit_returns(_returns(_street(), 5), _street(), scans=1)
+    assert fit is not None and fit.moved is moves
+    assert fit.best_m == (-found[0], -found[1])
+
+
 def test_a_map_that_fits_is_not_moved() -> None:
     true = _street()
     fit = fit_returns(_returns(true, 2), true, scans=1)
