@@ -91,13 +91,6 @@ class MapFit:
                 "offset_m": [round(v, 3) + 0.0 for v in self.offset_m], "moved": self.moved}
 
 
-class _Placed:
-    """A scan with its pose in the working CRS (what :func:`obstacle_xy` reads)."""
-
-    def __init__(self, scan: Any, T: np.ndarray) -> None:
-        self.points, self.planar, self.T_world_sensor = scan.points, scan.planar, T
-
-
 def outline_points(buildings: np.ndarray, bounds: tuple[float, float, float, float]
                    ) -> np.ndarray:
     """(N, 2) float64: points every :data:`OUTLINE_STEP_M` along the outlines (exterior and
@@ -138,16 +131,18 @@ def fit_returns(returns_xy: np.ndarray, buildings: np.ndarray, scans: int = 0) -
 
 def fit_map(map_data: MapData, scans: Iterable[Any], place: Callable[[np.ndarray], np.ndarray],
             params: SensorParams) -> tuple[MapData, MapFit | None]:
-    """``map_data`` moved to fit ``scans`` (the span's scans in order; step 1 of the module
-    docstring says which are used) and the fit; ``place``: a scan's ``T_world_sensor`` → its
-    pose in the map's CRS. The map as it is when the fit is None or does not move it."""
+    """``map_data`` moved to fit ``scans`` (the span's :class:`~evperc.logs.scan.PosedScan`
+    dataclasses in order; step 1 of the module docstring says which are used) and the fit;
+    ``place``: a scan's ``T_world_sensor`` → its pose in the map's CRS. The map as it is when
+    the fit is None or does not move it."""
     returns, used, count = [], 0, 0
     for k, scan in enumerate(scans):
         if k >= MAX_SCANS or (used >= SCANS and count >= WANT_RETURNS):
             break
         if k % EVERY:
             continue
-        xy = obstacle_xy(_Placed(scan, place(scan.T_world_sensor)), params, REACH_M)
+        placed = replace(scan, T_world_sensor=place(scan.T_world_sensor))  # the working CRS
+        xy = obstacle_xy(placed, params, REACH_M)
         returns.append(xy)
         used += 1
         count += len(xy)
