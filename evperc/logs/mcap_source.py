@@ -25,6 +25,7 @@ import io
 import json
 import logging
 import struct
+import sys
 import threading
 import types
 import zlib
@@ -34,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import mcap.stream_reader
+import zstandard
 from isal import isal_zlib
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import EndOfFile, UnsupportedCompressionError
@@ -101,6 +103,8 @@ def _chunk_stream(initial_bytes: bytes = b"") -> io.BytesIO:
     """What ``mcap.stream_reader`` calls for ``BytesIO``: :class:`_ChunkBytes` within
     :meth:`McapSource.iter_raw`, a plain ``BytesIO`` anywhere else."""
     if getattr(_views, "on", False):
+        if isinstance(initial_bytes, memoryview):  # a chunk in a thread's buffer
+            return _ChunkView(initial_bytes)  # type: ignore[return-value]
         return _ChunkBytes(initial_bytes)
     return io.BytesIO(initial_bytes)
 
@@ -120,6 +124,130 @@ def _read_chunks_without_copies() -> bool:
 
 
 _read_chunks_without_copies()
+
+
+#: chunks decompressed by each reading thread into buffers it keeps (a fresh 1.9 MB
+#: ``bytes`` per hdl64 scan costs the decode thread the first touch of its pages)
+CHUNK_BUFFERS = 4
+#: a chunk larger than this is decompressed into a ``bytes`` of its own, as mcap does
+CHUNK_BUFFER_MAX_BYTES = 32 << 20
+
+
+class _ChunkView:
+    """The stream mcap parses a decompressed chunk from when the chunk lies in one of
+    :class:`_ChunkBuffers`' buffers: reads as ``io.BytesIO``'s, those of
+    :data:`VIEW_MIN_BYTES` or more a ``memoryview`` of the buffer, shorter ones ``bytes``."""
+
+    __slots__ = ("_view", "_pos")
+
+    def __init__(self, view: memoryview) -> None:
+        self._view = view
+        self._pos = 0
+
+    def read(self, size: int | None = -1) -> bytes | memoryview:
+        start = self._pos
+        long_read = size is not None and size >= VIEW_MIN_BYTES
+        end = len(self._view) if size is None or size < 0 else start + size
+        self._pos = max(start, min(end, len(self._view)))
+        data = self._view[start:self._pos]
+        return data if long_read else data.tobytes()
+
+    def tell(self) -> int:
+        return self._pos
+
+    def seek(self, pos: int, whence: int = 0) -> int:
+        base = (0, self._pos, len(self._view))[whence]
+        self._pos = max(base + pos, 0)
+        return self._pos
+
+
+def _viewed_by_none(buffers: list[bytearray], i: int) -> bool:
+    """No view of ``buffers[i]`` is alive: its only references are the list's and the
+    argument's (a memoryview of a bytearray, and every slice of it, hold one more)."""
+    return sys.getrefcount(buffers[i]) <= 2
+
+
+class _ChunkBuffers(threading.local):
+    """Each reading thread's zstd decompressor and the buffers it decompresses chunks into.
+    A buffer is reused once no view of the chunk it holds is left (a message's payload, a
+    point cloud read where it lies); while every buffer is viewed, a new one is made, up to
+    :data:`CHUNK_BUFFERS`, and past that the chunk gets a ``bytes`` of its own."""
+
+    def __init__(self) -> None:
+        self.dctx = zstandard.ZstdDecompressor()
+        self.buffers: list[bytearray] = []
+
+    def take(self, size: int) -> bytearray | None:
+        for i in range(len(self.buffers)):
+            if _viewed_by_none(self.buffers, i):
+                if len(self.buffers[i]) < size:
+                    self.buffers[i] = bytearray(size)
+                return self.buffers[i]
+        if len(self.buffers) < CHUNK_BUFFERS:
+            self.buffers.append(bytearray(size))
+            return self.buffers[-1]
+        return None
+
+    def decompress(self, data: bytes, size: int) -> memoryview | None:
+        """``data`` (a zstd chunk of ``size`` bytes decompressed) in a buffer of this
+        thread's; None where no buffer is free."""
+        buffer = self.take(size)
+        if buffer is None:
+            return None
+        view = memoryview(buffer)[:size]
+        reader = self.dctx.stream_reader(data, read_across_frames=True)
+        done = 0
+        while done < size:
+            n = reader.readinto(view[done:])
+            if n == 0:
+                break
+            done += n
+        if done != size or reader.read(1):
+            raise zstandard.ZstdError(f"a chunk decompressed to {done} or more bytes, "
+                                      f"its record says {size}")
+        return view
+
+
+_chunk_buffers = _ChunkBuffers()
+
+
+def _decompress(data: bytes, max_output_size: int = 0) -> bytes | memoryview:
+    """``zstandard.decompress`` as mcap calls it, but within :meth:`McapSource.iter_raw`
+    (whose chunk streams are :class:`_ChunkView` for a buffer) into a buffer of the reading
+    thread's."""
+    if getattr(_views, "on", False) and 0 < max_output_size <= CHUNK_BUFFER_MAX_BYTES:
+        view = _chunk_buffers.decompress(data, max_output_size)
+        if view is not None:
+            return view
+    return zstandard.decompress(data, max_output_size)
+
+
+def _decompress_into_buffers() -> bool:
+    """Hand mcap a ``zstandard`` whose ``decompress`` fills a buffer kept by the reading
+    thread (:func:`_decompress`); False (mcap's own kept) if mcap no longer calls
+    ``zstandard.decompress`` in ``get_chunk_data_stream``, or this Python's reference
+    counts do not tell a viewed buffer (the test :func:`_viewed_by_none` makes)."""
+    code = mcap.stream_reader.get_chunk_data_stream.__code__
+    if (getattr(mcap.stream_reader, "zstandard", None) is not zstandard
+            or "zstandard" not in code.co_names or "decompress" not in code.co_names
+            or mcap.stream_reader.BytesIO is not _chunk_stream):
+        log.debug("mcap.stream_reader no longer calls zstandard.decompress: chunks are "
+                  "decompressed by mcap")
+        return False
+    probe = [bytearray(1)]
+    free = _viewed_by_none(probe, 0)
+    view = memoryview(probe[0])[:1]
+    viewed = not _viewed_by_none(probe, 0)
+    del view
+    if not (free and viewed and _viewed_by_none(probe, 0)):
+        return False
+    mcap.stream_reader.zstandard = types.SimpleNamespace(
+        **{**{k: getattr(zstandard, k) for k in dir(zstandard) if not k.startswith("__")},
+           "decompress": _decompress})
+    return True
+
+
+_decompress_into_buffers()
 
 
 @dataclass

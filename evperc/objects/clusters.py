@@ -672,6 +672,7 @@ class Clusterer:
         self._no_words = np.zeros(0, np.uint64)
         self._no_flags = np.zeros(0, np.bool_)
         self._groups = 0  # groups the last flood fill found (before the filters)
+        self._group_cells = 0  # and the cells they hold
 
     def clusters(self, decision: np.ndarray, betp_moving: np.ndarray, conflict_fo: np.ndarray,
                  window: Window, extra_seeds: np.ndarray | None = None,
@@ -711,9 +712,9 @@ class Clusterer:
             now_words = now[:whole].view(np.uint64) if seed_all else self._no_words
         else:  # seeds by ∅_FO: no skip test
             dec_words = now_words = self._no_words
-        n, _ = _flood(flat, conflict_fo.reshape(-1), now, seed_all, self.shape[1], self.fo_q,
-                      _MOVING, _UNKNOWN, _GROWS, extra, self._mark, self._cells, self._stats,
-                      dec_words, now_words)
+        n, self._group_cells = _flood(
+            flat, conflict_fo.reshape(-1), now, seed_all, self.shape[1], self.fo_q, _MOVING,
+            _UNKNOWN, _GROWS, extra, self._mark, self._cells, self._stats, dec_words, now_words)
         self._groups = n
         tracked = self._no_flags
         if self.params.keep_tracked_small and len(extra):
@@ -748,5 +749,4 @@ class Clusterer:
         """Every 8-connected group of the last :meth:`clusters` call, before the size and
         extent filters: (cells, sizes) — flat window cells, group after group, and each
         group's cell count. Views of the scratch buffers: valid until the next call."""
-        sizes = self._stats[:self._groups, 0]
-        return self._cells[:int(sizes.sum())], sizes
+        return self._cells[:self._group_cells], self._stats[:self._groups, 0]

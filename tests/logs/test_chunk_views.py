@@ -1,6 +1,8 @@
 """A message's payload read where it lies in its decompressed chunk
-(``evperc.logs.mcap_source._ChunkBytes``): the reads are those of ``io.BytesIO`` (the
-oracle), long ones are views of the chunk, and every decoder still gets what it decodes."""
+(``evperc.logs.mcap_source._ChunkBytes``, and ``_ChunkView`` for a chunk decompressed into a
+buffer the reading thread keeps): the reads are those of ``io.BytesIO`` (the oracle), long
+ones are views of the chunk, a kept buffer is never reused while a view of it lives, and
+every decoder still gets what it decodes."""
 
 from __future__ import annotations
 
@@ -8,11 +10,23 @@ import io
 
 import mcap.stream_reader
 import numpy as np
+import pytest
+import zstandard
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from evperc.logs import mcap_source
 from evperc.logs.factory import open_log
-from evperc.logs.mcap_source import VIEW_MIN_BYTES, McapSource, _chunk_stream, _ChunkBytes
+from evperc.logs.mcap_source import (
+    CHUNK_BUFFERS,
+    VIEW_MIN_BYTES,
+    McapSource,
+    _chunk_stream,
+    _ChunkBuffers,
+    _ChunkBytes,
+    _ChunkView,
+    _decompress,
+)
 from tests.bag_writers import write_ros1_mcap
 from tests.logs.reference import S0
 from tests.mcap_writers import transform, write_json_mcap, write_ros2_mcap
@@ -38,6 +52,88 @@ def test_reads_are_bytesio_reads(size, reads, seed):
         assert isinstance(got, memoryview) is long_read
         assert isinstance(got, bytes) is not long_read
     assert ours.read() == oracle.read()
+
+
+@settings(max_examples=60, deadline=None)
+@given(size=st.integers(0, 3 * VIEW_MIN_BYTES), reads=st.lists(_SIZES, max_size=8),
+       seed=st.integers(0, 2**32 - 1))
+def test_a_kept_buffers_reads_are_bytesio_reads(size, reads, seed):
+    data = np.random.default_rng(seed).integers(0, 256, size, np.uint8).tobytes()
+    ours, oracle = _ChunkView(memoryview(bytearray(data))), io.BytesIO(data)
+    for n in reads:
+        got, want = ours.read(n), oracle.read(n)
+        assert bytes(got) == want
+        assert ours.tell() == oracle.tell()
+        long_read = n is not None and n >= VIEW_MIN_BYTES
+        assert isinstance(got, memoryview) is long_read
+        assert isinstance(got, bytes) is not long_read
+    assert ours.read() == oracle.read()
+
+
+def test_a_chunk_decompressed_into_a_kept_buffer_is_zstds():
+    """The kept buffer holds what ``zstandard.decompress`` gives (several frames, as a
+    stream of them, too), a free buffer is reused, a viewed one is not, and a chunk whose
+    record gives the wrong size is an error, as it is for mcap's own decompression."""
+    rng = np.random.default_rng(1)
+    pieces = [rng.integers(0, 7, n, np.uint8).tobytes() for n in (300_000, 120_000)]
+    buffers = _ChunkBuffers()
+    for data in (pieces[0], pieces[1], pieces[0] + pieces[1]):
+        frame = zstandard.compress(data)
+        assert buffers.decompress(frame, len(data)).tobytes() == data
+    assert len(buffers.buffers) == 1  # each view dropped before the next chunk
+    two_frames = zstandard.compress(pieces[0]) + zstandard.compress(pieces[1])
+    held = buffers.decompress(two_frames, len(pieces[0]) + len(pieces[1]))
+    other = buffers.decompress(zstandard.compress(pieces[1]), len(pieces[1]))
+    assert len(buffers.buffers) == 2 and held.obj is not other.obj
+    assert held.tobytes() == pieces[0] + pieces[1] and other.tobytes() == pieces[1]
+    with pytest.raises(zstandard.ZstdError):
+        buffers.decompress(zstandard.compress(pieces[1]), len(pieces[1]) + 1)
+    with pytest.raises(zstandard.ZstdError):
+        buffers.decompress(zstandard.compress(pieces[1]), len(pieces[1]) - 1)
+
+
+def test_every_kept_buffer_viewed_gives_bytes_of_their_own():
+    buffers = _ChunkBuffers()
+    data = bytes(range(256)) * 100
+    views = [buffers.decompress(zstandard.compress(data), len(data))
+             for _ in range(CHUNK_BUFFERS)]
+    assert buffers.decompress(zstandard.compress(data), len(data)) is None
+    assert len({id(v.obj) for v in views}) == CHUNK_BUFFERS
+    mcap_source._views.on = True
+    try:
+        got = _decompress(zstandard.compress(data), len(data))
+    finally:
+        mcap_source._views.on = False
+    assert isinstance(got, bytes | memoryview) and bytes(got) == data
+    assert _decompress(zstandard.compress(data), len(data)) == data  # outside iter_raw
+
+
+@pytest.mark.parametrize("held", [2, 40])
+def test_payloads_kept_across_many_chunks_stay_those_written(tmp_path, held):
+    """A reader that keeps the payloads it was handed (views of kept buffers) while mcap
+    decompresses the next chunks: each still holds what mcap's own reader reads, with a
+    few kept (buffers reused) and with more kept than there are buffers (bytes of their
+    own past them)."""
+    from mcap.reader import make_reader
+
+    path = write_ros2_mcap(tmp_path / "d.mcap", clouds=_clouds(40, 6000, seed=11),
+                           odometry=_odometry(80), chunk_size=64 * 1024)
+    with path.open("rb") as f:
+        theirs = [bytes(m.data) for _, _, m in make_reader(f).iter_messages(
+            topics=["/points"])]
+    kept: list = []
+    seen = 0
+    for raw in McapSource.open(path).iter_raw(["/points"]):
+        kept.append(raw.message.data)
+        kept = kept[-held:]
+        seen += 1
+        assert [bytes(k) for k in kept] == theirs[seen - len(kept):seen]
+    assert seen == len(theirs) == 40
+    assert any(isinstance(k, memoryview) and isinstance(k.obj, bytearray) for k in kept)
+
+
+def test_mcap_decompresses_into_the_kept_buffers():
+    assert mcap.stream_reader.zstandard.decompress is _decompress
 
 
 def test_a_written_stream_is_a_plain_bytesio():

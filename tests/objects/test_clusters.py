@@ -296,6 +296,7 @@ def test_a_cluster_keeps_no_facade_cells_off_buildings():
     # the group the small-group rules read is the flood fill's, façade included
     cells, sizes = off.groups()
     assert sizes.tolist() == [24]
+    assert sorted(cells.tolist()) == sorted(plain.cells_of(0).tolist())
     # without the layer (no map) nothing is left out
     assert len(off.clusters(dec, betp_m, fo, window, None, now).cells_of(0)) == 24
 
