@@ -209,6 +209,37 @@ class _ChunkBuffers(threading.local):
 
 
 _chunk_buffers = _ChunkBuffers()
+#: the compressed chunks' records, read from the file (:class:`_RecordFile`)
+_record_buffers = _ChunkBuffers()
+
+
+class _RecordFile:
+    """The log file as :meth:`McapSource.iter_raw` hands it to mcap's readers: a read of
+    :data:`VIEW_MIN_BYTES` or more (a chunk's compressed data) goes into a buffer the
+    reading thread keeps (:class:`_ChunkBuffers`, as the decompressed chunks do; a fresh
+    1.2 MB ``bytes`` a scan otherwise) and comes back as a ``memoryview`` of it, as long as
+    the file gave (short at its end, as ``read`` is); any other call is the file's."""
+
+    def __init__(self, file: Any) -> None:
+        self._file = file
+
+    def read(self, size: int | None = -1) -> bytes | memoryview:
+        if size is None or size < VIEW_MIN_BYTES or size > CHUNK_BUFFER_MAX_BYTES:
+            return self._file.read(size)
+        buffer = _record_buffers.take(size)
+        if buffer is None:
+            return self._file.read(size)
+        view = memoryview(buffer)[:size]
+        done = 0
+        while done < size:
+            n = self._file.readinto(view[done:])
+            if not n:
+                break
+            done += n
+        return view[:done] if done else b""
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._file, name)
 
 
 def _decompress(data: bytes, max_output_size: int = 0) -> bytes | memoryview:
@@ -448,7 +479,7 @@ class McapSource:
         wanted = None if topics is None else set(topics)
         with self.path.open("rb") as f:
             if self.indexed:
-                reader = _SummaryReader(f, self._summary)
+                reader = _SummaryReader(_RecordFile(f), self._summary)
                 iterator = reader.iter_messages(topics=wanted, starting_at=start_ns,
                                                 ending_before=end_ns, log_time_order=True)
             elif self.chunks is not None:
@@ -494,7 +525,7 @@ class McapSource:
                 yield item
                 continue
             f.seek(offset + 1 + 8)  # opcode and record length
-            chunk = Chunk.read(ReadDataStream(f))
+            chunk = Chunk.read(ReadDataStream(_RecordFile(f)))
             for i, record in enumerate(breakup_chunk(chunk, validate_crc=True)):
                 if not isinstance(record, Message) or (
                         ids is not None and record.channel_id not in ids):

@@ -108,16 +108,19 @@ def test_every_kept_buffer_viewed_gives_bytes_of_their_own():
     assert _decompress(zstandard.compress(data), len(data)) == data  # outside iter_raw
 
 
-@pytest.mark.parametrize("held", [2, 40])
-def test_payloads_kept_across_many_chunks_stay_those_written(tmp_path, held):
-    """A reader that keeps the payloads it was handed (views of kept buffers) while mcap
-    decompresses the next chunks: each still holds what mcap's own reader reads, with a
-    few kept (buffers reused) and with more kept than there are buffers (bytes of their
-    own past them)."""
+@pytest.mark.parametrize(("held", "compression"), [(2, "zstd"), (40, "zstd"), (2, "lz4"),
+                                                   (2, "none")])
+def test_payloads_kept_across_many_chunks_stay_those_written(tmp_path, held, compression):
+    """A reader that keeps the payloads it was handed (views of kept buffers: the chunks'
+    records read from the file, and zstd's decompressed chunks) while mcap reads the next
+    chunks: each still holds what mcap's own reader reads, with a few kept (buffers
+    reused) and with more kept than there are buffers (bytes of their own past them); lz4
+    and uncompressed chunks, whose records are kept buffers too, alike."""
     from mcap.reader import make_reader
 
     path = write_ros2_mcap(tmp_path / "d.mcap", clouds=_clouds(40, 6000, seed=11),
-                           odometry=_odometry(80), chunk_size=64 * 1024)
+                           odometry=_odometry(80), chunk_size=64 * 1024,
+                           compression=compression)
     with path.open("rb") as f:
         theirs = [bytes(m.data) for _, _, m in make_reader(f).iter_messages(
             topics=["/points"])]
@@ -129,7 +132,31 @@ def test_payloads_kept_across_many_chunks_stay_those_written(tmp_path, held):
         seen += 1
         assert [bytes(k) for k in kept] == theirs[seen - len(kept):seen]
     assert seen == len(theirs) == 40
-    assert any(isinstance(k, memoryview) and isinstance(k.obj, bytearray) for k in kept)
+    in_kept_buffer = any(isinstance(k, memoryview) and isinstance(k.obj, bytearray)
+                         for k in kept)
+    assert in_kept_buffer is (compression != "lz4")  # lz4 decompresses into bytes
+
+
+def test_a_chunk_record_is_read_into_a_kept_buffer_and_short_at_the_end(tmp_path):
+    """``_RecordFile``: a long read fills a kept buffer with the file's bytes (a view of
+    it), a short one is the file's own ``bytes``, a read past the end is as short as the
+    file's, and at the end it is empty."""
+    data = np.random.default_rng(4).integers(0, 256, 3 * VIEW_MIN_BYTES, np.uint8).tobytes()
+    path = tmp_path / "f.bin"
+    path.write_bytes(data)
+    with path.open("rb") as f:
+        ours = mcap_source._RecordFile(f)
+        head = ours.read(10)
+        assert isinstance(head, bytes) and head == data[:10]
+        body = ours.read(2 * VIEW_MIN_BYTES)
+        assert isinstance(body, memoryview) and isinstance(body.obj, bytearray)
+        assert body.tobytes() == data[10:10 + 2 * VIEW_MIN_BYTES]
+        assert ours.tell() == 10 + 2 * VIEW_MIN_BYTES
+        rest = ours.read(2 * VIEW_MIN_BYTES)
+        assert rest.tobytes() == data[10 + 2 * VIEW_MIN_BYTES:]
+        assert ours.read(VIEW_MIN_BYTES) == b""
+        ours.seek(5)
+        assert bytes(ours.read(VIEW_MIN_BYTES)) == data[5:5 + VIEW_MIN_BYTES]
 
 
 def test_mcap_decompresses_into_the_kept_buffers():
