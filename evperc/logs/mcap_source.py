@@ -167,11 +167,26 @@ def _viewed_by_none(buffers: list[bytearray], i: int) -> bool:
     return sys.getrefcount(buffers[i]) <= 2
 
 
+def _refcounts_tell_views() -> bool:
+    """:func:`_viewed_by_none` tells a free buffer from a viewed one in this Python (a
+    probe at import; where it cannot, no buffer is kept and mcap reads as it does)."""
+    probe = [bytearray(1)]
+    free = _viewed_by_none(probe, 0)
+    view = memoryview(probe[0])[:1]
+    viewed = not _viewed_by_none(probe, 0)
+    del view
+    return free and viewed and _viewed_by_none(probe, 0)
+
+
+_KEEP_BUFFERS = _refcounts_tell_views()
+
+
 class _ChunkBuffers(threading.local):
-    """Each reading thread's zstd decompressor and the buffers it decompresses chunks into.
-    A buffer is reused once no view of the chunk it holds is left (a message's payload, a
-    point cloud read where it lies); while every buffer is viewed, a new one is made, up to
-    :data:`CHUNK_BUFFERS`, and past that the chunk gets a ``bytes`` of its own."""
+    """The buffers a reading thread keeps — the chunks it decompresses (with its zstd
+    decompressor), or the chunk records it reads from the file — each reused once no view
+    of what it holds is left (a message's payload, a point cloud read where it lies); while
+    every buffer is viewed, a new one is made, up to :data:`CHUNK_BUFFERS`, and past that
+    the caller makes a ``bytes`` of its own."""
 
     def __init__(self) -> None:
         self.dctx = zstandard.ZstdDecompressor()
@@ -224,7 +239,8 @@ class _RecordFile:
         self._file = file
 
     def read(self, size: int | None = -1) -> bytes | memoryview:
-        if size is None or size < VIEW_MIN_BYTES or size > CHUNK_BUFFER_MAX_BYTES:
+        if (not _KEEP_BUFFERS or size is None or size < VIEW_MIN_BYTES
+                or size > CHUNK_BUFFER_MAX_BYTES):
             return self._file.read(size)
         buffer = _record_buffers.take(size)
         if buffer is None:
@@ -257,7 +273,7 @@ def _decompress_into_buffers() -> bool:
     """Hand mcap a ``zstandard`` whose ``decompress`` fills a buffer kept by the reading
     thread (:func:`_decompress`); False (mcap's own kept) if mcap no longer calls
     ``zstandard.decompress`` in ``get_chunk_data_stream``, or this Python's reference
-    counts do not tell a viewed buffer (the test :func:`_viewed_by_none` makes)."""
+    counts do not tell a viewed buffer (:func:`_refcounts_tell_views`)."""
     code = mcap.stream_reader.get_chunk_data_stream.__code__
     if (getattr(mcap.stream_reader, "zstandard", None) is not zstandard
             or "zstandard" not in code.co_names or "decompress" not in code.co_names
@@ -265,12 +281,7 @@ def _decompress_into_buffers() -> bool:
         log.debug("mcap.stream_reader no longer calls zstandard.decompress: chunks are "
                   "decompressed by mcap")
         return False
-    probe = [bytearray(1)]
-    free = _viewed_by_none(probe, 0)
-    view = memoryview(probe[0])[:1]
-    viewed = not _viewed_by_none(probe, 0)
-    del view
-    if not (free and viewed and _viewed_by_none(probe, 0)):
+    if not _KEEP_BUFFERS:
         return False
     mcap.stream_reader.zstandard = types.SimpleNamespace(
         **{**{k: getattr(zstandard, k) for k in dir(zstandard) if not k.startswith("__")},

@@ -239,3 +239,14 @@ def test_ros1_and_json_decoders_get_long_payloads_as_bytes(tmp_path):
     assert len(scans) == 2
     for scan, (_, pts, _) in zip(scans, json_clouds, strict=True):
         np.testing.assert_allclose(scan.points, pts.astype(np.float32), rtol=1e-6)
+
+
+def test_no_buffer_is_kept_where_reference_counts_cannot_tell_a_view(tmp_path, monkeypatch):
+    """This CPython tells a viewed buffer from a free one (the probe at import), and where
+    a Python could not, a record is read into ``bytes`` of its own, as mcap reads it."""
+    assert mcap_source._refcounts_tell_views() and mcap_source._KEEP_BUFFERS
+    monkeypatch.setattr(mcap_source, "_KEEP_BUFFERS", False)
+    path = tmp_path / "f.bin"
+    path.write_bytes(bytes(2 * VIEW_MIN_BYTES))
+    with path.open("rb") as f:
+        assert isinstance(mcap_source._RecordFile(f).read(2 * VIEW_MIN_BYTES), bytes)
