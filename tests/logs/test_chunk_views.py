@@ -38,28 +38,15 @@ _SIZES = st.one_of(st.none(), st.just(-1), st.integers(0, 64),
                    st.integers(0, 3 * VIEW_MIN_BYTES))
 
 
+@pytest.mark.parametrize("stream", [_ChunkBytes,  # a chunk mcap decompressed (bytes)
+                                    lambda data: _ChunkView(memoryview(bytearray(data)))],
+                         ids=["bytes", "kept buffer"])
 @settings(max_examples=60, deadline=None)
 @given(size=st.integers(0, 3 * VIEW_MIN_BYTES), reads=st.lists(_SIZES, max_size=8),
        seed=st.integers(0, 2**32 - 1))
-def test_reads_are_bytesio_reads(size, reads, seed):
+def test_reads_are_bytesio_reads(stream, size, reads, seed):
     data = np.random.default_rng(seed).integers(0, 256, size, np.uint8).tobytes()
-    ours, oracle = _ChunkBytes(data), io.BytesIO(data)
-    for n in reads:
-        got, want = ours.read(n), oracle.read(n)
-        assert bytes(got) == want
-        assert ours.tell() == oracle.tell()
-        long_read = n is not None and n >= VIEW_MIN_BYTES
-        assert isinstance(got, memoryview) is long_read
-        assert isinstance(got, bytes) is not long_read
-    assert ours.read() == oracle.read()
-
-
-@settings(max_examples=60, deadline=None)
-@given(size=st.integers(0, 3 * VIEW_MIN_BYTES), reads=st.lists(_SIZES, max_size=8),
-       seed=st.integers(0, 2**32 - 1))
-def test_a_kept_buffers_reads_are_bytesio_reads(size, reads, seed):
-    data = np.random.default_rng(seed).integers(0, 256, size, np.uint8).tobytes()
-    ours, oracle = _ChunkView(memoryview(bytearray(data))), io.BytesIO(data)
+    ours, oracle = stream(data), io.BytesIO(data)
     for n in reads:
         got, want = ours.read(n), oracle.read(n)
         assert bytes(got) == want
