@@ -167,6 +167,17 @@ def _viewed_by_none(buffers: list[bytearray], i: int) -> bool:
     return sys.getrefcount(buffers[i]) <= 2
 
 
+def _read_into(view: memoryview, readinto: Callable[[memoryview], int | None]) -> int:
+    """The bytes ``readinto`` put into ``view``, called until it is full or gives none."""
+    done = 0
+    while done < len(view):
+        n = readinto(view[done:])
+        if not n:
+            break
+        done += n
+    return done
+
+
 def _refcounts_tell_views() -> bool:
     """:func:`_viewed_by_none` tells a free buffer from a viewed one in this Python (a
     probe at import; where it cannot, no buffer is kept and mcap reads as it does)."""
@@ -189,7 +200,7 @@ class _ChunkBuffers(threading.local):
     the caller makes a ``bytes`` of its own."""
 
     def __init__(self) -> None:
-        self.dctx = zstandard.ZstdDecompressor()
+        self.dctx: zstandard.ZstdDecompressor | None = None  # made by the first decompress
         self.buffers: list[bytearray] = []
 
     def take(self, size: int) -> bytearray | None:
@@ -209,14 +220,11 @@ class _ChunkBuffers(threading.local):
         buffer = self.take(size)
         if buffer is None:
             return None
+        if self.dctx is None:
+            self.dctx = zstandard.ZstdDecompressor()
         view = memoryview(buffer)[:size]
         reader = self.dctx.stream_reader(data, read_across_frames=True)
-        done = 0
-        while done < size:
-            n = reader.readinto(view[done:])
-            if n == 0:
-                break
-            done += n
+        done = _read_into(view, reader.readinto)
         if done != size or reader.read(1):
             raise zstandard.ZstdError(f"a chunk decompressed to {done} or more bytes, "
                                       f"its record says {size}")
@@ -246,12 +254,7 @@ class _RecordFile:
         if buffer is None:
             return self._file.read(size)
         view = memoryview(buffer)[:size]
-        done = 0
-        while done < size:
-            n = self._file.readinto(view[done:])
-            if not n:
-                break
-            done += n
+        done = _read_into(view, self._file.readinto)
         return view[:done] if done else b""
 
     def __getattr__(self, name: str) -> Any:
